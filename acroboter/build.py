@@ -1,0 +1,106 @@
+"""Compile a spec's generated C into a shared library: `python -m acroboter.build [SPEC_NAME ...]`.
+
+The library lands in build/<spec>/ with a stamp holding the hash of the sources it was built from,
+so a library older than generated/ is rebuilt instead of loaded.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+GENERATED_DIR = REPO / "generated"
+BUILD_DIR = REPO / "build"
+# -O2 and IEEE semantics: never -ffast-math, the dynamics must be reproducible to the last bit.
+CFLAGS = ("-O2", "-fPIC", "-fno-fast-math")
+
+
+class BuildError(RuntimeError):
+    pass
+
+
+def library_path(spec_name: str, build_dir: Path = BUILD_DIR) -> Path:
+    return build_dir / spec_name / f"lib{spec_name}.so"
+
+
+def sources_hash(source_dir: Path) -> str:
+    h = hashlib.sha256(" ".join(CFLAGS).encode())
+    for path in sorted(source_dir.iterdir()):
+        if path.is_file():
+            h.update(path.name.encode() + b"\n" + path.read_bytes())
+    return h.hexdigest()
+
+
+def is_current(spec_name: str, generated_dir: Path = GENERATED_DIR, build_dir: Path = BUILD_DIR) -> bool:
+    lib = library_path(spec_name, build_dir)
+    stamp = lib.with_suffix(".sources-sha256")
+    return lib.is_file() and stamp.is_file() and stamp.read_text().strip() == sources_hash(generated_dir / spec_name)
+
+
+def build(spec_name: str, generated_dir: Path = GENERATED_DIR, build_dir: Path = BUILD_DIR) -> Path:
+    """Compile generated/<spec_name>/*.c into build/<spec_name>/lib<spec_name>.so."""
+    source_dir = generated_dir / spec_name
+    sources = sorted(source_dir.glob("*.c"))
+    if not sources:
+        raise BuildError(
+            f"no generated C for spec '{spec_name}' in {source_dir}: run `make generate` first"
+        )
+    compiler = os.environ.get("CC", "cc")
+    if shutil.which(compiler) is None:
+        raise BuildError(f"no C compiler '{compiler}' found: install gcc (or set CC) and run `make build`")
+    out_dir = build_dir / spec_name
+    obj_dir = out_dir / "obj"
+    obj_dir.mkdir(parents=True, exist_ok=True)
+
+    def compile_one(src: Path) -> Path:
+        obj = obj_dir / (src.stem + ".o")
+        result = subprocess.run([compiler, *CFLAGS, "-c", str(src), "-o", str(obj)], capture_output=True, text=True)
+        if result.returncode != 0:
+            raise BuildError(f"compiling {src.name} failed:\n{result.stderr}")
+        return obj
+
+    with ThreadPoolExecutor(max_workers=os.cpu_count() or 2) as pool:
+        objects = list(pool.map(compile_one, sources))
+    lib = library_path(spec_name, build_dir)
+    tmp = lib.with_suffix(".so.tmp")
+    result = subprocess.run(
+        [compiler, "-shared", *CFLAGS, *map(str, objects), "-lm", "-o", str(tmp)], capture_output=True, text=True
+    )
+    if result.returncode != 0:
+        raise BuildError(f"linking {lib.name} failed:\n{result.stderr}")
+    tmp.replace(lib)  # atomic: a concurrent loader never sees a half-written library
+    lib.with_suffix(".sources-sha256").write_text(sources_hash(source_dir) + "\n")
+    return lib
+
+
+def ensure_built(spec_name: str, generated_dir: Path = GENERATED_DIR, build_dir: Path = BUILD_DIR) -> Path:
+    if not is_current(spec_name, generated_dir, build_dir):
+        print(f"building the compiled model for '{spec_name}' (make build) ...", file=sys.stderr)
+        build(spec_name, generated_dir, build_dir)
+    return library_path(spec_name, build_dir)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m acroboter.build", description=__doc__)
+    parser.add_argument("specs", nargs="*", help="spec names (default: every folder in generated/)")
+    args = parser.parse_args(argv)
+    names = args.specs or sorted(p.name for p in GENERATED_DIR.iterdir() if p.is_dir())
+    try:
+        for name in names:
+            lib = build(name)
+            print(f"built {lib.relative_to(REPO)}")
+    except BuildError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

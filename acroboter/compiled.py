@@ -1,0 +1,139 @@
+"""Python bindings over a spec's compiled model library.
+
+The library is loaded once with ctypes, each function is bound once, and every argument, result
+and work buffer is preallocated. All functions read the same five input buffers (q, qd, s, sd,
+sdd): write the state there once, then call as many functions as needed; each call is a single
+ctypes call (~1 us) that writes into its own preallocated numpy outputs (column-major, as CasADi
+stores them).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .build import BUILD_DIR, GENERATED_DIR, BuildError, ensure_built
+from .layout import Layout, build_layout
+from .spec import Spec
+
+_REAL_P = ctypes.POINTER(ctypes.c_double)
+_INT = ctypes.c_longlong
+
+
+class StaleModelError(RuntimeError):
+    """Generated code or library does not match the spec or the code generator."""
+
+
+class BoundFunction:
+    """One generated function with preallocated outputs; call() evaluates at the shared inputs."""
+
+    def __init__(self, lib: ctypes.CDLL, symbol: str, arg_array, outputs: list[tuple[str, list[int]]]):
+        self.name = symbol
+        self._fn = getattr(lib, symbol)
+        self._fn.restype = ctypes.c_int
+        self._fn.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int]
+        work = getattr(lib, f"{symbol}_work")
+        work.argtypes = [ctypes.POINTER(_INT)] * 4
+        work.restype = ctypes.c_int
+        sz = [_INT() for _ in range(4)]
+        work(*map(ctypes.byref, sz))
+        n_arg, n_res, n_iw, n_w = (int(v.value) for v in sz)
+        if n_arg < 5:
+            raise StaleModelError(f"{symbol} takes {n_arg} inputs, expected 5: run `make generate`")
+        # casadi may need more argument slots than inputs (scratch); keep ours, pad with NULL.
+        self._args = (ctypes.c_void_p * n_arg)(*arg_array, *([None] * (n_arg - len(arg_array))))
+        # Column vectors come back 1-D; matrices column-major (CasADi's dense layout).
+        self.outputs = {
+            name: np.zeros(rows if cols == 1 else (rows, cols), order="F") for name, (rows, cols) in outputs
+        }
+        ptrs = [o.ctypes.data for o in self.outputs.values()]
+        self._res = (ctypes.c_void_p * n_res)(*ptrs, *([None] * (n_res - len(ptrs))))
+        self._iw = np.zeros(max(n_iw, 1), dtype=np.int64)
+        self._w = np.zeros(max(n_w, 1))
+        # Pre-converted pointers: the per-call cost is then one foreign call.
+        self._call_args = (
+            ctypes.addressof(self._args),
+            ctypes.addressof(self._res),
+            self._iw.ctypes.data,
+            self._w.ctypes.data,
+            0,
+        )
+
+    def call(self) -> None:
+        if self._fn(*self._call_args) != 0:
+            raise RuntimeError(f"{self.name} failed")
+
+
+class CompiledModel:
+    """All generated functions of one spec, bound to shared input buffers q, qd, s, sd, sdd."""
+
+    def __init__(self, spec: Spec, generated_dir: Path = GENERATED_DIR, build_dir: Path = BUILD_DIR):
+        self.spec = spec
+        self.layout: Layout = build_layout(spec)
+        source_dir = generated_dir / spec.name
+        manifest_path = source_dir / "manifest.json"
+        if not manifest_path.is_file():
+            raise StaleModelError(
+                f"no generated code for spec '{spec.name}' in {source_dir}: run `make generate`"
+            )
+        self.manifest = json.loads(manifest_path.read_text())
+        self._check_fresh(generated_dir)
+        try:
+            lib_path = ensure_built(spec.name, generated_dir, build_dir)
+        except BuildError as err:
+            raise StaleModelError(str(err)) from None
+        self.lib = ctypes.CDLL(str(lib_path))
+        for what in ("spec_model_hash", "codegen_hash"):
+            fn = getattr(self.lib, f"{spec.name}_{what}")
+            fn.restype = ctypes.c_char_p
+            if fn().decode() != self.manifest[what]:
+                raise StaleModelError(
+                    f"library {lib_path} was built from other generated code: run `make build`"
+                )
+
+        lay = self.layout
+        self.q = np.zeros(lay.n)
+        self.qd = np.zeros(lay.n)
+        self.s = np.zeros(lay.n_signals)
+        self.sd = np.zeros(lay.n_signals)
+        self.sdd = np.zeros(lay.n_signals)
+        self._inputs = (self.q, self.qd, self.s, self.sd, self.sdd)
+        arg_ptrs = [a.ctypes.data for a in self._inputs]
+        self.functions: dict[str, BoundFunction] = {
+            name: BoundFunction(self.lib, info["symbol"], arg_ptrs, info["outputs"])
+            for name, info in self.manifest["functions"].items()
+        }
+
+    def _check_fresh(self, generated_dir: Path) -> None:
+        from codegen.generate import codegen_hash  # the generator's sources decide freshness
+
+        if self.manifest["spec_model_hash"] != self.spec.model_hash():
+            raise StaleModelError(
+                f"generated code in {generated_dir / self.spec.name} was made from a different version of "
+                f"spec '{self.spec.name}': run `make generate` (then `make build`)"
+            )
+        if self.manifest["codegen_hash"] != codegen_hash():
+            raise StaleModelError(
+                f"generated code in {generated_dir / self.spec.name} was made by a different version of the "
+                "code generator: run `make generate`"
+            )
+
+    def set_inputs(self, q=None, qd=None, s=None, sd=None, sdd=None) -> None:
+        """Copy the given inputs into the shared buffers (others keep their values)."""
+        for buf, val in zip(self._inputs, (q, qd, s, sd, sdd)):
+            if val is not None:
+                buf[:] = val
+
+    def evaluate(self, name: str, q=None, qd=None, s=None, sd=None, sdd=None) -> dict[str, np.ndarray]:
+        """Convenience (not for hot loops): set inputs, call one function, return copies of its outputs."""
+        self.set_inputs(q, qd, s, sd, sdd)
+        fn = self.functions[name]
+        fn.call()
+        return {k: v.copy() for k, v in fn.outputs.items()}
+
+    def term(self, name: str, q=None, qd=None, s=None, sd=None, sdd=None) -> np.ndarray:
+        """One model term (e.g. 'mass_matrix', 'gamma') as a new array."""
+        return self.evaluate(name, q, qd, s, sd, sdd)[name]

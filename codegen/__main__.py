@@ -1,0 +1,75 @@
+"""`python -m codegen generate|check [SPEC ...]`: regenerate generated/, or check it is fresh."""
+
+from __future__ import annotations
+
+import argparse
+import filecmp
+import sys
+import tempfile
+from pathlib import Path
+
+from acroboter.spec import SpecError, load_spec
+from codegen.generate import REPO, generate
+
+SPEC_DIR = REPO / "model_spec"
+GENERATED_DIR = REPO / "generated"
+
+
+def _specs(paths: list[str]) -> list[Path]:
+    return [Path(p) for p in paths] if paths else sorted(SPEC_DIR.glob("*.toml"))
+
+
+def cmd_generate(spec_paths: list[Path], out_root: Path) -> int:
+    for path in spec_paths:
+        spec = load_spec(path)
+        out_dir = generate(spec, out_root)
+        print(f"generated {out_dir.relative_to(REPO) if out_dir.is_relative_to(REPO) else out_dir} from {path.name}")
+    return 0
+
+
+def compare_trees(fresh: Path, committed: Path) -> list[str]:
+    """Differences between two generated/ trees: missing, extra and changed files."""
+    problems = []
+    fresh_files = {p.relative_to(fresh) for p in fresh.rglob("*") if p.is_file()}
+    committed_files = {p.relative_to(committed) for p in committed.rglob("*") if p.is_file()}
+    for rel in sorted(fresh_files - committed_files):
+        problems.append(f"missing from generated/: {rel}")
+    for rel in sorted(committed_files - fresh_files):
+        problems.append(f"in generated/ but not produced by any spec: {rel}")
+    for rel in sorted(fresh_files & committed_files):
+        if not filecmp.cmp(fresh / rel, committed / rel, shallow=False):
+            problems.append(f"differs from what its spec produces: {rel}")
+    return problems
+
+
+def cmd_check(spec_paths: list[Path], committed: Path) -> int:
+    with tempfile.TemporaryDirectory(prefix="acroboter-check-") as tmp:
+        fresh = Path(tmp)
+        for path in spec_paths:
+            generate(load_spec(path), fresh)
+        problems = compare_trees(fresh, committed)
+    if problems:
+        print("generated/ is stale:", *problems, sep="\n  ")
+        print("fix: run `make generate` and commit generated/")
+        return 1
+    print(f"generated/ is up to date ({len(spec_paths)} spec(s))")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m codegen", description=__doc__)
+    parser.add_argument("command", choices=["generate", "check"])
+    parser.add_argument("specs", nargs="*", help="spec files (default: every model_spec/*.toml)")
+    parser.add_argument("--out", type=Path, default=GENERATED_DIR, help="generated/ folder (default: %(default)s)")
+    args = parser.parse_args(argv)
+    try:
+        if args.command == "generate":
+            return cmd_generate(_specs(args.specs), args.out)
+        return cmd_check(_specs(args.specs), args.out)
+    except SpecError as err:
+        print(err, file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
