@@ -27,27 +27,36 @@ def cmd_generate(spec_paths: list[Path], out_root: Path) -> int:
     return 0
 
 
-def compare_trees(fresh: Path, committed: Path) -> list[str]:
-    """Differences between two generated/ trees: missing, extra and changed files."""
+def compare_trees(fresh: Path, committed: Path, prefix: str = "") -> list[str]:
+    """Differences between two generated trees: missing, extra and changed files."""
     problems = []
     fresh_files = {p.relative_to(fresh) for p in fresh.rglob("*") if p.is_file()}
     committed_files = {p.relative_to(committed) for p in committed.rglob("*") if p.is_file()}
     for rel in sorted(fresh_files - committed_files):
-        problems.append(f"missing from generated/: {rel}")
+        problems.append(f"missing from generated/: {prefix}{rel}")
     for rel in sorted(committed_files - fresh_files):
-        problems.append(f"in generated/ but not produced by any spec: {rel}")
+        problems.append(f"in generated/ but not produced by any spec: {prefix}{rel}")
     for rel in sorted(fresh_files & committed_files):
         if not filecmp.cmp(fresh / rel, committed / rel, shallow=False):
-            problems.append(f"differs from what its spec produces: {rel}")
+            problems.append(f"differs from what its spec produces: {prefix}{rel}")
     return problems
 
 
-def cmd_check(spec_paths: list[Path], committed: Path) -> int:
+def cmd_check(spec_paths: list[Path], committed: Path, whole_tree: bool) -> int:
+    """Regenerate into a temporary folder and compare with `committed`.
+
+    With whole_tree, every folder of `committed` must come from some spec; otherwise only the
+    folders of the given specs are compared.
+    """
     with tempfile.TemporaryDirectory(prefix="acroboter-check-") as tmp:
         fresh = Path(tmp)
+        problems = []
         for path in spec_paths:
-            generate(load_spec(path), fresh)
-        problems = compare_trees(fresh, committed)
+            out_dir = generate(load_spec(path), fresh)
+            if not whole_tree:
+                problems += compare_trees(out_dir, committed / out_dir.name, prefix=f"{out_dir.name}/")
+        if whole_tree:
+            problems = compare_trees(fresh, committed)
     if problems:
         print("generated/ is stale:", *problems, sep="\n  ")
         print("fix: run `make generate` and commit generated/")
@@ -65,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "generate":
             return cmd_generate(_specs(args.specs), args.out)
-        return cmd_check(_specs(args.specs), args.out)
+        return cmd_check(_specs(args.specs), args.out, whole_tree=not args.specs)
     except SpecError as err:
         print(err, file=sys.stderr)
         return 2
