@@ -1,0 +1,85 @@
+"""Initial state: the static equilibrium at the start of the path (design §7).
+
+Unknowns (q, λ, u); equations: force balance c(q, 0) + φ_qᵀ λ = H u, the geometric constraints
+φ(q, s0) = 0 and the servo-constraints σ(q, s0) = 0 with the targets at the path's start. For a
+symmetric crane the spec's nominal configuration already solves this; for a general one the
+solve moves the connector and the cable lengths until the held unit is in balance.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from .compiled import CompiledModel
+from .layout import nominal_coordinates
+from .path import DesiredPath
+from .spec import PositionTask, YawTask
+
+
+class EquilibriumError(RuntimeError):
+    pass
+
+
+@dataclass
+class Equilibrium:
+    q: np.ndarray
+    multipliers: np.ndarray
+    inputs: np.ndarray
+    residual: float
+
+
+def start_targets(model: CompiledModel) -> tuple[np.ndarray, float]:
+    """Where the tracked point and yaw start: the spec's nominal configuration."""
+    spec = model.spec
+    position = next(t for t in spec.task if isinstance(t, PositionTask))
+    body = spec.body(position.body)
+    a = math.radians(body.initial_yaw_deg)
+    rot = np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    start_point = np.array(body.initial_position) + rot @ np.array(position.point)
+    yaw_task = next((t for t in spec.task if isinstance(t, YawTask)), None)
+    start_yaw = math.radians(spec.body(yaw_task.body).initial_yaw_deg) if yaw_task else 0.0
+    return start_point, start_yaw
+
+
+def desired_path(model: CompiledModel) -> DesiredPath:
+    start_point, start_yaw = start_targets(model)
+    return DesiredPath(model.spec, model.layout, start_point, start_yaw)
+
+
+def solve_equilibrium(model: CompiledModel, path: DesiredPath, tol: float = 1e-14) -> Equilibrium:
+    lay = model.layout
+    n, m, l = lay.n, lay.m, lay.l
+    s0, sd0, sdd0 = path.signal_arrays(0.0)
+    zero = np.zeros(n)
+    terms = model.functions["model_terms"]
+    out = terms.outputs
+
+    def residual(z: np.ndarray) -> np.ndarray:
+        q, lam, u = z[:n], z[n : n + m], z[n + m :]
+        model.set_inputs(q, zero, s0, sd0, sdd0)
+        terms.call()
+        balance = out["bias_forces"] + out["phi_q"].T @ lam - out["input_matrix"] @ u
+        return np.concatenate([balance, out["phi"], out["sigma"]])
+
+    q0 = nominal_coordinates(model.spec, lay)
+    # Multipliers and inputs that best balance the nominal configuration: a good first guess.
+    model.set_inputs(q0, zero, s0, sd0, sdd0)
+    terms.call()
+    reactions = np.hstack([out["phi_q"].T, -out["input_matrix"]])
+    guess = np.linalg.lstsq(reactions, -out["bias_forces"], rcond=None)[0]
+    z0 = np.concatenate([q0, guess])
+    if np.abs(residual(z0)).max() > tol:
+        sol = least_squares(residual, z0, method="lm" if n + m + lay.k >= n + m + l else "trf",
+                            xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=2000 * z0.size)
+        z0 = sol.x
+    r = np.abs(residual(z0)).max()
+    if not np.isfinite(r) or r > 1e-8:
+        raise EquilibriumError(
+            f"no static equilibrium found at the start of the path for spec '{model.spec.name}' "
+            f"(largest residual {r:.3g}): check the initial positions, cable lengths and the task"
+        )
+    return Equilibrium(q=z0[:n].copy(), multipliers=z0[n : n + m].copy(), inputs=z0[n + m :].copy(), residual=r)
