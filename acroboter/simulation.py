@@ -151,6 +151,7 @@ def summarize(result: RunResult, scenario: Scenario, layout) -> dict:
     summary["max_constraint_violation"] = float(np.abs(result.phi).max())
     winch = result.u[:, scenario.winch_inputs]
     summary["min_winch_tension_N"] = float(winch.min()) if winch.size else None
+    summary["max_winch_tension_N"] = float(winch.max()) if winch.size else None
     summary["max_abs_input"] = {
         name: float(np.abs(result.u[:, i]).max()) for i, name in enumerate(layout.inputs)
     }

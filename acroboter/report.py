@@ -1,0 +1,157 @@
+"""What a run writes: the per-method CSV time series, summary.json, the table and the figures."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .simulation import RunResult, Scenario
+
+# Mean control-step time in MATLAB R2019b on an i7-8700 (paper, section 4), in microseconds.
+PAPER_MATLAB_US = {"mlm": 309.06, "penalty": 304.78, "iterative-3": 384.28, "iterative-4": 385.41,
+                   "iterative-5": 410.62}
+
+
+def realized_yaw(result: RunResult, scenario: Scenario) -> np.ndarray:
+    """Yaw of the task's yaw body from atan2(u_y, u_x), unwrapped (radians)."""
+    offset = scenario.yaw_body_offset if scenario.yaw_body_offset is not None else scenario.tilt_body_offset
+    u_axis = result.q[:, offset + 3 : offset + 6]
+    return np.unwrap(np.arctan2(u_axis[:, 1], u_axis[:, 0]))
+
+
+def tracked_position(result: RunResult, scenario: Scenario) -> np.ndarray:
+    """The tracked point's position: σ_position + r_d."""
+    return result.sigma[:, scenario.position_rows] + result.desired[:, :3]
+
+
+def write_csv(path: Path, result: RunResult, scenario: Scenario) -> None:
+    pos = tracked_position(result, scenario)
+    yaw = np.degrees(realized_yaw(result, scenario))
+    k, l = result.sigma.shape[1], result.u.shape[1]
+    header = ["t", "x", "y", "z", "yaw_deg", "x_d", "y_d", "z_d", "yaw_d_deg"]
+    header += [f"sigma_{i + 1}" for i in range(k)] + [f"u_{i + 1}" for i in range(l)]
+    columns = [result.t[:, None], pos, yaw[:, None], result.desired[:, :3], np.degrees(result.desired[:, 3:4]),
+               result.sigma, result.u]
+    table = np.hstack(columns)
+    with path.open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(header)
+        writer.writerows(table.tolist())
+
+
+def write_summary(path: Path, spec_name: str, summaries: dict, duration: float, warnings: list[str]) -> None:
+    doc = {"spec": spec_name, "duration_s": duration, "methods": summaries, "warnings": warnings}
+    path.write_text(json.dumps(doc, indent=2) + "\n")
+
+
+def format_table(summaries: dict) -> str:
+    head = (f"{'method':<13} {'max pos':>8} {'rms pos':>8} {'max yaw':>8} {'max tilt':>8} {'max |phi|':>9} "
+            f"{'tension range':>15} {'step median':>11} {'step mean':>9} {'p99':>7} {'MATLAB':>7}")
+    units = (f"{'':<13} {'mm':>8} {'mm':>8} {'deg':>8} {'deg':>8} {'':>9} {'N':>15} "
+             f"{'us':>11} {'us':>9} {'us':>7} {'us':>7}")
+    lines = [head, units, "-" * len(head)]
+    for method, s in summaries.items():
+        yaw = f"{s['max_yaw_error_deg']:8.4f}" if s["max_yaw_error_deg"] is not None else f"{'-':>8}"
+        tension = (f"{s['min_winch_tension_N']:6.2f}..{s['max_winch_tension_N']:<6.2f}"
+                   if s.get("min_winch_tension_N") is not None else "-")
+        paper = PAPER_MATLAB_US.get(method)
+        paper_s = f"{paper:7.1f}" if paper else f"{'-':>7}"
+        step = s["control_step_us"]
+        lines.append(
+            f"{method:<13} {s['max_position_error_mm']:8.4f} {s['rms_position_error_mm']:8.4f} {yaw} "
+            f"{s['max_tilt_deg']:8.4f} {s['max_constraint_violation']:9.1e} {tension:>15} "
+            f"{step['median']:11.1f} {step['mean']:9.1f} {step['p99']:7.1f} {paper_s}"
+        )
+    lines.append("MATLAB: the paper's mean control-step time (R2019b, i7-8700). Paper bounds: 5.3 mm, 1.1 deg.")
+    return "\n".join(lines)
+
+
+def write_figures(out: Path, results: dict[str, RunResult], scenario: Scenario, summaries: dict,
+                  input_names: list[str], servo_names: list[str]) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    written = []
+    first = next(iter(results.values()))
+
+    # Fig. 2 of the paper: desired and realized 3-D paths.
+    fig = plt.figure(figsize=(7, 6))
+    ax = fig.add_subplot(projection="3d")
+    d = first.desired
+    ax.plot(d[:, 0], d[:, 1], d[:, 2], "k--", lw=1.5, label="desired")
+    for method, r in results.items():
+        p = tracked_position(r, scenario)
+        ax.plot(p[:, 0], p[:, 1], p[:, 2], lw=1, label=method)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_zlabel("z [m]")
+    ax.set_title("Desired and realized path of the tracked point")
+    ax.legend(loc="upper left", fontsize=8)
+    written.append(_save(fig, out / "path_3d.png"))
+
+    # Fig. 3: servo-constraint errors over time.
+    k = first.sigma.shape[1]
+    fig, axes = plt.subplots(k, 1, figsize=(9, 1.6 * k + 1), sharex=True)
+    axes = np.atleast_1d(axes)
+    for method, r in results.items():
+        for i in range(k):
+            scale = 1e3 if i in range(scenario.position_rows.start, scenario.position_rows.stop) else 1.0
+            axes[i].plot(r.t, scale * r.sigma[:, i], lw=0.8, label=method)
+    for i in range(k):
+        unit = "mm" if i in range(scenario.position_rows.start, scenario.position_rows.stop) else "-"
+        axes[i].set_ylabel(f"σ{i + 1} [{unit}]", fontsize=8)
+        axes[i].set_title(servo_names[i], fontsize=8, loc="right")
+        axes[i].grid(alpha=0.3)
+    axes[0].legend(fontsize=7, ncol=len(results))
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle("Servo-constraint errors")
+    written.append(_save(fig, out / "servo_errors.png"))
+
+    # Inputs over time.
+    l = first.u.shape[1]
+    fig, axes = plt.subplots(l, 1, figsize=(9, 1.6 * l + 1), sharex=True)
+    axes = np.atleast_1d(axes)
+    for method, r in results.items():
+        for i in range(l):
+            axes[i].step(r.t, r.u[:, i], where="post", lw=0.8, label=method)
+    for i in range(l):
+        axes[i].set_ylabel(f"u{i + 1}", fontsize=8)
+        axes[i].set_title(input_names[i], fontsize=8, loc="right")
+        axes[i].grid(alpha=0.3)
+    axes[0].legend(fontsize=7, ncol=len(results))
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle("Inputs (held over each control period)")
+    written.append(_save(fig, out / "inputs.png"))
+
+    # Control-step time per method beside the paper's MATLAB figures.
+    methods = list(summaries)
+    ours = [summaries[m]["control_step_us"]["mean"] for m in methods]
+    medians = [summaries[m]["control_step_us"]["median"] for m in methods]
+    paper = [PAPER_MATLAB_US.get(m, np.nan) for m in methods]
+    x = np.arange(len(methods))
+    fig, ax = plt.subplots(figsize=(8, 4))
+    ax.bar(x - 0.27, paper, 0.27, label="paper (MATLAB, i7-8700), mean")
+    ax.bar(x, ours, 0.27, label="acroboter, mean")
+    ax.bar(x + 0.27, medians, 0.27, label="acroboter, median")
+    ax.set_xticks(x, methods)
+    ax.set_yscale("log")
+    ax.set_ylabel("control step [µs]")
+    ax.set_title("Control-step compute time")
+    ax.legend(fontsize=8)
+    ax.grid(axis="y", alpha=0.3, which="both")
+    written.append(_save(fig, out / "control_step_time.png"))
+    return written
+
+
+def _save(fig, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return path
