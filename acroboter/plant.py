@@ -72,7 +72,7 @@ class Plant:
             out[2 * n] = u @ (T["input_matrix"].T @ qd)  # inputs
             out[2 * n + 1] = self.lam @ (T["phi_dot"] - phi_q_qd)  # moving anchors: λᵀ φ_t
             self._energy.call()
-            out[2 * n + 2] = self._energy.outputs["dissipated_power"]  # damping
+            out[2 * n + 2] = self._energy.outputs["dissipated_power"][0]  # damping
         else:
             out[2 * n :] = 0.0
 

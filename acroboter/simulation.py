@@ -27,7 +27,9 @@ class RunResult:
     desired: np.ndarray  # x_d, y_d, z_d, yaw_d at each instant
     control_step_s: np.ndarray  # wall time of each controller call
     sim_wall_s: float
-    energy: dict = field(default_factory=dict)  # energy bookkeeping when requested
+    # With energy=True, per instant: mechanical energy T + U, and the work so far of the inputs, of the
+    # moving anchors (through the constraint forces), and the energy dissipated by damping.
+    energy: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 @dataclass
@@ -93,7 +95,7 @@ def simulate(
     x[:n] = q0
     held_u = np.zeros(lay.l)
     p = lay.path_signal
-    energy_start = plant.mechanical_energy(x[:n], x[n : 2 * n]) if energy else 0.0
+    rec_energy = np.zeros((samples, 4)) if energy else None
     wall0 = time.perf_counter()
     for k in range(samples):
         t = rec_t[k]
@@ -110,6 +112,9 @@ def simulate(
         rec_q[k], rec_qd[k], rec_u[k] = q, qd, held_u
         rec_sigma[k], rec_phi[k] = terms["sigma"], terms["phi"]
         rec_des[k] = model.s[p : p + 4]
+        if energy:
+            rec_energy[k, 0] = plant.mechanical_energy(q, qd)
+            rec_energy[k, 1:] = x[2 * n :]
         if k == steps:
             break
         for j in range(substeps):
@@ -121,13 +126,8 @@ def simulate(
         controller.name, rec_t, rec_q, rec_qd, rec_u, rec_sigma, rec_phi, rec_des, step_s, wall
     )
     if energy:
-        result.energy = {
-            "mechanical_start": energy_start,
-            "mechanical_end": plant.mechanical_energy(x[:n], x[n : 2 * n]),
-            "work_inputs": x[2 * n],
-            "work_anchors": x[2 * n + 1],
-            "dissipated": x[2 * n + 2],
-        }
+        names = ("mechanical", "work_inputs", "work_anchors", "dissipated")
+        result.energy = {name: rec_energy[:, i].copy() for i, name in enumerate(names)}
     return result
 
 
