@@ -1,0 +1,100 @@
+"""End to end: `python -m acroboter.run` writes what the README promises; bad input exits cleanly."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+METHOD_FIELDS = {
+    "max_position_error_mm", "rms_position_error_mm", "max_yaw_error_deg", "max_tilt_deg",
+    "max_constraint_violation", "min_winch_tension_N", "max_abs_input", "control_step_us", "sim_wall_s",
+}
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "acroboter.run", *args], capture_output=True, text=True,
+                          cwd=REPO, timeout=600)
+
+
+@pytest.fixture(scope="module")
+def short_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("results")
+    proc = run_cli("--duration", "1.0", "--out", str(out), "--method", "mlm,penalty", "--method", "iterative",
+                   "--iterations", "3", "--quiet")
+    return proc, out
+
+
+def test_short_run_writes_every_file(short_run):
+    proc, out = short_run
+    assert proc.returncode == 0, proc.stderr
+    names = {p.name for p in out.iterdir()}
+    assert {"summary.json", "mlm.csv", "penalty.csv", "iterative-3.csv"} <= names
+    assert {"path_3d.png", "servo_errors.png", "inputs.png", "control_step_time.png"} <= names
+    for png in out.glob("*.png"):
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "mlm" in proc.stdout and "MATLAB" in proc.stdout
+
+
+def test_summary_json_fields(short_run):
+    _, out = short_run
+    doc = json.loads((out / "summary.json").read_text())
+    assert doc["spec"] == "acroboter"
+    assert set(doc["methods"]) == {"mlm", "penalty", "iterative-3"}
+    for method, fields in doc["methods"].items():
+        assert METHOD_FIELDS <= set(fields), method
+        assert set(fields["control_step_us"]) == {"median", "mean", "p99"}
+        assert fields["max_position_error_mm"] < 5.3
+        assert fields["min_winch_tension_N"] > 0
+        assert len(fields["max_abs_input"]) == 6
+
+
+def test_csv_columns_and_rows(short_run):
+    _, out = short_run
+    with (out / "mlm.csv").open() as f:
+        rows = list(csv.reader(f))
+    header = rows[0]
+    expected = ["t", "x", "y", "z", "yaw_deg", "x_d", "y_d", "z_d", "yaw_d_deg"]
+    expected += [f"sigma_{i}" for i in range(1, 7)] + [f"u_{i}" for i in range(1, 7)]
+    assert header == expected
+    assert len(rows) == 1 + 51  # 1 s at 50 Hz, both ends
+    first = dict(zip(header, map(float, rows[1]), strict=True))
+    assert first["t"] == 0.0
+    assert first["z"] == pytest.approx(0.35, abs=1e-9)  # p0 of the design
+    assert first["u_1"] == pytest.approx(26.75, abs=0.01)
+
+
+def test_help_lists_the_options():
+    proc = run_cli("--help")
+    assert proc.returncode == 0
+    for option in ("--spec", "--method", "--iterations", "--recovery", "--duration", "--out", "--no-plots"):
+        assert option in proc.stdout
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--method", "newton", "--duration", "0.1"], "unknown method"),
+    (["--duration", "-1"], "--duration must be positive"),
+    (["--recovery", "magic"], "invalid choice"),
+    (["--iterations", "two"], "whole numbers"),
+    (["--spec", "no/such/spec.toml"], "no/such/spec.toml"),
+])
+def test_bad_input_is_a_clear_error(args, words, tmp_path):
+    proc = run_cli(*args, "--out", str(tmp_path), "--quiet")
+    assert proc.returncode != 0
+    assert words in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_bad_spec_is_a_clear_error(tmp_path):
+    spec = (REPO / "model_spec" / "acroboter.toml").read_text().replace("mass = 8.0", "mass = -8.0")
+    bad = tmp_path / "bad.toml"
+    bad.write_text(spec)
+    proc = run_cli("--spec", str(bad), "--out", str(tmp_path / "out"), "--duration", "0.1")
+    assert proc.returncode == 2
+    assert "bodies[1].mass" in proc.stderr and "-8.0" in proc.stderr
+    assert "Traceback" not in proc.stderr
