@@ -30,7 +30,7 @@ class StaleModelError(RuntimeError):
 class BoundFunction:
     """One generated function with preallocated outputs; call() evaluates at the shared inputs."""
 
-    def __init__(self, lib: ctypes.CDLL, symbol: str, arg_array, outputs: list[tuple[str, list[int]]]):
+    def __init__(self, lib: ctypes.CDLL, symbol: str, inputs: list[np.ndarray], outputs: list[tuple[str, list[int]]]):
         self.name = symbol
         self._fn = getattr(lib, symbol)
         self._fn.restype = ctypes.c_int
@@ -41,10 +41,12 @@ class BoundFunction:
         sz = [_INT() for _ in range(4)]
         work(*map(ctypes.byref, sz))
         n_arg, n_res, n_iw, n_w = (int(v.value) for v in sz)
-        if n_arg < 5:
-            raise StaleModelError(f"{symbol} takes {n_arg} inputs, expected 5: run `make generate`")
+        if n_arg < len(inputs):
+            raise StaleModelError(f"{symbol} takes {n_arg} inputs, expected {len(inputs)}: run `make generate`")
+        self.inputs = inputs
         # casadi may need more argument slots than inputs (scratch); keep ours, pad with NULL.
-        self._args = (ctypes.c_void_p * n_arg)(*arg_array, *([None] * (n_arg - len(arg_array))))
+        ptrs_in = [a.ctypes.data for a in inputs]
+        self._args = (ctypes.c_void_p * n_arg)(*ptrs_in, *([None] * (n_arg - len(ptrs_in))))
         # Column vectors come back 1-D; matrices column-major (CasADi's dense layout).
         self.outputs = {
             name: np.zeros(rows if cols == 1 else (rows, cols), order="F") for name, (rows, cols) in outputs
@@ -65,6 +67,10 @@ class BoundFunction:
     def call(self) -> None:
         if self._fn(*self._call_args) != 0:
             raise RuntimeError(f"{self.name} failed")
+
+    def point_input(self, index: int, address: int) -> None:
+        """Read input `index` from another (contiguous, long enough) memory block, e.g. a table row."""
+        self._args[index] = address
 
 
 class CompiledModel:
@@ -94,16 +100,22 @@ class CompiledModel:
                     f"library {lib_path} was built from other generated code: run `make build`"
                 )
 
-        lay = self.layout
-        self.q = np.zeros(lay.n)
-        self.qd = np.zeros(lay.n)
-        self.s = np.zeros(lay.n_signals)
-        self.sd = np.zeros(lay.n_signals)
-        self.sdd = np.zeros(lay.n_signals)
+        # One buffer per input name, shared by every function that reads that input.
+        self.buffers: dict[str, np.ndarray] = {}
+        # s, ṡ, s̈ are views of one block, so a single assignment sets all three.
+        ns = self.layout.n_signals
+        self.signals = np.zeros(3 * ns)
+        self.buffers.update(s=self.signals[:ns], sd=self.signals[ns : 2 * ns], sdd=self.signals[2 * ns :])
+        for info in self.manifest["functions"].values():
+            for name, size in info["inputs"]:
+                self.buffers.setdefault(name, np.zeros(size))
+        self.q, self.qd = self.buffers["q"], self.buffers["qd"]
+        self.s, self.sd, self.sdd = self.buffers["s"], self.buffers["sd"], self.buffers["sdd"]
+        self.p = self.buffers["p"]  # solver parameters, codegen.structured.PARAMS
         self._inputs = (self.q, self.qd, self.s, self.sd, self.sdd)
-        arg_ptrs = [a.ctypes.data for a in self._inputs]
         self.functions: dict[str, BoundFunction] = {
-            name: BoundFunction(self.lib, info["symbol"], arg_ptrs, info["outputs"])
+            name: BoundFunction(self.lib, info["symbol"], [self.buffers[i] for i, _ in info["inputs"]],
+                                info["outputs"])
             for name, info in self.manifest["functions"].items()
         }
 
@@ -123,7 +135,7 @@ class CompiledModel:
 
     def set_inputs(self, q=None, qd=None, s=None, sd=None, sdd=None) -> None:
         """Copy the given inputs into the shared buffers (others keep their values)."""
-        for buf, val in zip(self._inputs, (q, qd, s, sd, sdd)):
+        for buf, val in zip(self._inputs, (q, qd, s, sd, sdd), strict=True):
             if val is not None:
                 buf[:] = val
 

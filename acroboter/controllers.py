@@ -1,9 +1,10 @@
 """The three inverse-dynamics controllers of the paper (design §8), fed only by the compiled model.
 
-Every controller maps (q, q̇, t) to the input u. One call into the compiled library gives every
-model term at the state; the linear algebra is LAPACK through scipy on preallocated arrays.
+Every controller maps (q, q̇, t) to the input u. One call into the compiled library gives what
+the method needs at the state (codegen.structured); the remaining linear algebra is LAPACK through
+scipy on preallocated arrays.
 
-  ρ   = γ   + 2Ωμ φ̇ + Ω² φ          (geometric constraints, Baumgarte-like penalty dynamics)
+  ρ   = γ   + 2Ωμ φ̇ + Ω² φ          (geometric constraints, penalty dynamics)
   ρ_s = γ_s + 2k_D σ̇ + k_P² σ       (servo-constraints: the tracking error dynamics)
 """
 
@@ -14,10 +15,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.linalg import lapack
 
-from .compiled import CompiledModel
 from .path import DesiredPath
 from .recovery import InputRecovery
 from .spec import Spec
+
+# MLM: a reciprocal condition number below this means a singular system (redundant constraints).
+MLM_RCOND_LIMIT = 1e-13
 
 
 class SingularSystemError(RuntimeError):
@@ -41,89 +44,89 @@ class Gains:
         gains = cls(c.kp, c.kd, p.alpha_geometric, p.alpha_servo, p.omega, p.mu, p.recovery, p.kappa)
         return replace(gains, **{k: v for k, v in overrides.items() if v is not None})
 
+    def parameter_vector(self) -> np.ndarray:
+        """The generated functions' p = [k_P, k_D, α̃, α̂, Ω, μ] (codegen.structured.PARAMS)."""
+        return np.array([self.kp, self.kd, self.alpha_geometric, self.alpha_servo, self.omega, self.mu])
+
 
 class Controller:
-    """Shared part: load a state into the model, evaluate all terms, form ρ and ρ_s."""
+    """Shared part: load state, signals and parameters into the model's input buffers."""
 
     name = "controller"
+    terms_function = ""
 
-    def __init__(self, model: CompiledModel, path: DesiredPath, gains: Gains):
+    def __init__(self, model, path: DesiredPath, gains: Gains):
+        """`model`: a CompiledModel, or any backend with the same buffers and functions."""
         self.model, self.path, self.gains = model, path, gains
         lay = model.layout
         self.n, self.m, self.k, self.l = lay.n, lay.m, lay.k, lay.l
-        self._terms = model.functions["model_terms"]
-        self.terms = self._terms.outputs  # views, refreshed by every _load
-        self.rho = np.zeros(self.m)
-        self.rho_s = np.zeros(self.k)
+        self._params = gains.parameter_vector()
+        self._fn = model.functions[self.terms_function]
+        self.terms = self._fn.outputs  # refreshed by every _load
+        self._q, self._qd, self._p, self._signals = model.q, model.qd, model.p, model.signals
         self.qdd = np.zeros(self.n)
         self.lam = np.zeros(self.m)
         self.lam_hat = np.zeros(self.k)
         self.u = np.zeros(self.l)
 
-    def _load(self, q: np.ndarray, qd: np.ndarray, t: float) -> None:
-        model, g, T = self.model, self.gains, self.terms
-        model.q[:] = q
-        model.qd[:] = qd
-        self.path.signals(t, model.s, model.sd, model.sdd)
-        self._terms.call()
-        # ρ = γ + 2Ωμ φ̇ + Ω² φ
-        np.multiply(T["phi_dot"], 2.0 * g.omega * g.mu, out=self.rho)
-        self.rho += T["gamma"]
-        self.rho += g.omega**2 * T["phi"]
-        # ρ_s = γ_s + 2 k_D σ̇ + k_P² σ
-        np.multiply(T["sigma_dot"], 2.0 * g.kd, out=self.rho_s)
-        self.rho_s += T["gamma_s"]
-        self.rho_s += g.kp**2 * T["sigma"]
+    def _load(self, q: np.ndarray, qd: np.ndarray, t: float, signals) -> None:
+        self._q[:] = q
+        self._qd[:] = qd
+        self._signals[:] = self.path.flat(t) if signals is None else signals
+        self._p[:] = self._params
+        self._fn.call()
 
-    def compute(self, q: np.ndarray, qd: np.ndarray, t: float) -> np.ndarray:
-        """The input u at state (q, q̇) and time t (a view of an internal buffer)."""
+    def compute(self, q: np.ndarray, qd: np.ndarray, t: float, signals=None) -> np.ndarray:
+        """The input u at state (q, q̇) and time t (a view of an internal buffer).
+
+        `signals`: the path's [s, ṡ, s̈] at t if already known (e.g. from DesiredPath.table);
+        otherwise they are evaluated here.
+        """
         raise NotImplementedError
 
 
 class MLM(Controller):
-    """Method of Lagrange multipliers (paper eq. 4): one square system in (q̈, λ, u)."""
+    """Method of Lagrange multipliers (paper eq. 4).
+
+    The (n+m+l) system [M φ_qᵀ −H; φ_q 0 0; σ_q 0 0] is reduced with the constant M to its Schur
+    complement in (λ, u), (m+l) square, solved by LU with a condition estimate.
+    """
 
     name = "mlm"
+    terms_function = "mlm_terms"
 
-    def __init__(self, model: CompiledModel, path: DesiredPath, gains: Gains):
+    def __init__(self, model, path: DesiredPath, gains: Gains):
         super().__init__(model, path, gains)
-        n, m, k, l = self.n, self.m, self.k, self.l
-        if k != l:
+        if self.k != self.l:
             raise SingularSystemError(
-                f"MLM needs as many servo-constraints as inputs, found {k} servo-constraints for {l} inputs "
-                "(redundant task): its matrix is not square. Use the penalty or iterative penalty method."
+                f"MLM needs as many servo-constraints as inputs, found {self.k} servo-constraints for {self.l} "
+                "inputs (redundant task): its matrix is not square. Use the penalty or iterative penalty method."
             )
-        size = n + m + l
-        self._matrix = np.zeros((size, size), order="F")
-        self._rhs = np.zeros(size)
-        self._getrf, self._getrs, self._gecon = lapack.get_lapack_funcs(("getrf", "getrs", "gecon"), (self._matrix,))
+        self._getrf, self._getrs, self._gecon = lapack.get_lapack_funcs(
+            ("getrf", "getrs", "gecon"), (self.terms["schur"],)
+        )
+        self.rcond = np.nan
 
-    def compute(self, q, qd, t):
-        self._load(q, qd, t)
-        n, m, T, A = self.n, self.m, self.terms, self._matrix
-        A[:n, :n] = T["mass_matrix"]
-        A[:n, n : n + m] = T["phi_q"].T
-        A[:n, n + m :] = -T["input_matrix"]
-        A[n : n + m, :n] = T["phi_q"]
-        A[n + m :, :n] = T["sigma_q"]
-        A[n + m :, n:] = 0.0
-        A[n : n + m, n:] = 0.0
-        self._rhs[:n] = -T["bias_forces"]
-        self._rhs[n : n + m] = -T["gamma"]
-        self._rhs[n + m :] = -self.rho_s
-        anorm = np.abs(A).sum(axis=0).max()
-        lu, piv, info = self._getrf(A, overwrite_a=True)
-        rcond = self._gecon(lu, anorm)[0] if info == 0 else 0.0
-        if info != 0 or rcond < 1e-13:
+    def compute(self, q, qd, t, signals=None):
+        self._load(q, qd, t, signals)
+        T = self.terms
+        lu, piv, info = self._getrf(T["schur"], overwrite_a=True)
+        self.rcond = self._gecon(lu, T["schur_norm1"][0])[0] if info == 0 else 0.0
+        if info != 0 or self.rcond < MLM_RCOND_LIMIT:
+            size = self.n + self.m + self.l
             raise SingularSystemError(
-                f"MLM's {A.shape[0]}x{A.shape[0]} system is singular (reciprocal condition number {rcond:.1e}): "
-                "the constraints are redundant or the task is not reachable by the inputs. MLM needs "
+                f"MLM's {size}x{size} system is singular (reciprocal condition number {self.rcond:.1e}): the "
+                "geometric constraints are redundant or the task is not reachable by the inputs. MLM needs "
                 "independent constraints; use the penalty or iterative penalty method, which handle redundancy."
             )
-        x, info = self._getrs(lu, piv, self._rhs)
-        self.qdd[:] = x[:n]
-        self.lam[:] = x[n : n + m]
-        self.u[:] = x[n + m :]
+        y, _ = self._getrs(lu, piv, T["schur_rhs"])
+        m = self.m
+        self.lam[:] = y[:m]
+        self.u[:] = y[m:]
+        # q̈ = −M⁻¹(c + W y): the acceleration the method commands (for diagnostics and tests).
+        np.matmul(T["minv_w"], y, out=self.qdd)
+        self.qdd += T["minv_bias"]
+        np.negative(self.qdd, out=self.qdd)
         return self.u
 
 
@@ -134,61 +137,56 @@ class Penalty(Controller):
     exactly eq. 8. More iterations refine q̈ and the multipliers with the same factorization of A.
     """
 
-    def __init__(self, model: CompiledModel, path: DesiredPath, gains: Gains, iterations: int = 1):
+    terms_function = "penalty_terms"
+
+    def __init__(self, model, path: DesiredPath, gains: Gains, iterations: int = 1):
         super().__init__(model, path, gains)
         if iterations < 1:
             raise ValueError("iterations must be at least 1")
         self.iterations = iterations
         self.name = "penalty" if iterations == 1 else f"iterative-{iterations}"
         n = self.n
-        self._a = np.zeros((n, n), order="F")  # penalty matrix A
-        self._penalty_force = np.zeros(n)  # −α̃ φ_qᵀρ − α̂ σ_qᵀρ_s
+        # M is constant in natural coordinates (codegen.structured checks it): take it once.
+        self.mass = model.term("mass_matrix").copy()
         self._rhs = np.zeros(n)
-        self._potrf, self._potrs = lapack.get_lapack_funcs(("potrf", "potrs"), (self._a,))
-        self.recovery = InputRecovery(gains.recovery, n, self.m, self.k, self.l, gains.kappa)
+        self._qdd_sum = np.zeros(n)
+        self._potrf, self._potrs = lapack.get_lapack_funcs(("potrf", "potrs"), (self.mass,))
+        self.recovery = InputRecovery(gains.recovery, self.mass, self.m, self.k, self.l, gains.kappa)
+        self.needs_multipliers = gains.recovery == "eq13"
 
-    def _factor(self, matrix: np.ndarray, what: str) -> np.ndarray:
-        chol, info = self._potrf(matrix, lower=False, overwrite_a=True, clean=False)
+    def compute(self, q, qd, t, signals=None):
+        self._load(q, qd, t, signals)
+        g, T = self.gains, self.terms
+        chol, info = self._potrf(T["penalty_matrix"], lower=False, overwrite_a=True, clean=False)
         if info != 0:
             raise SingularSystemError(
-                f"{what} is not positive definite (LAPACK potrf info {info}): check the penalty numbers"
+                "the penalty matrix A = M + α̃ φ_qᵀφ_q + α̂ σ_qᵀσ_q is not positive definite "
+                f"(LAPACK potrf info {info}): check the penalty numbers"
             )
-        return chol
-
-    def compute(self, q, qd, t):
-        self._load(q, qd, t)
-        g, T = self.gains, self.terms
-        M, phi_q, sigma_q = T["mass_matrix"], T["phi_q"], T["sigma_q"]
-        a = self._a
-        # A = M + α̃ φ_qᵀφ_q + α̂ σ_qᵀσ_q
-        np.matmul(phi_q.T, phi_q, out=a)
-        a *= g.alpha_geometric
-        a += g.alpha_servo * (sigma_q.T @ sigma_q)
-        a += M
-        np.matmul(phi_q.T, self.rho, out=self._penalty_force)
-        self._penalty_force *= -g.alpha_geometric
-        self._penalty_force -= g.alpha_servo * (sigma_q.T @ self.rho_s)
-        chol_a = self._factor(a, "the penalty matrix A = M + α̃ φ_qᵀφ_q + α̂ σ_qᵀσ_q")
-
-        # M q̈₀ = −c: the first right-hand side needs no solve for q̈₀.
-        self._rhs[:] = -T["bias_forces"]
-        self.lam[:] = 0.0
-        self.lam_hat[:] = 0.0
-        for i in range(self.iterations):
-            if i > 0:  # right-hand side M q̈_i
-                np.matmul(M, self.qdd, out=self._rhs)
-            self._rhs += self._penalty_force
-            x, info = self._potrs(chol_a, self._rhs, lower=False)
-            self.qdd[:] = x
-            # λ_{i+1} = λ_i + α̃(φ_q q̈_{i+1} + ρ),  λ̂_{i+1} = λ̂_i + α̂(σ_q q̈_{i+1} + ρ_s)
-            self.lam += g.alpha_geometric * (phi_q @ self.qdd + self.rho)
-            self.lam_hat += g.alpha_servo * (sigma_q @ self.qdd + self.rho_s)
-        self.recovery.recover(T["input_matrix"], phi_q, sigma_q, self.lam_hat, self.qdd, M, T["bias_forces"], self.lam)
-        self.u[:] = self.recovery.u
+        force = T["penalty_force"]
+        # i = 0: M q̈₀ = −c, so the first right-hand side is −c + force (no solve for q̈₀).
+        x, _ = self._potrs(chol, T["penalty_rhs"], lower=False)
+        self._qdd_sum[:] = x
+        for _ in range(self.iterations - 1):
+            np.matmul(self.mass, x, out=self._rhs)  # M q̈_i
+            self._rhs += force
+            x, _ = self._potrs(chol, self._rhs, lower=False)
+            self._qdd_sum += x
+        self.qdd[:] = x
+        # λ̂_N = Σ α̂(σ_q q̈_i + ρ_s) over the N iterations (eq. 18 summed), likewise λ_N (eq. 17).
+        N = float(self.iterations)
+        np.matmul(T["sigma_q"], self._qdd_sum, out=self.lam_hat)
+        self.lam_hat += N * T["rho_s"]
+        self.lam_hat *= g.alpha_servo
+        if self.needs_multipliers:
+            np.matmul(T["phi_q"], self._qdd_sum, out=self.lam)
+            self.lam += N * T["rho"]
+            self.lam *= g.alpha_geometric
+        self.u[:] = self.recovery.recover(T, self.lam_hat, self.qdd, self.lam)
         return self.u
 
 
-def make_controller(method: str, model: CompiledModel, path: DesiredPath, gains: Gains) -> Controller:
+def make_controller(method: str, model, path: DesiredPath, gains: Gains) -> Controller:
     """'mlm', 'penalty' or 'iterative-N'."""
     if method == "mlm":
         return MLM(model, path, gains)

@@ -27,6 +27,7 @@ class Layout:
     winch_index: dict[str, int] = field(default_factory=dict)
     anchor_signal: dict[str, int] = field(default_factory=dict)  # moving anchor -> first signal index
     path_signal: int = 0  # index of x_d; y_d, z_d, yaw_d follow
+    redundant_rows: tuple[int, ...] = ()  # constraint rows implied by the others (w = u × v)
 
     @property
     def n(self) -> int:
@@ -63,10 +64,12 @@ def build_layout(spec: Spec) -> Layout:
             coords.append(f"{cable.name}.length")
 
     constraints = []
+    redundant_rows: list[int] = []
     for body in spec.bodies:
         b = body.name
         constraints += [f"{b}: u.u-1", f"{b}: v.v-1", f"{b}: w.w-1", f"{b}: u.v", f"{b}: v.w", f"{b}: w.u"]
         if body.redundant_constraints:
+            redundant_rows += range(len(constraints), len(constraints) + 3)
             constraints += [f"{b}: (w-u×v)_{c}" for c in "xyz"]
     constraints += [f"cable {c.name}" for c in spec.cables]
 
@@ -93,7 +96,8 @@ def build_layout(spec: Spec) -> Layout:
             signals += [f"{anchor.name}.{c}" for c in "xyz"]
     path_signal = len(signals)
     signals += [f"{s}_d" for s in PATH_SIGNALS]
-    return Layout(coords, constraints, servo, inputs, signals, body_offset, winch_index, anchor_signal, path_signal)
+    return Layout(coords, constraints, servo, inputs, signals, body_offset, winch_index, anchor_signal, path_signal,
+                  tuple(redundant_rows))
 
 
 def body_rotation(yaw_deg: float) -> np.ndarray:

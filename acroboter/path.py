@@ -1,9 +1,14 @@
 """Desired motion (design §6): rest-to-rest quintic edges through the spec's waypoints, a quintic yaw
 turn over the whole path, and the signal vector s(t), ṡ(t), s̈(t) that feeds the generated code.
+
+Signals are laid out flat as [s, ṡ, s̈] (3 × n_signals), the layout of CompiledModel.signals, so
+one assignment loads them. `flat(t)` evaluates one instant with scalar math (it is on the
+control step's hot path); `table(times)` evaluates many at once for the plant.
 """
 
 from __future__ import annotations
 
+import bisect
 import math
 
 import numpy as np
@@ -26,11 +31,22 @@ def quintic(tau: float) -> tuple[float, float, float]:
     )
 
 
+def quintic_array(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    tau = np.clip(tau, 0.0, 1.0)
+    t2 = tau * tau
+    return (
+        t2 * tau * (10.0 - 15.0 * tau + 6.0 * t2),
+        30.0 * t2 * (1.0 - 2.0 * tau + t2),
+        60.0 * tau * (1.0 - 3.0 * tau + 2.0 * t2),
+    )
+
+
 class DesiredPath:
     """Tracked point position and yaw, relative to a start point and start yaw."""
 
     def __init__(self, spec: Spec, layout: Layout, start_point: np.ndarray, start_yaw: float):
         self.layout = layout
+        self.n_signals = layout.n_signals
         self.start_point = np.asarray(start_point, dtype=float)
         self.start_yaw = float(start_yaw)
         self.yaw_turn = math.radians(spec.path.yaw_deg)
@@ -41,45 +57,88 @@ class DesiredPath:
         self.edge_duration = np.linalg.norm(self.edge_delta, axis=1) / spec.path.mean_speed
         self.edge_t0 = np.concatenate([[0.0], np.cumsum(self.edge_duration)[:-1]])
         self.duration = float(self.edge_duration.sum())
-        self.final_offset = waypoints[-1]
-        # Moving anchors: initial positions and which world axes follow the path.
+        # Python lists for the scalar path: indexing numpy arrays element-wise is slower.
+        self._t0 = self.edge_t0.tolist()
+        self._dur = self.edge_duration.tolist()
+        self._origin = (self.start_point + self.edge_start).tolist()
+        self._delta = self.edge_delta.tolist()
+        # Moving anchors: (first signal index, initial position, which world axes follow the path).
         self.anchors = [
-            (layout.anchor_signal[a.name], np.array(a.position), np.array([c in a.follows_path for c in "xyz"]))
+            (layout.anchor_signal[a.name], list(a.position), [c in a.follows_path for c in "xyz"])
             for a in spec.anchors
             if a.follows_path
         ]
+        self._start = self.start_point.tolist()
+        self._zero = [0.0] * (3 * self.n_signals)
+
+    # --- one instant ------------------------------------------------------------------------------
+    def flat(self, t: float) -> list[float]:
+        """[s, ṡ, s̈] at time t as a flat list (layout order: anchors, then x y z yaw)."""
+        k = min(max(bisect.bisect_right(self._t0, t) - 1, 0), len(self._dur) - 1)
+        T = self._dur[k]
+        s, ds, dds = quintic((t - self._t0[k]) / T)
+        ds /= T
+        dds /= T * T
+        o, d = self._origin[k], self._delta[k]
+        pos = [o[0] + s * d[0], o[1] + s * d[1], o[2] + s * d[2]]
+        vel = [ds * d[0], ds * d[1], ds * d[2]]
+        acc = [dds * d[0], dds * d[1], dds * d[2]]
+        D = self.duration
+        y, dy, ddy = quintic(t / D)
+        turn = self.yaw_turn
+        out = self._zero.copy()
+        ns, p = self.n_signals, self.layout.path_signal
+        out[p : p + 4] = pos + [self.start_yaw + turn * y]
+        out[ns + p : ns + p + 4] = vel + [turn * dy / D]
+        out[2 * ns + p : 2 * ns + p + 4] = acc + [turn * ddy / (D * D)]
+        start = self._start
+        for j, anchor0, follows in self.anchors:
+            for c in range(3):
+                if follows[c]:
+                    out[j + c] = anchor0[c] + pos[c] - start[c]
+                    out[ns + j + c] = vel[c]
+                    out[2 * ns + j + c] = acc[c]
+                else:
+                    out[j + c] = anchor0[c]
+        return out
+
+    def signals(self, t: float, s: np.ndarray, sd: np.ndarray, sdd: np.ndarray) -> None:
+        """Write s(t), ṡ(t), s̈(t) into the given arrays."""
+        s[:], sd[:], sdd[:] = self.signal_arrays(t)
+
+    def signal_arrays(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        flat = np.array(self.flat(t))
+        ns = self.n_signals
+        return flat[:ns], flat[ns : 2 * ns], flat[2 * ns :]
 
     def position(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Desired position, velocity and acceleration of the tracked point at time t."""
-        k = int(np.searchsorted(self.edge_t0, t, side="right")) - 1
-        k = min(max(k, 0), len(self.edge_duration) - 1)
-        T = self.edge_duration[k]
-        s, ds, dds = quintic((t - self.edge_t0[k]) / T)
-        d = self.edge_delta[k]
-        return self.start_point + self.edge_start[k] + s * d, (ds / T) * d, (dds / T**2) * d
-
-    def yaw(self, t: float) -> tuple[float, float, float]:
-        s, ds, dds = quintic(t / self.duration)
-        return (
-            self.start_yaw + self.yaw_turn * s,
-            self.yaw_turn * ds / self.duration,
-            self.yaw_turn * dds / self.duration**2,
-        )
-
-    def signals(self, t: float, s: np.ndarray, sd: np.ndarray, sdd: np.ndarray) -> None:
-        """Write s(t), ṡ(t), s̈(t) into the given arrays (layout order: anchors, then x y z yaw)."""
-        pos, vel, acc = self.position(t)
-        yaw, yaw_d, yaw_dd = self.yaw(t)
+        s, sd, sdd = self.signal_arrays(t)
         p = self.layout.path_signal
-        s[p : p + 3], sd[p : p + 3], sdd[p : p + 3] = pos, vel, acc
-        s[p + 3], sd[p + 3], sdd[p + 3] = yaw, yaw_d, yaw_dd
-        for j, anchor0, follows in self.anchors:
-            s[j : j + 3] = np.where(follows, anchor0 + pos - self.start_point, anchor0)
-            sd[j : j + 3] = np.where(follows, vel, 0.0)
-            sdd[j : j + 3] = np.where(follows, acc, 0.0)
+        return s[p : p + 3], sd[p : p + 3], sdd[p : p + 3]
 
-    def signal_arrays(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        ns = self.layout.n_signals
-        s, sd, sdd = np.zeros(ns), np.zeros(ns), np.zeros(ns)
-        self.signals(t, s, sd, sdd)
-        return s, sd, sdd
+    # --- many instants ------------------------------------------------------------------------------
+    def table(self, times: np.ndarray) -> np.ndarray:
+        """[s, ṡ, s̈] at each time, one row per time (vectorized; for the plant's stage signals)."""
+        times = np.asarray(times, dtype=float)
+        ns, p = self.n_signals, self.layout.path_signal
+        k = np.clip(np.searchsorted(self.edge_t0, times, side="right") - 1, 0, len(self.edge_duration) - 1)
+        T = self.edge_duration[k]
+        s, ds, dds = quintic_array((times - self.edge_t0[k]) / T)
+        d = self.edge_delta[k]
+        pos = self.start_point + self.edge_start[k] + s[:, None] * d
+        vel = (ds / T)[:, None] * d
+        acc = (dds / T**2)[:, None] * d
+        D = self.duration
+        y, dy, ddy = quintic_array(times / D)
+        out = np.zeros((times.size, 3 * ns))
+        out[:, p : p + 3], out[:, ns + p : ns + p + 3], out[:, 2 * ns + p : 2 * ns + p + 3] = pos, vel, acc
+        out[:, p + 3] = self.start_yaw + self.yaw_turn * y
+        out[:, ns + p + 3] = self.yaw_turn * dy / D
+        out[:, 2 * ns + p + 3] = self.yaw_turn * ddy / D**2
+        for j, anchor0, follows in self.anchors:
+            f = np.array(follows)
+            out[:, j : j + 3] = np.where(f, np.array(anchor0) + pos - self.start_point, anchor0)
+            out[:, ns + j : ns + j + 3] = np.where(f, vel, 0.0)
+            out[:, 2 * ns + j : 2 * ns + j + 3] = np.where(f, acc, 0.0)
+        return out

@@ -3,18 +3,17 @@
     [M  φ_qᵀ] [q̈]   [H u − c                ]
     [φ_q  0 ] [λ] = [−γ − 2ζ_B ω_B φ̇ − ω_B² φ]
 
-integrated with fixed-step RK4 for a held input u. Written independently of the controllers: it
-shares only the compiled model terms. Optionally it integrates the power of the inputs, of the
-moving anchors (through the constraint forces) and of damping alongside the state, so that an
-energy balance can be checked to the integrator's accuracy.
+integrated with fixed-step RK4 for a held input u. The whole RK4 step is one generated C function
+(codegen.structured.plant_step_function), written independently of the controllers: it shares
+only the symbolic model. Alongside q and q̇ it integrates the work of the inputs, the work of the
+moving anchors through the constraint forces (λᵀφ_t) and the energy dissipated by damping, so an
+energy balance can be checked to the integrator's accuracy. State x = [q, q̇, W_u, W_anchor, E_d].
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import lapack
 
-from .compiled import CompiledModel
 from .path import DesiredPath
 
 
@@ -23,79 +22,47 @@ class SimulationError(RuntimeError):
 
 
 class Plant:
-    def __init__(self, model: CompiledModel, path: DesiredPath, zeta: float, omega: float):
+    def __init__(self, model, path: DesiredPath, zeta: float, omega: float):
         self.model, self.path = model, path
         self.zeta, self.omega = zeta, omega
-        lay = model.layout
-        self.n, self.m = lay.n, lay.m
-        self._terms = model.functions["model_terms"]
+        self.n = model.layout.n
+        self._step = model.functions["plant_step"]
+        self._x, self._u = model.buffers["x"], model.buffers["u"]
+        self._settings = model.buffers["settings"]
+        self._stage = model.buffers["stage_signals"]
         self._energy = model.functions["energy"]
-        size = self.n + self.m
-        self._kkt = np.zeros((size, size), order="F")
-        self._rhs = np.zeros(size)
-        self._gesv = lapack.get_lapack_funcs("gesv", (self._kkt,))
-        self.lam = np.zeros(self.m)
-        # RK4 work arrays: state x = [q, q̇, W_inputs, W_anchors, E_damping]
-        self._k = [np.zeros(2 * self.n + 3) for _ in range(4)]
-        self._x = np.zeros(2 * self.n + 3)
-        self._stage = np.zeros(2 * self.n + 3)
+        self.state_size = 2 * self.n + 3
 
-    def derivative(self, x: np.ndarray, t: float, u: np.ndarray, out: np.ndarray, powers: bool) -> None:
-        """out = ẋ for x = [q, q̇, (energy integrals)]."""
-        n, m, model = self.n, self.m, self.model
-        q, qd = x[:n], x[n : 2 * n]
-        model.q[:] = q
-        model.qd[:] = qd
-        self.path.signals(t, model.s, model.sd, model.sdd)
-        self._terms.call()
-        T = self._terms.outputs
-        K = self._kkt
-        K[:n, :n] = T["mass_matrix"]
-        K[:n, n:] = T["phi_q"].T
-        K[n:, :n] = T["phi_q"]
-        K[n:, n:] = 0.0
-        np.matmul(T["input_matrix"], u, out=self._rhs[:n])
-        self._rhs[:n] -= T["bias_forces"]
-        w = self.omega
-        self._rhs[n:] = -(T["gamma"] + 2.0 * self.zeta * w * T["phi_dot"] + w * w * T["phi"])
-        lu, piv, sol, info = self._gesv(K, self._rhs, overwrite_a=True, overwrite_b=False)
-        if info != 0:
-            raise SimulationError(
-                "the plant's constraint matrix is singular: the spec's geometric constraints are redundant or "
-                "degenerate at this state; the forward simulation needs independent constraints"
-            )
-        out[:n] = qd
-        out[n : 2 * n] = sol[:n]
-        self.lam[:] = sol[n:]
-        if powers:
-            phi_q_qd = T["phi_q"] @ qd
-            out[2 * n] = u @ (T["input_matrix"].T @ qd)  # inputs
-            out[2 * n + 1] = self.lam @ (T["phi_dot"] - phi_q_qd)  # moving anchors: λᵀ φ_t
-            self._energy.call()
-            out[2 * n + 2] = self._energy.outputs["dissipated_power"][0]  # damping
-        else:
-            out[2 * n :] = 0.0
+    def initial_state(self, q0: np.ndarray, qd0: np.ndarray | None = None) -> np.ndarray:
+        x = np.zeros(self.state_size)
+        x[: self.n] = q0
+        if qd0 is not None:
+            x[self.n : 2 * self.n] = qd0
+        return x
 
-    def step(self, x: np.ndarray, t: float, u: np.ndarray, h: float, powers: bool = False) -> None:
-        """One RK4 step of x (in place) from t to t + h with u held."""
-        k1, k2, k3, k4 = (k[: x.size] for k in self._k)
-        stage = self._stage[: x.size]
-        self.derivative(x, t, u, k1, powers)
-        np.multiply(k1, 0.5 * h, out=stage)
-        stage += x
-        self.derivative(stage, t + 0.5 * h, u, k2, powers)
-        np.multiply(k2, 0.5 * h, out=stage)
-        stage += x
-        self.derivative(stage, t + 0.5 * h, u, k3, powers)
-        np.multiply(k3, h, out=stage)
-        stage += x
-        self.derivative(stage, t + h, u, k4, powers)
-        k2 += k3
-        k2 *= 2.0
-        k1 += k2
-        k1 += k4
-        k1 *= h / 6.0
-        x += k1
+    def stage_table(self, t0: float, h: float, steps: int) -> np.ndarray:
+        """Signals at t0 + j·h/2 for j = 0..2·steps: RK4 step i reads rows 2i, 2i+1, 2i+2."""
+        return np.ascontiguousarray(self.path.table(t0 + 0.5 * h * np.arange(2 * steps + 1)))
+
+    def advance(self, x: np.ndarray, u: np.ndarray, h: float, table: np.ndarray, first_step: int,
+                steps: int) -> None:
+        """`steps` RK4 steps of x (in place) with u held, stage signals from `table`."""
+        self._x[:] = x
+        self._u[:] = u
+        self._settings[:] = (h, self.zeta, self.omega)
+        out = self._step.outputs["x_next"]
+        row_bytes = table.strides[0]
+        base = table.ctypes.data
+        for i in range(first_step, first_step + steps):
+            self._step.point_input(3, base + 2 * i * row_bytes)  # rows 2i..2i+2 are contiguous
+            self._step.call()
+            self._x[:] = out
+        self._step.point_input(3, self._stage.ctypes.data)  # never leave a pointer into `table` behind
+        x[:] = self._x
+
+    def step(self, x: np.ndarray, t: float, u: np.ndarray, h: float) -> None:
+        """One RK4 step of x (in place) from t to t + h (convenience; evaluates the path here)."""
+        self.advance(x, u, h, self.stage_table(t, h, 1), 0, 1)
 
     def mechanical_energy(self, q: np.ndarray, qd: np.ndarray) -> float:
         self.model.q[:] = q

@@ -6,6 +6,9 @@
   measured in the kinetic-energy metric rᵀM⁻¹r, i.e. by the acceleration it would cause. In natural
   coordinates the rows mix forces (N) and axis "forces" (N·m); the plain Euclidean norm weighs
   them arbitrarily, and in trials let the SU tilt by 3° where this metric keeps it under 0.2°.
+  The generated code gives the normal equations (BᵀM⁻¹B) x = −(BᵀM⁻¹σ_qᵀ) λ̂, B = [H, −φ_qᵀ] over the
+  independent constraint rows, solved by Cholesky; should they still be singular (dependent
+  actuators and reactions), a pivoted QR of M^(-1/2) B gives the minimum-norm solution.
 - eq12: u = −(HᵀH)⁻¹Hᵀ σ_qᵀ λ̂
 - eq13: u = (HᵀH)⁻¹Hᵀ (M q̈ + c + φ_qᵀ λ)
 - eq15: u = λ̂ (only meaningful when H = −σ_qᵀ)
@@ -15,7 +18,7 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import cholesky, lstsq, solve_triangular
+from scipy.linalg import cholesky, lapack, lstsq, solve_triangular
 
 from .spec import RECOVERIES
 
@@ -25,7 +28,7 @@ class RecoveryError(ValueError):
 
 
 class InputRecovery:
-    def __init__(self, kind: str, n: int, m: int, k: int, l: int, kappa: float = 0.5):
+    def __init__(self, kind: str, mass: np.ndarray, m: int, k: int, l: int, kappa: float = 0.5):
         if kind not in RECOVERIES:
             raise RecoveryError(f"unknown input recovery '{kind}': choose one of {', '.join(RECOVERIES)}")
         if kind in ("eq15", "kappa") and k != l:
@@ -33,50 +36,59 @@ class InputRecovery:
                 f"recovery '{kind}' needs as many servo-constraints as inputs (found {k} for {l}): "
                 "use 'projected' or 'eq12'"
             )
-        self.kind, self.kappa = kind, kappa
+        n = mass.shape[0]
+        self.kind, self.kappa, self.l = kind, kappa, l
+        self.mass = mass
         self.u = np.zeros(l)
-        self._servo_force = np.zeros(n)  # σ_qᵀ λ̂
-        self._stacked = np.zeros((n, l + m), order="F")  # [H, −φ_qᵀ]
-        self._hth = np.zeros((l, l))
-        self._rhs = np.zeros(l)
+        self.rank_deficient_steps = 0  # how often the QR fallback ran
+        self._rhs = np.zeros(l + m)
+        self._servo_force = np.zeros(n)
         self._force = np.zeros(n)
-        self._mass = np.full((n, n), np.nan)  # M whose Cholesky factor is cached (M is constant here)
-        self._inv_chol = np.zeros((n, n))  # L⁻¹ with M = L Lᵀ
-        self._weighted = np.zeros((n, l + m), order="F")
-        self._target = np.zeros(n)
+        self._hth = np.zeros((l, l))
+        self._hrhs = np.zeros(l)
+        self._potrf, self._potrs = lapack.get_lapack_funcs(("potrf", "potrs"), (np.zeros((1, 1)),))
+        chol = cholesky(mass, lower=True, check_finite=False)
+        self._inv_chol = solve_triangular(chol, np.eye(n), lower=True, check_finite=False)  # M^(-1/2)
 
     def _pseudo_inverse_apply(self, H: np.ndarray, force: np.ndarray) -> np.ndarray:
         """(HᵀH)⁻¹Hᵀ force, raising a clear error if H has dependent columns."""
         np.matmul(H.T, H, out=self._hth)
-        np.matmul(H.T, force, out=self._rhs)
+        np.matmul(H.T, force, out=self._hrhs)
         try:
-            return np.linalg.solve(self._hth, self._rhs)
+            return np.linalg.solve(self._hth, self._hrhs)
         except np.linalg.LinAlgError:
             raise RecoveryError("HᵀH is singular: the actuators' generalized forces are linearly dependent") from None
 
-    def recover(self, H, phi_q, sigma_q, lam_hat, qdd, M, c, lam) -> np.ndarray:
-        np.matmul(sigma_q.T, lam_hat, out=self._servo_force)
+    def _projected(self, terms: dict, lam_hat: np.ndarray) -> None:
+        np.matmul(terms["recovery_map"], lam_hat, out=self._rhs)
+        np.negative(self._rhs, out=self._rhs)
+        chol, info = self._potrf(terms["recovery_matrix"], lower=False, overwrite_a=True, clean=False)
+        if info == 0:
+            x, _ = self._potrs(chol, self._rhs, lower=False)
+            self.u[:] = x[: self.l]
+            return
+        # Singular normal equations: Δλ is not unique; pivoted QR picks the minimum-norm solution.
+        self.rank_deficient_steps += 1
+        stacked = np.hstack([terms["input_matrix"], -terms["phi_q"].T])
+        np.matmul(terms["sigma_q"].T, lam_hat, out=self._servo_force)
+        sol = lstsq(self._inv_chol @ stacked, -(self._inv_chol @ self._servo_force), lapack_driver="gelsy",
+                    check_finite=False)[0]
+        self.u[:] = sol[: self.l]
+
+    def recover(self, terms: dict, lam_hat: np.ndarray, qdd: np.ndarray, lam: np.ndarray) -> np.ndarray:
+        """u from the penalty step's terms (codegen.structured.penalty_terms), λ̂, q̈ and λ."""
         kind = self.kind
         if kind == "projected":
-            if not np.array_equal(M, self._mass):  # factor once: M is constant in natural coordinates
-                self._mass[:] = M
-                chol = cholesky(M, lower=True, check_finite=False)
-                self._inv_chol[:] = solve_triangular(chol, np.eye(M.shape[0]), lower=True, check_finite=False)
-            l = H.shape[1]
-            self._stacked[:, :l] = H
-            np.negative(phi_q.T, out=self._stacked[:, l:])
-            # Weigh rows by L⁻¹: |L⁻¹ r|² = rᵀM⁻¹r. Pivoted QR (gelsy) copes with redundant constraints.
-            np.matmul(self._inv_chol, self._stacked, out=self._weighted)
-            np.matmul(self._inv_chol, self._servo_force, out=self._target)
-            np.negative(self._target, out=self._target)
-            sol = lstsq(self._weighted, self._target, lapack_driver="gelsy", check_finite=False)[0]
-            self.u[:] = sol[:l]
-        elif kind == "eq12":
+            self._projected(terms, lam_hat)
+            return self.u
+        H, sigma_q = terms["input_matrix"], terms["sigma_q"]
+        np.matmul(sigma_q.T, lam_hat, out=self._servo_force)
+        if kind == "eq12":
             self.u[:] = -self._pseudo_inverse_apply(H, self._servo_force)
         elif kind == "eq13":
-            np.matmul(M, qdd, out=self._force)
-            self._force += c
-            self._force += phi_q.T @ lam
+            np.matmul(self.mass, qdd, out=self._force)
+            self._force += terms["bias_forces"]
+            self._force += terms["phi_q"].T @ lam
             self.u[:] = self._pseudo_inverse_apply(H, self._force)
         elif kind == "eq15":
             self.u[:] = lam_hat

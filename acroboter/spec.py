@@ -11,15 +11,27 @@ import hashlib
 import json
 import math
 import tomllib
+import types
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    Tag,
+    ValidationError,
+    field_validator,
+)
+from pydantic_core import PydanticCustomError
 
 AXES = ("u", "v", "w")
 PATH_SIGNALS = ("x", "y", "z", "yaw")
 RECOVERIES = ("projected", "eq12", "eq13", "eq15", "kappa")
+NAME_PATTERN = r"^[A-Za-z_][A-Za-z0-9_]*$"
 
 
 class SpecError(Exception):
@@ -34,13 +46,25 @@ class SpecError(Exception):
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # strict: a TOML string or boolean is never silently taken for a number (integers are fine
+    # where a float is expected); no inf/nan either.
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
 
-Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+def _exactly(count: int, what: str):
+    def check(value: list) -> list:
+        if len(value) != count:
+            message = f"expected {what}, found {{found}} item(s)"
+            raise PydanticCustomError("wrong_length", message, {"found": len(value)})
+        return value
+
+    return AfterValidator(check)
+
+
+Vec3 = Annotated[list[float], _exactly(3, "3 numbers [x, y, z]")]
 Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
-Name = Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")]
+Name = Annotated[str, Field(pattern=NAME_PATTERN)]
 
 
 class PolarPoint(_Strict):
@@ -55,6 +79,21 @@ class PolarPoint(_Strict):
         return [self.radius * math.cos(a), self.radius * math.sin(a), self.height]
 
 
+def _point_form(value: Any) -> str | None:
+    if isinstance(value, dict | PolarPoint):
+        return "polar"
+    if isinstance(value, list | tuple):
+        return "xyz"
+    return None  # neither: one readable error instead of one per union branch
+
+
+POINT_FORMS = "[x, y, z] in body axes or a table {radius, angle_deg, height}"
+BodyPoint = Annotated[
+    Annotated[Vec3, Tag("xyz")] | Annotated[PolarPoint, Tag("polar")],
+    Discriminator(_point_form, custom_error_type="point_form", custom_error_message=f"expected {POINT_FORMS}"),
+]
+
+
 class Damping(_Strict):
     translational: NonNegative = 0.0  # N·s/m on the centre-of-mass velocity
     rotational: NonNegative = 0.0  # N·m·s on the angular velocity
@@ -63,11 +102,11 @@ class Damping(_Strict):
 class Body(_Strict):
     name: Name
     mass: Positive
-    inertia: Annotated[list[Vec3], Field(min_length=3, max_length=3)]
+    inertia: Annotated[list[Vec3], _exactly(3, "a 3x3 matrix (3 rows of 3 numbers)")]
     initial_position: Vec3
     initial_yaw_deg: float = 0.0
     damping: Damping = Damping()
-    points: dict[Name, Vec3 | PolarPoint] = {}
+    points: dict[Name, BodyPoint] = {}
     redundant_constraints: bool = False  # add w - u x v = 0 on top of the six orthonormality rows
 
     @field_validator("inertia")
@@ -75,16 +114,17 @@ class Body(_Strict):
     def _inertia_is_physical(cls, value: list[list[float]]) -> list[list[float]]:
         i_g = np.array(value, dtype=float)
         if not np.allclose(i_g, i_g.T, rtol=0, atol=1e-12 * max(1.0, np.abs(i_g).max())):
-            raise ValueError(f"expected a symmetric 3x3 inertia tensor, found {value}")
+            asym = [(a, b) for a in range(3) for b in range(a + 1, 3) if i_g[a, b] != i_g[b, a]]
+            pairs = ", ".join(f"[{a}][{b}] = {i_g[a, b]:g} but [{b}][{a}] = {i_g[b, a]:g}" for a, b in asym)
+            raise ValueError(f"expected a symmetric inertia tensor, found {pairs}")
         moments = np.linalg.eigvalsh(i_g)
+        shown = ", ".join(f"{m:.6g}" for m in moments)
         if moments[0] <= 0:
-            raise ValueError(
-                f"expected a positive definite inertia tensor, found principal moments {moments.tolist()}"
-            )
+            raise ValueError(f"expected a positive definite inertia tensor (kg·m²), found principal moments {shown}")
         if moments[0] + moments[1] < moments[2] * (1 - 1e-12):
             raise ValueError(
-                "expected principal moments that satisfy the triangle inequality "
-                f"(I1 + I2 >= I3), found {moments.tolist()}"
+                "expected principal moments that satisfy the triangle inequality I1 + I2 >= I3, "
+                f"found principal moments {shown} ({moments[0]:.6g} + {moments[1]:.6g} < {moments[2]:.6g})"
             )
         return value
 
@@ -105,7 +145,7 @@ class Winch(_Strict):
 
 class Cable(_Strict):
     name: Name
-    ends: Annotated[list[str], Field(min_length=2, max_length=2)]
+    ends: Annotated[list[str], _exactly(2, "2 ends ['anchor' or 'body.point', 'body.point']")]
     length: Positive | None = None
     winch: Winch | None = None
 
@@ -155,6 +195,14 @@ class LevelTask(_Strict):
 ServoConstraint = Annotated[PositionTask | YawTask | LevelTask, Field(discriminator="kind")]
 
 
+def _kinds(*classes: type[BaseModel]) -> tuple[str, ...]:
+    return tuple(get_args(c.model_fields["kind"].annotation)[0] for c in classes)
+
+
+ACTUATOR_KINDS = _kinds(WinchTension, BodyTorque, BodyThrust)
+TASK_KINDS = _kinds(PositionTask, YawTask, LevelTask)
+
+
 class PathSpec(_Strict):
     waypoints: Annotated[list[Vec3], Field(min_length=2)]
     mean_speed: Positive
@@ -167,8 +215,9 @@ class Penalty(_Strict):
     omega: Positive
     mu: Positive
     iterations: Annotated[list[Annotated[int, Field(ge=1)]], Field(min_length=1)] = [3, 4, 5]
-    recovery: Literal["projected", "eq12", "eq13", "eq15", "kappa"] = "projected"
+    recovery: Literal[RECOVERIES] = "projected"
     kappa: Annotated[float, Field(ge=0, le=1)] = 0.5
+
 
 
 class Controller(_Strict):
@@ -216,13 +265,7 @@ class Spec(_Strict):
         return next(a for a in self.anchors if a.name == name)
 
 
-def _duplicates(names: list[str]) -> list[str]:
-    seen, dup = set(), []
-    for n in names:
-        if n in seen and n not in dup:
-            dup.append(n)
-        seen.add(n)
-    return dup
+# --- checks that need the whole spec ---------------------------------------------------------
 
 
 def _end_position(spec: Spec, end: str) -> np.ndarray:
@@ -236,28 +279,51 @@ def _end_position(spec: Spec, end: str) -> np.ndarray:
     return np.array(body.initial_position) + rot @ np.array(body.point(point_name))
 
 
+def _listing(names) -> str:
+    names = list(dict.fromkeys(names))  # each once, in order
+    return ", ".join(f"'{n}'" for n in names) if names else "none"
+
+
 def _check_references(spec: Spec) -> list[tuple[str, str]]:
     problems: list[tuple[str, str]] = []
-    body_names = [b.name for b in spec.bodies]
-    anchor_names = [a.name for a in spec.anchors]
-    for kind, names in (
-        ("body or anchor", body_names + anchor_names),
-        ("cable", [c.name for c in spec.cables]),
-        ("actuator", [a.name for a in spec.actuators]),
+
+    # Names: bodies and anchors share one namespace (a cable end names either).
+    for kind, named in (
+        ("body or anchor", [(f"bodies[{i}].name", b.name) for i, b in enumerate(spec.bodies)]
+         + [(f"anchors[{i}].name", a.name) for i, a in enumerate(spec.anchors)]),
+        ("cable", [(f"cables[{i}].name", c.name) for i, c in enumerate(spec.cables)]),
+        ("actuator", [(f"actuators[{i}].name", a.name) for i, a in enumerate(spec.actuators)]),
     ):
-        for d in _duplicates(names):
-            problems.append((f"name '{d}'", f"expected each {kind} name once, found it more than once"))
-    bodies = {b.name: b for b in spec.bodies}
-    anchors = set(anchor_names)
+        first: dict[str, str] = {}
+        for path, name in named:
+            if name in first:
+                problems.append(
+                    (path, f"expected a unique {kind} name, found '{name}' again (first used at {first[name]})")
+                )
+            else:
+                first[name] = path
+
+    bodies: dict[str, Body] = {}
+    for b in spec.bodies:
+        bodies.setdefault(b.name, b)  # with duplicates, the first definition counts
+    anchors = [a.name for a in spec.anchors]
+    cables = {}
+    for c in spec.cables:
+        cables.setdefault(c.name, c)
+
+    def body_ok(path: str, name: str) -> bool:
+        if name not in bodies:
+            problems.append((path, f"expected a defined body ({_listing(bodies)}), found '{name}'"))
+            return False
+        return True
 
     def end_ok(path: str, end: str) -> bool:
         if "." in end:
             body_name, point_name = end.split(".", 1)
-            if body_name not in bodies:
-                problems.append((path, f"expected a defined body ({', '.join(bodies)}), found '{body_name}'"))
+            if not body_ok(path, body_name):
                 return False
             if point_name not in bodies[body_name].points:
-                known = ", ".join(bodies[body_name].points) or "none"
+                known = _listing(bodies[body_name].points)
                 problems.append(
                     (path, f"expected a point of body '{body_name}' (defined: {known}), found '{point_name}'")
                 )
@@ -265,12 +331,11 @@ def _check_references(spec: Spec) -> list[tuple[str, str]]:
             return True
         if end not in anchors:
             problems.append(
-                (path, f"expected an anchor name or 'body.point', found '{end}' (anchors: {', '.join(anchors) or 'none'})")
+                (path, f"expected a defined anchor ({_listing(anchors)}) or 'body.point', found '{end}'")
             )
             return False
         return True
 
-    winch_cables = set()
     for i, cable in enumerate(spec.cables):
         base = f"cables[{i}] ({cable.name})"
         if (cable.length is None) == (cable.winch is None):
@@ -278,69 +343,193 @@ def _check_references(spec: Spec) -> list[tuple[str, str]]:
                 (base, "expected exactly one of 'length' (fixed cable) or 'winch' (length is a coordinate), "
                  f"found {'both' if cable.length is not None else 'neither'}")
             )
-        if cable.winch is not None:
-            winch_cables.add(cable.name)
-        oks = [end_ok(f"{base}.ends[{k}]", e) for k, e in enumerate(cable.ends)]
-        if all(oks):
-            if cable.ends[0] == cable.ends[1] or all("." not in e for e in cable.ends):
-                problems.append((f"{base}.ends", f"expected a cable that connects a body, found {cable.ends}"))
-            elif cable.winch is not None:
-                length0 = np.linalg.norm(_end_position(spec, cable.ends[0]) - _end_position(spec, cable.ends[1]))
-                if length0 < 1e-9:
-                    problems.append(
-                        (f"{base}.ends", f"expected a positive initial cable length, found {length0:.3g} m "
-                         "(both ends at the same place in the initial configuration)")
-                    )
+        if not all([end_ok(f"{base}.ends[{k}]", e) for k, e in enumerate(cable.ends)]):
+            continue
+        owners = [e.split(".", 1)[0] if "." in e else None for e in cable.ends]
+        if owners == [None, None]:
+            problems.append((f"{base}.ends", f"expected a cable that connects a body, found two anchors {cable.ends}"))
+        elif owners[0] == owners[1]:
+            problems.append(
+                (f"{base}.ends", f"expected a cable between two different bodies (or an anchor and a body), "
+                 f"found both ends on body '{owners[0]}': {cable.ends}")
+            )
+        elif cable.winch is not None:
+            length0 = float(np.linalg.norm(_end_position(spec, cable.ends[0]) - _end_position(spec, cable.ends[1])))
+            if length0 < 1e-9:
+                problems.append(
+                    (f"{base}.ends", f"expected a positive initial cable length, found {length0:.3g} m: "
+                     f"{cable.ends[0]} and {cable.ends[1]} coincide in the initial configuration")
+                )
 
+    driven: dict[str, str] = {}
     for i, act in enumerate(spec.actuators):
         base = f"actuators[{i}] ({act.name})"
         if isinstance(act, WinchTension):
-            if act.cable not in winch_cables:
+            winches = [c.name for c in spec.cables if c.winch is not None]
+            if act.cable not in cables:
                 problems.append(
-                    (f"{base}.cable", f"expected a cable with a winch ({', '.join(sorted(winch_cables)) or 'none'}), "
-                     f"found '{act.cable}'")
+                    (f"{base}.cable", f"expected a cable with a winch ({_listing(winches)}), "
+                     f"found '{act.cable}', which is not a defined cable")
                 )
-        elif act.body not in bodies:
-            problems.append((f"{base}.body", f"expected a defined body ({', '.join(bodies)}), found '{act.body}'"))
+            elif cables[act.cable].winch is None:
+                problems.append(
+                    (f"{base}.cable", f"expected a cable with a winch ({_listing(winches)}), "
+                     f"found '{act.cable}', a fixed-length cable without a winch")
+                )
+            elif act.cable in driven:
+                problems.append(
+                    (f"{base}.cable", f"expected one winch_tension actuator per cable, found cable '{act.cable}' "
+                     f"already driven by {driven[act.cable]}")
+                )
+            else:
+                driven[act.cable] = base
+        else:
+            body_ok(f"{base}.body", act.body)
 
     for i, task in enumerate(spec.task):
-        if task.body not in bodies:
-            problems.append(
-                (f"task[{i}].body", f"expected a defined body ({', '.join(bodies)}), found '{task.body}'")
-            )
+        body_ok(f"task[{i}] ({task.kind}).body", task.body)
     positions = [t for t in spec.task if isinstance(t, PositionTask)]
     if len(positions) != 1:
+        given = ", ".join(t.kind for t in spec.task)
         problems.append(
-            ("task", f"expected exactly one 'position' servo-constraint (the path's tracked point), found {len(positions)}")
+            ("task", "expected exactly one servo-constraint of kind 'position' (the point the path moves), "
+             f"found {len(positions)} (kinds given: {given})")
         )
     for i, anchor in enumerate(spec.anchors):
-        if _duplicates(list(anchor.follows_path)):
+        if len(set(anchor.follows_path)) != len(anchor.follows_path):
             problems.append((f"anchors[{i}].follows_path", f"expected each axis once, found {anchor.follows_path}"))
     return problems
 
 
-def _format_pydantic(err: ValidationError) -> list[tuple[str, str]]:
-    problems = []
-    for e in err.errors(include_url=False):
-        loc = ""
-        for part in e["loc"]:
-            if isinstance(part, int):
-                loc += f"[{part}]"
-            elif part in ("winch_tension", "body_torque", "body_thrust", "position", "yaw", "level",
-                          "list[float]", "PolarPoint"):
-                continue  # discriminator / union branch names are noise for the user
+# --- readable pydantic errors ------------------------------------------------------------------
+
+_TOML_TYPES = {str: "a string", bool: "a boolean", int: "an integer", float: "a float", list: "an array",
+               dict: "a table"}
+
+
+def _found(value: Any) -> str:
+    text = repr(value)
+    if len(text) > 80:
+        text = text[:77] + "..."
+    kind = next((name for t, name in _TOML_TYPES.items() if type(value) is t), type(value).__name__)
+    return f"{text} ({kind})"
+
+
+def _clean_loc(loc: tuple, data: Any) -> list:
+    """Drop union-branch tags from a pydantic location by walking the input along it."""
+    parts, node = [], data
+    for k, part in enumerate(loc):
+        if isinstance(node, dict) and isinstance(part, str):
+            if part in node:
+                node = node[part]
+            elif k < len(loc) - 1:
+                continue  # a branch tag such as 'winch_tension' or 'polar'
             else:
-                loc += f".{part}" if loc else str(part)
-        found = e.get("input")
-        msg = e["msg"]
-        if e["type"] == "missing":
-            text = "expected this field, found it missing"
-        elif e["type"] == "extra_forbidden":
-            text = f"expected no such field (unknown key), found {found!r}"
+                node = None  # the missing or unknown key itself
+        elif isinstance(node, list) and isinstance(part, int) and 0 <= part < len(node):
+            node = node[part]
+        elif isinstance(node, list):
+            continue  # a branch tag inside a list value ('xyz')
+        parts.append(part)
+    return parts
+
+
+def _format_loc(parts: list) -> str:
+    loc = ""
+    for part in parts:
+        loc += f"[{part}]" if isinstance(part, int) else (f".{part}" if loc else str(part))
+    return loc or "(top level)"
+
+
+def _strip(tp: Any, node: Any) -> Any:
+    """The concrete type a value `node` is validated as: unwrap Annotated and pick the union member."""
+    while True:
+        origin = get_origin(tp)
+        if origin is Annotated:
+            tp = get_args(tp)[0]
+        elif origin in (Union, types.UnionType):
+            members = [_strip(m, node) for m in get_args(tp) if m is not type(None)]
+            models = [m for m in members if isinstance(m, type) and issubclass(m, BaseModel)]
+            if isinstance(node, dict) and models:
+                tagged = [m for m in models if "kind" in m.model_fields
+                          and node.get("kind") in get_args(m.model_fields["kind"].annotation)]
+                return (tagged or models)[0]
+            return members[0]
         else:
-            text = f"{msg[0].lower() + msg[1:]}; found {found!r}" if "found" not in msg else msg
-            text = text.replace("Value error, ", "").replace("value error, ", "")
-        problems.append((loc or "(top level)", text))
+            return tp
+
+
+def _known_keys(parts: list, data: Any) -> list[str]:
+    """Field names of the table at `parts` (the location of an unknown key, without the key)."""
+    tp, node = Spec, data
+    try:
+        for part in parts:
+            tp = _strip(tp, node)
+            if isinstance(tp, type) and issubclass(tp, BaseModel):
+                tp = tp.model_fields[part].annotation
+            else:  # list[...] or dict[str, ...]: the item type is the last argument
+                tp = get_args(tp)[-1]
+            node = node[part]
+        tp = _strip(tp, node)
+        return list(tp.model_fields) if isinstance(tp, type) and issubclass(tp, BaseModel) else []
+    except (KeyError, IndexError, TypeError, AttributeError):
+        return []
+
+
+def _describe(e: dict, parts: list, data: Any) -> tuple[list, str]:
+    """(location parts, 'expected …, found …') for one pydantic error."""
+    kind, ctx, value = e["type"], e.get("ctx", {}), e.get("input")
+    if kind == "missing":
+        return parts, "expected this required field, found it missing"
+    if kind == "extra_forbidden":
+        known = _known_keys(parts[:-1], data)
+        return parts, f"expected one of the known keys ({', '.join(known)}), found unknown key '{parts[-1]}'"
+    if kind in ("union_tag_invalid", "union_tag_not_found"):
+        field = ctx.get("discriminator", "'kind'").strip("'")
+        kinds = {"actuators": ACTUATOR_KINDS, "task": TASK_KINDS}.get(parts[0] if parts else "", ())
+        expected = f"one of {_listing(kinds)}" if kinds else f"one of {ctx.get('expected_tags', '?')}"
+        if kind == "union_tag_not_found" or not isinstance(value, dict) or field not in value:
+            return [*parts, field], f"expected this required field ({expected}), found it missing"
+        return [*parts, field], f"expected {expected}, found {_found(value[field])}"
+    if kind == "literal_error":
+        return parts, f"expected one of {ctx['expected']}, found {_found(value)}"
+    if kind in ("float_type", "float_parsing", "int_type", "int_parsing", "int_from_float"):
+        what = "an integer" if kind.startswith("int") else "a number"
+        return parts, f"expected {what}, found {_found(value)}"
+    if kind == "finite_number":
+        return parts, f"expected a finite number, found {_found(value)}"
+    if kind in ("greater_than", "greater_than_equal", "less_than", "less_than_equal"):
+        bound = {"greater_than": ("greater than", "gt"), "greater_than_equal": ("at least", "ge"),
+                 "less_than": ("less than", "lt"), "less_than_equal": ("at most", "le")}[kind]
+        return parts, f"expected a number {bound[0]} {ctx[bound[1]]}, found {value!r}"
+    if kind in ("string_type", "bool_type", "list_type", "dict_type", "model_type", "model_attributes_type"):
+        what = {"string_type": "a string", "bool_type": "true or false", "list_type": "an array",
+                "dict_type": "a table", "model_type": "a table", "model_attributes_type": "a table"}[kind]
+        return parts, f"expected {what}, found {_found(value)}"
+    if kind == "string_pattern_mismatch" and ctx.get("pattern") == NAME_PATTERN:
+        return parts, ("expected a name of letters, digits and '_' that does not start with a digit, "
+                       f"found {_found(value)}")
+    if kind in ("too_short", "too_long"):
+        limit = f"at least {ctx['min_length']}" if kind == "too_short" else f"at most {ctx['max_length']}"
+        return parts, f"expected {limit} item(s), found {ctx.get('actual_length', len(value))}: {_found(value)}"
+    if kind == "wrong_length":  # our message already says what was expected and how many were found
+        return parts, f"{e['msg']}: {_found(value)}"
+    if kind == "point_form":
+        return parts, f"{e['msg']}, found {_found(value)}"
+    if kind == "value_error":
+        return parts, str(ctx.get("error", e["msg"]))
+    msg = e["msg"]
+    return parts, f"expected {msg[0].lower() + msg[1:]}, found {_found(value)}"
+
+
+def _format_pydantic(err: ValidationError, data: Any) -> list[tuple[str, str]]:
+    problems: list[tuple[str, str]] = []
+    for e in err.errors(include_url=False):
+        parts = _clean_loc(e["loc"], data)
+        parts, text = _describe(e, parts, data)
+        problem = (_format_loc(parts), text)
+        if problem not in problems:
+            problems.append(problem)
     return problems
 
 
@@ -349,7 +538,7 @@ def parse_spec(data: dict, source: str = "<spec>") -> Spec:
     try:
         spec = Spec.model_validate(data)
     except ValidationError as err:
-        raise SpecError(source, _format_pydantic(err)) from None
+        raise SpecError(source, _format_pydantic(err, data)) from None
     problems = _check_references(spec)
     if problems:
         raise SpecError(source, problems)
@@ -360,9 +549,12 @@ def load_spec(path: str | Path) -> Spec:
     """Read and validate a TOML spec file."""
     path = Path(path)
     if not path.is_file():
-        raise SpecError(str(path), [("(file)", "expected a readable TOML file, found nothing at this path")])
+        what = "a folder" if path.is_dir() else "nothing"
+        raise SpecError(str(path), [("(file)", f"expected a readable TOML file, found {what} at this path")])
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as err:
-        raise SpecError(str(path), [("(syntax)", f"expected valid TOML, found: {err}")]) from None
+        raise SpecError(str(path), [("(syntax)", f"expected valid TOML, found a syntax error: {err}")]) from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise SpecError(str(path), [("(file)", f"expected a readable UTF-8 TOML file, found: {err}")]) from None
     return parse_spec(data, str(path))

@@ -14,11 +14,14 @@ from pathlib import Path
 import casadi as ca
 
 from acroboter.spec import Spec
+from codegen import structured
 from codegen.symbolic import SymbolicModel, build_symbolic_model
 
 REPO = Path(__file__).resolve().parent.parent
 # Sources whose content decides the generated code (besides the spec and CasADi's version).
-CODEGEN_SOURCES = ("codegen/symbolic.py", "codegen/generate.py", "acroboter/spec.py", "acroboter/layout.py")
+CODEGEN_SOURCES = (
+    "codegen/symbolic.py", "codegen/structured.py", "codegen/generate.py", "acroboter/spec.py", "acroboter/layout.py",
+)
 INPUT_NAMES = ("q", "qd", "s", "sd", "sdd")
 
 # The generated functions: name -> the model terms it returns (in order).
@@ -77,9 +80,25 @@ class GenerationContext:
             f"{self.spec.name}_{name}", self.model.inputs, outputs, list(INPUT_NAMES), list(terms), {"cse": True}
         )
 
+    def register_solver_terms(self, name: str, build) -> None:
+        """Controller-shaped terms with the run-time parameter vector p (codegen.structured.PARAMS)."""
+        p = ca.SX.sym("p", len(structured.PARAMS))
+        terms = build(self.model, p)
+        self.functions[name] = ca.Function(
+            f"{self.spec.name}_{name}",
+            [*self.model.inputs, p],
+            [ca.densify(ca.SX(v)) for v in terms.values()],
+            [*INPUT_NAMES, "p"],
+            list(terms),
+            {"cse": True},
+        )
+
     def register_all(self) -> GenerationContext:
         for name, terms in FUNCTIONS.items():
             self.register(name, terms)
+        self.register_solver_terms("mlm_terms", structured.mlm_terms)
+        self.register_solver_terms("penalty_terms", structured.penalty_terms)
+        self.functions["plant_step"] = structured.plant_step_function(self.model, f"{self.spec.name}_plant_step")
         return self
 
     def header(self) -> str:
@@ -103,11 +122,14 @@ class GenerationContext:
                 "servo_constraints": lay.servo_constraints,
                 "inputs": lay.inputs,
                 "signals": lay.signals,
+                "redundant_constraint_rows": list(lay.redundant_rows),
+                "parameters": list(structured.PARAMS),
             },
             "functions": {
                 name: {
                     "symbol": f.name(),
                     "file": f"{f.name()}.c",
+                    "inputs": [[f.name_in(i), f.numel_in(i)] for i in range(f.n_in())],
                     # a list, not a dict: the order is the C function's result order
                     "outputs": [[f.name_out(i), list(f.size_out(i))] for i in range(f.n_out())],
                 }
