@@ -1,7 +1,9 @@
 """Compile a spec's generated C into a shared library: `python -m acroboter.build [SPEC_NAME ...]`.
 
-The library lands in build/<spec>/ with a stamp holding the hash of the sources it was built from,
-so a library older than generated/ is rebuilt instead of loaded.
+The library lands in build/<spec>/lib<spec>-<sources hash>.so. The hash in the name means a
+library older than generated/ is never picked up (it is rebuilt), and a rebuilt library gets a new
+path, so a process that already loaded the old one can still load the new one (dlopen returns the
+library already loaded from a path).
 """
 
 from __future__ import annotations
@@ -26,8 +28,9 @@ class BuildError(RuntimeError):
     pass
 
 
-def library_path(spec_name: str, build_dir: Path = BUILD_DIR) -> Path:
-    return build_dir / spec_name / f"lib{spec_name}.so"
+def library_path(spec_name: str, build_dir: Path = BUILD_DIR, generated_dir: Path = GENERATED_DIR) -> Path:
+    """Where the library built from the current generated/<spec_name>/ lives."""
+    return build_dir / spec_name / f"lib{spec_name}-{sources_hash(generated_dir / spec_name)[:16]}.so"
 
 
 def sources_hash(source_dir: Path) -> str:
@@ -39,9 +42,7 @@ def sources_hash(source_dir: Path) -> str:
 
 
 def is_current(spec_name: str, generated_dir: Path = GENERATED_DIR, build_dir: Path = BUILD_DIR) -> bool:
-    lib = library_path(spec_name, build_dir)
-    stamp = lib.with_suffix(".sources-sha256")
-    return lib.is_file() and stamp.is_file() and stamp.read_text().strip() == sources_hash(generated_dir / spec_name)
+    return library_path(spec_name, build_dir, generated_dir).is_file()
 
 
 def build(spec_name: str, generated_dir: Path = GENERATED_DIR, build_dir: Path = BUILD_DIR) -> Path:
@@ -68,15 +69,17 @@ def build(spec_name: str, generated_dir: Path = GENERATED_DIR, build_dir: Path =
 
     with ThreadPoolExecutor(max_workers=os.cpu_count() or 2) as pool:
         objects = list(pool.map(compile_one, sources))
-    lib = library_path(spec_name, build_dir)
-    tmp = lib.with_suffix(".so.tmp")
+    lib = library_path(spec_name, build_dir, generated_dir)
+    tmp = lib.with_suffix(f".{os.getpid()}.tmp")
     result = subprocess.run(
         [compiler, "-shared", *CFLAGS, *map(str, objects), "-lm", "-o", str(tmp)], capture_output=True, text=True
     )
     if result.returncode != 0:
         raise BuildError(f"linking {lib.name} failed:\n{result.stderr}")
     tmp.replace(lib)  # atomic: a concurrent loader never sees a half-written library
-    lib.with_suffix(".sources-sha256").write_text(sources_hash(source_dir) + "\n")
+    for old in out_dir.glob(f"lib{spec_name}-*.so"):
+        if old != lib:
+            old.unlink(missing_ok=True)
     return lib
 
 
@@ -84,7 +87,7 @@ def ensure_built(spec_name: str, generated_dir: Path = GENERATED_DIR, build_dir:
     if not is_current(spec_name, generated_dir, build_dir):
         print(f"building the compiled model for '{spec_name}' (make build) ...", file=sys.stderr)
         build(spec_name, generated_dir, build_dir)
-    return library_path(spec_name, build_dir)
+    return library_path(spec_name, build_dir, generated_dir)
 
 
 def main(argv: list[str] | None = None) -> int:

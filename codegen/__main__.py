@@ -20,8 +20,8 @@ def _specs(paths: list[str]) -> list[Path]:
 
 
 def cmd_generate(spec_paths: list[Path], out_root: Path) -> int:
-    for path in spec_paths:
-        spec = load_spec(path)
+    specs = [(path, load_spec(path)) for path in spec_paths]  # all valid before anything is written
+    for path, spec in specs:
         out_dir = generate(spec, out_root)
         print(f"generated {out_dir.relative_to(REPO) if out_dir.is_relative_to(REPO) else out_dir} from {path.name}")
     return 0

@@ -1,0 +1,107 @@
+"""Shared fixtures: the shipped specs, their raw TOML dicts and their compiled models.
+
+`crane` is parametrized over every shipped spec (model_spec/*.toml) and loads each CompiledModel
+once per session. The model's input buffers are shared by every caller, so always go through
+`Crane.term`, which sets all five inputs on every call (unspecified ones are zero / the rest
+signals), never through `model.term` with only some inputs.
+"""
+
+from __future__ import annotations
+
+import copy
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from acroboter.compiled import CompiledModel
+from acroboter.layout import Layout, nominal_coordinates
+from acroboter.spec import Spec, load_spec
+
+REPO = Path(__file__).resolve().parent.parent
+SPEC_DIR = REPO / "model_spec"
+SHIPPED_SPECS = sorted(SPEC_DIR.glob("*.toml"))
+SHIPPED_NAMES = [p.stem for p in SHIPPED_SPECS]
+
+
+def raw_spec(name: str = "acroboter") -> dict:
+    """A fresh (deep-copied) dict of a shipped spec's TOML, to mutate in a test."""
+    return copy.deepcopy(_raw_cache(name))
+
+
+_RAW: dict[str, dict] = {}
+
+
+def _raw_cache(name: str) -> dict:
+    if name not in _RAW:
+        _RAW[name] = tomllib.loads((SPEC_DIR / f"{name}.toml").read_text())
+    return _RAW[name]
+
+
+@dataclass
+class Crane:
+    """A shipped spec with its compiled model and its nominal initial state."""
+
+    path: Path
+    spec: Spec
+    model: CompiledModel
+    q0: np.ndarray  # nominal initial coordinates (layout.nominal_coordinates)
+    s0: np.ndarray  # signals at the start: anchors at their spec positions, targets at the tracked point, yaw 0
+
+    @property
+    def layout(self) -> Layout:
+        return self.model.layout
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    def term(self, name: str, q=None, qd=None, s=None, sd=None, sdd=None) -> np.ndarray:
+        """One model term with every input set (q defaults to q0, s to s0, derivatives to 0)."""
+        lay = self.layout
+        zeros_q, zeros_s = np.zeros(lay.n), np.zeros(lay.n_signals)
+        return self.model.term(
+            name,
+            q=self.q0 if q is None else q,
+            qd=zeros_q if qd is None else qd,
+            s=self.s0 if s is None else s,
+            sd=zeros_s if sd is None else sd,
+            sdd=zeros_s if sdd is None else sdd,
+        )
+
+
+def start_signals(spec: Spec, layout: Layout) -> np.ndarray:
+    """s at t = 0: each moving anchor at its spec position, (x_d, y_d, z_d) at the initial tracked point, yaw_d = 0."""
+    s = np.zeros(layout.n_signals)
+    for anchor in spec.anchors:
+        if anchor.name in layout.anchor_signal:
+            j = layout.anchor_signal[anchor.name]
+            s[j : j + 3] = anchor.position
+    task = next(t for t in spec.task if t.kind == "position")
+    body = spec.body(task.body)
+    assert body.initial_yaw_deg == 0.0 and task.point == [0.0, 0.0, 0.0], "start_signals assumes a CoM task, no yaw"
+    p = layout.path_signal
+    s[p : p + 3] = body.initial_position
+    s[p + 3] = 0.0
+    return s
+
+
+@pytest.fixture(scope="session")
+def compiled_cranes() -> dict[str, Crane]:
+    """Every shipped spec's Crane, built once per session (lazily, see `crane`)."""
+    return {}
+
+
+@pytest.fixture(scope="session", params=SHIPPED_NAMES)
+def crane(request, compiled_cranes) -> Crane:
+    name = request.param
+    if name not in compiled_cranes:
+        path = SPEC_DIR / f"{name}.toml"
+        spec = load_spec(path)
+        model = CompiledModel(spec)
+        compiled_cranes[name] = Crane(
+            path, spec, model, nominal_coordinates(spec, model.layout), start_signals(spec, model.layout)
+        )
+    return compiled_cranes[name]
