@@ -112,12 +112,19 @@ class CompiledModel:
         self.q, self.qd = self.buffers["q"], self.buffers["qd"]
         self.s, self.sd, self.sdd = self.buffers["s"], self.buffers["sd"], self.buffers["sdd"]
         self.p = self.buffers["p"]  # solver parameters, codegen.structured.PARAMS
+        self.parameters_owner = None  # the controller whose gains are in p
         self._inputs = (self.q, self.qd, self.s, self.sd, self.sdd)
         self.functions: dict[str, BoundFunction] = {
             name: BoundFunction(self.lib, info["symbol"], [self.buffers[i] for i, _ in info["inputs"]],
                                 info["outputs"])
             for name, info in self.manifest["functions"].items()
         }
+
+    def bind(self, name: str) -> BoundFunction:
+        """A second binding of function `name` with outputs of its own (inputs: the shared buffers,
+        re-pointable with point_input), e.g. to chain calls without copying."""
+        info = self.manifest["functions"][name]
+        return BoundFunction(self.lib, info["symbol"], [self.buffers[i] for i, _ in info["inputs"]], info["outputs"])
 
     def _check_fresh(self, generated_dir: Path) -> None:
         from codegen.generate import codegen_hash  # the generator's sources decide freshness

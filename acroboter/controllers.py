@@ -64,7 +64,6 @@ class Controller:
         self._fn = model.functions[self.terms_function]
         self.terms = self._fn.outputs  # refreshed by every _load
         self._q, self._qd, self._p, self._signals = model.q, model.qd, model.p, model.signals
-        self.qdd = np.zeros(self.n)
         self.lam = np.zeros(self.m)
         self.lam_hat = np.zeros(self.k)
         self.u = np.zeros(self.l)
@@ -73,7 +72,9 @@ class Controller:
         self._q[:] = q
         self._qd[:] = qd
         self._signals[:] = self.path.flat(t) if signals is None else signals
-        self._p[:] = self._params
+        if self.model.parameters_owner is not self:  # another controller may have set other gains
+            self._p[:] = self._params
+            self.model.parameters_owner = self
         self._fn.call()
 
     def compute(self, q: np.ndarray, qd: np.ndarray, t: float, signals=None) -> np.ndarray:
@@ -106,6 +107,7 @@ class MLM(Controller):
             ("getrf", "getrs", "gecon"), (self.terms["schur"],)
         )
         self.rcond = np.nan
+        self._y = np.zeros(self.m + self.l)
 
     def compute(self, q, qd, t, signals=None):
         self._load(q, qd, t, signals)
@@ -120,14 +122,19 @@ class MLM(Controller):
                 "independent constraints; use the penalty or iterative penalty method, which handle redundancy."
             )
         y, _ = self._getrs(lu, piv, T["schur_rhs"])
-        m = self.m
-        self.lam[:] = y[:m]
-        self.u[:] = y[m:]
-        # q̈ = −M⁻¹(c + W y): the acceleration the method commands (for diagnostics and tests).
-        np.matmul(T["minv_w"], y, out=self.qdd)
-        self.qdd += T["minv_bias"]
-        np.negative(self.qdd, out=self.qdd)
+        self._y = y
+        self.u[:] = y[self.m :]
         return self.u
+
+    @property
+    def qdd(self) -> np.ndarray:
+        """q̈ = −M⁻¹(c + W y) of the last step: the acceleration the method commands."""
+        T = self.terms
+        return -(T["minv_bias"] + T["minv_w"] @ self._y)
+
+    @property
+    def multipliers(self) -> tuple[np.ndarray, None]:
+        return self._y[: self.m], None
 
 
 class Penalty(Controller):
@@ -148,42 +155,74 @@ class Penalty(Controller):
         n = self.n
         # M is constant in natural coordinates (codegen.structured checks it): take it once.
         self.mass = model.term("mass_matrix").copy()
-        self._rhs = np.zeros(n)
         self._qdd_sum = np.zeros(n)
+        self._qdd_last = np.zeros(n)
         self._potrf, self._potrs = lapack.get_lapack_funcs(("potrf", "potrs"), (self.mass,))
         self.recovery = InputRecovery(gains.recovery, self.mass, self.m, self.k, self.l, gains.kappa)
+        if iterations > 1:
+            # Iterations 2..N: two bindings of the generated update read each other's outputs, so the
+            # chain runs without copies; both read the factor and force where penalty_terms left them.
+            first, second = model.bind("penalty_iteration"), model.bind("penalty_iteration")
+            for this, other in ((first, second), (second, first)):
+                this.point_input(0, self.terms["penalty_matrix"].ctypes.data)
+                this.point_input(1, self.terms["penalty_force"].ctypes.data)
+                this.point_input(2, other.outputs["qdd_next"].ctypes.data)
+                this.point_input(3, other.outputs["qdd_sum_next"].ctypes.data)
+            self._chain = [first.call if i % 2 == 0 else second.call for i in range(iterations - 1)]
+            self._chain_start = second.outputs  # the first call reads these
+            self._chain_end = (first if (iterations - 1) % 2 == 1 else second).outputs
+        self.fast_recovery = gains.recovery == "projected"
         self.needs_multipliers = gains.recovery == "eq13"
 
     def compute(self, q, qd, t, signals=None):
         self._load(q, qd, t, signals)
-        g, T = self.gains, self.terms
+        T = self.terms
         chol, info = self._potrf(T["penalty_matrix"], lower=False, overwrite_a=True, clean=False)
         if info != 0:
             raise SingularSystemError(
                 "the penalty matrix A = M + α̃ φ_qᵀφ_q + α̂ σ_qᵀσ_q is not positive definite "
                 f"(LAPACK potrf info {info}): check the penalty numbers"
             )
-        force = T["penalty_force"]
+        if chol is not T["penalty_matrix"]:  # LAPACK factored a copy: the iterations read the buffer
+            T["penalty_matrix"][...] = chol
         # i = 0: M q̈₀ = −c, so the first right-hand side is −c + force (no solve for q̈₀).
         x, _ = self._potrs(chol, T["penalty_rhs"], lower=False)
-        self._qdd_sum[:] = x
-        for _ in range(self.iterations - 1):
-            np.matmul(self.mass, x, out=self._rhs)  # M q̈_i
-            self._rhs += force
-            x, _ = self._potrs(chol, self._rhs, lower=False)
-            self._qdd_sum += x
-        self.qdd[:] = x
-        # λ̂_N = Σ α̂(σ_q q̈_i + ρ_s) over the N iterations (eq. 18 summed), likewise λ_N (eq. 17).
-        N = float(self.iterations)
+        if self.iterations == 1:
+            self._qdd_sum = self._qdd_last = x
+        else:  # A q̈_{i+1} = M q̈_i + force, i = 1..N−1, with the same factor (generated solves)
+            self._chain_start["qdd_next"][:] = x
+            self._chain_start["qdd_sum_next"][:] = x
+            for call in self._chain:
+                call()
+            self._qdd_last = self._chain_end["qdd_next"]
+            self._qdd_sum = self._chain_end["qdd_sum_next"]
+        if self.fast_recovery and self.recovery.projected_fast(T, self._qdd_sum, self.iterations) is not None:
+            self.u[:] = self.recovery.u
+            return self.u
+        self._multipliers()
+        self.u[:] = self.recovery.recover(T, self.lam_hat, x, self.lam)
+        return self.u
+
+    def _multipliers(self) -> None:
+        """λ̂_N = Σ α̂(σ_q q̈_i + ρ_s) over the N iterations (eq. 18 summed), likewise λ_N (eq. 17)."""
+        T, g, N = self.terms, self.gains, float(self.iterations)
         np.matmul(T["sigma_q"], self._qdd_sum, out=self.lam_hat)
         self.lam_hat += N * T["rho_s"]
         self.lam_hat *= g.alpha_servo
-        if self.needs_multipliers:
-            np.matmul(T["phi_q"], self._qdd_sum, out=self.lam)
-            self.lam += N * T["rho"]
-            self.lam *= g.alpha_geometric
-        self.u[:] = self.recovery.recover(T, self.lam_hat, self.qdd, self.lam)
-        return self.u
+        np.matmul(T["phi_q"], self._qdd_sum, out=self.lam)
+        self.lam += N * T["rho"]
+        self.lam *= g.alpha_geometric
+
+    @property
+    def qdd(self) -> np.ndarray:
+        """The last step's commanded acceleration q̈_N."""
+        return self._qdd_last
+
+    @property
+    def multipliers(self) -> tuple[np.ndarray, np.ndarray]:
+        """(λ, λ̂) of the last step (computed on demand: the default recovery does not need them)."""
+        self._multipliers()
+        return self.lam, self.lam_hat
 
 
 def make_controller(method: str, model, path: DesiredPath, gains: Gains) -> Controller:

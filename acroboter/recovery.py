@@ -6,9 +6,10 @@
   measured in the kinetic-energy metric rᵀM⁻¹r, i.e. by the acceleration it would cause. In natural
   coordinates the rows mix forces (N) and axis "forces" (N·m); the plain Euclidean norm weighs
   them arbitrarily, and in trials let the SU tilt by 3° where this metric keeps it under 0.2°.
-  The generated code gives the normal equations (BᵀM⁻¹B) x = −(BᵀM⁻¹σ_qᵀ) λ̂, B = [H, −φ_qᵀ] over the
-  independent constraint rows, solved by Cholesky; should they still be singular (dependent
-  actuators and reactions), a pivoted QR of M^(-1/2) B gives the minimum-norm solution.
+  The generated code solves the normal equations (BᵀM⁻¹B) x = −(BᵀM⁻¹σ_qᵀ) λ̂, B = [H, −φ_qᵀ] over the
+  independent constraint rows, by Cholesky, and hands over u as a linear map of Σq̈ (see
+  codegen.structured.penalty_terms); should they be singular (dependent actuators and reactions:
+  the map comes out non-finite), a pivoted QR of M^(-1/2) B gives the minimum-norm solution.
 - eq12: u = −(HᵀH)⁻¹Hᵀ σ_qᵀ λ̂
 - eq13: u = (HᵀH)⁻¹Hᵀ (M q̈ + c + φ_qᵀ λ)
 - eq15: u = λ̂ (only meaningful when H = −σ_qᵀ)
@@ -17,8 +18,10 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
-from scipy.linalg import cholesky, lapack, lstsq, solve_triangular
+from scipy.linalg import cholesky, lstsq, solve_triangular
 
 from .spec import RECOVERIES
 
@@ -41,12 +44,10 @@ class InputRecovery:
         self.mass = mass
         self.u = np.zeros(l)
         self.rank_deficient_steps = 0  # how often the QR fallback ran
-        self._rhs = np.zeros(l + m)
         self._servo_force = np.zeros(n)
         self._force = np.zeros(n)
         self._hth = np.zeros((l, l))
         self._hrhs = np.zeros(l)
-        self._potrf, self._potrs = lapack.get_lapack_funcs(("potrf", "potrs"), (np.zeros((1, 1)),))
         chol = cholesky(mass, lower=True, check_finite=False)
         self._inv_chol = solve_triangular(chol, np.eye(n), lower=True, check_finite=False)  # M^(-1/2)
 
@@ -59,14 +60,19 @@ class InputRecovery:
         except np.linalg.LinAlgError:
             raise RecoveryError("HᵀH is singular: the actuators' generalized forces are linearly dependent") from None
 
+    def projected_fast(self, terms: dict, qdd_sum: np.ndarray, iterations: int) -> np.ndarray:
+        """u = recovery_gain · Σq̈ + N · recovery_offset (generated); None if the map is not finite."""
+        offset = terms["recovery_offset"]
+        if not math.isfinite(offset[0]):  # a failed (singular) factorization leaves NaN in every entry
+            return None
+        np.matmul(terms["recovery_gain"], qdd_sum, out=self.u)
+        if iterations == 1:
+            self.u += offset
+        else:
+            self.u += iterations * offset
+        return self.u
+
     def _projected(self, terms: dict, lam_hat: np.ndarray) -> None:
-        np.matmul(terms["recovery_map"], lam_hat, out=self._rhs)
-        np.negative(self._rhs, out=self._rhs)
-        chol, info = self._potrf(terms["recovery_matrix"], lower=False, overwrite_a=True, clean=False)
-        if info == 0:
-            x, _ = self._potrs(chol, self._rhs, lower=False)
-            self.u[:] = x[: self.l]
-            return
         # Singular normal equations: Δλ is not unique; pivoted QR picks the minimum-norm solution.
         self.rank_deficient_steps += 1
         stacked = np.hstack([terms["input_matrix"], -terms["phi_q"].T])

@@ -98,6 +98,9 @@ class GenerationContext:
             self.register(name, terms)
         self.register_solver_terms("mlm_terms", structured.mlm_terms)
         self.register_solver_terms("penalty_terms", structured.penalty_terms)
+        self.functions["penalty_iteration"] = structured.penalty_iteration_function(
+            self.model, f"{self.spec.name}_penalty_iteration"
+        )
         self.functions["plant_step"] = structured.plant_step_function(self.model, f"{self.spec.name}_plant_step")
         return self
 

@@ -31,10 +31,10 @@ def constant_inverse_mass(model: SymbolicModel) -> ca.DM:
 
 
 def cholesky_solve(matrix: ca.SX, rhs: ca.SX) -> ca.SX:
-    """x = S⁻¹ b for symmetric positive definite S, as expressions (Cholesky, no pivoting needed).
+    """X = S⁻¹ B for symmetric positive definite S (B: one or more columns), as expressions.
 
     CasADi's generic symbolic solve uses QR (about 9,000 operations at 16x16); Cholesky needs a
-    tenth of that and exploits structural zeros of S.
+    tenth of that, needs no pivoting for a positive definite S, and skips S's structural zeros.
     """
     size = matrix.shape[0]
     low = [[ca.SX(0) for _ in range(size)] for _ in range(size)]
@@ -46,13 +46,16 @@ def cholesky_solve(matrix: ca.SX, rhs: ca.SX) -> ca.SX:
                 not (low[i][k].is_zero() or low[j][k].is_zero()) for k in range(j)
             ):
                 low[i][j] = (matrix[i, j] - sum((low[i][k] * low[j][k] for k in range(j)), ca.SX(0))) / low[j][j]
-    y = [ca.SX(0)] * size
-    for i in range(size):  # L y = b
-        y[i] = (rhs[i] - sum((low[i][k] * y[k] for k in range(i)), ca.SX(0))) / low[i][i]
-    x = [ca.SX(0)] * size
-    for i in reversed(range(size)):  # Lᵀ x = y
-        x[i] = (y[i] - sum((low[k][i] * x[k] for k in range(i + 1, size)), ca.SX(0))) / low[i][i]
-    return ca.vertcat(*x)
+    columns = []
+    for c in range(rhs.shape[1]):
+        y = [ca.SX(0)] * size
+        for i in range(size):  # L y = b
+            y[i] = (rhs[i, c] - sum((low[i][k] * y[k] for k in range(i)), ca.SX(0))) / low[i][i]
+        x = [ca.SX(0)] * size
+        for i in reversed(range(size)):  # Lᵀ x = y
+            x[i] = (y[i] - sum((low[k][i] * x[k] for k in range(i + 1, size)), ca.SX(0))) / low[i][i]
+        columns.append(ca.vertcat(*x))
+    return ca.horzcat(*columns)
 
 
 def servo_and_constraint_rates(model: SymbolicModel, p: ca.SX) -> tuple[ca.SX, ca.SX]:
@@ -86,11 +89,14 @@ def mlm_terms(model: SymbolicModel, p: ca.SX) -> dict[str, ca.SX]:
 
 
 def penalty_terms(model: SymbolicModel, p: ca.SX) -> dict[str, ca.SX]:
-    """Penalty matrix, right-hand sides and the projected recovery's normal equations.
+    """Penalty matrix, right-hand sides and the projected recovery as a linear map of q̈.
 
     Recovery: minimise |H u − φ_qᵀ Δλ + σ_qᵀ λ̂|² in the M⁻¹ metric over x = (u, Δλ):
     (Bᵀ M⁻¹ B) x = −(Bᵀ M⁻¹ σ_qᵀ) λ̂ with B = [H, −φ_qᵀ]. Only the independent constraint rows enter
     B: redundant rows span no new reaction directions and would make the normal equations singular.
+    The normal matrix depends on q alone, so it is factored here (Cholesky, in the generated code)
+    and, with λ̂ = α̂(σ_q Σq̈_i + N ρ_s) after N iterations, the input is
+    u = recovery_gain · Σq̈_i + N · recovery_offset.
     """
     alpha_g, alpha_s = p[2], p[3]
     rho, rho_s = servo_and_constraint_rates(model, p)
@@ -111,9 +117,41 @@ def penalty_terms(model: SymbolicModel, p: ca.SX) -> dict[str, ca.SX]:
         "sigma_q": sigma_q,
         "rho_s": rho_s,
         "input_matrix": model.input_matrix,
-        "recovery_matrix": ca.mtimes(b.T, minv_b),
-        "recovery_map": ca.mtimes(minv_b.T, sigma_q.T),
+        # u-rows of −α̂ (BᵀM⁻¹B)⁻¹ BᵀM⁻¹σ_qᵀ, applied to σ_q Σq̈ and to ρ_s
+        **_projected_recovery(model, minv_b, b, sigma_q, rho_s, alpha_s),
     }
+
+
+def _projected_recovery(model, minv_b, b, sigma_q, rho_s, alpha_s) -> dict[str, ca.SX]:
+    l = model.layout.l
+    servo_map = cholesky_solve(ca.mtimes(b.T, minv_b), ca.mtimes(minv_b.T, sigma_q.T))[:l, :]
+    return {
+        "recovery_gain": -alpha_s * ca.mtimes(servo_map, sigma_q),
+        "recovery_offset": -alpha_s * ca.mtimes(servo_map, rho_s),
+    }
+
+
+def penalty_iteration_function(model: SymbolicModel, name: str) -> ca.Function:
+    """One iterative-penalty update with a given Cholesky factor (eq. 19 and the running sum).
+
+    (chol, force, q̈_i, Σ) -> (q̈_{i+1}, Σ + q̈_{i+1}) with RᵀR q̈_{i+1} = M q̈_i + force, where R is the
+    upper triangle of `chol` as LAPACK's potrf leaves it (the lower triangle is not read). The
+    factorization stays LAPACK's, once per step; only the triangular solves of the later
+    iterations run here, where they cost one C call each instead of four numpy/LAPACK calls.
+    """
+    n = model.layout.n
+    chol = ca.SX.sym("chol", n, n)
+    force, qdd, total = ca.SX.sym("force", n), ca.SX.sym("qdd", n), ca.SX.sym("qdd_sum", n)
+    rhs = ca.mtimes(model.mass_matrix, qdd) + force  # M is constant: folded in
+    y = [ca.SX(0)] * n
+    for i in range(n):  # Rᵀ y = rhs
+        y[i] = (rhs[i] - sum((chol[k, i] * y[k] for k in range(i)), ca.SX(0))) / chol[i, i]
+    x = [ca.SX(0)] * n
+    for i in reversed(range(n)):  # R x = y
+        x[i] = (y[i] - sum((chol[i, k] * x[k] for k in range(i + 1, n)), ca.SX(0))) / chol[i, i]
+    x_next = ca.vertcat(*x)
+    return ca.Function(name, [chol, force, qdd, total], [x_next, total + x_next],
+                       ["chol", "force", "qdd", "qdd_sum"], ["qdd_next", "qdd_sum_next"], {"cse": True})
 
 
 def independent_rows(model: SymbolicModel) -> list[int]:

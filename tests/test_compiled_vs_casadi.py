@@ -74,11 +74,19 @@ def random_extra_input(pair: Pair, name: str, size: int, model_inputs, rng: np.r
     if name == "stage_signals":  # [s, ṡ, s̈] at t, t + h/2, t + h
         sig = np.concatenate([model_inputs[k] for k in ("s", "sd", "sdd")])
         return np.concatenate([sig + 1e-3 * k * rng.standard_normal(sig.size) for k in range(3)])
+    if name == "chol":  # LAPACK potrf's upper factor of an SPD matrix (the lower triangle is not read)
+        n = pair.layout.n
+        a = rng.standard_normal((n, n))
+        return np.linalg.cholesky(a @ a.T + n * np.eye(n)).T.reshape(-1, order="F") + np.tril(
+            rng.standard_normal((n, n)), -1).reshape(-1, order="F")
+    if name in ("force", "qdd", "qdd_sum"):
+        return rng.standard_normal(size)
     raise AssertionError(f"no random value for input '{name}' of size {size}: teach this test about it")
 
 
 def evaluate_casadi(f: ca.Function, values: list[np.ndarray]) -> dict[str, np.ndarray]:
-    out = f.call([ca.DM(v) for v in values])
+    # Buffers are flat (column-major); casadi wants each input in its own shape.
+    out = f.call([ca.reshape(ca.DM(v), *f.size_in(i)) for i, v in enumerate(values)])
     return {
         f.name_out(i): (np.array(v.full()).reshape(-1) if v.size2() == 1 else np.array(v.full()))
         for i, v in enumerate(out)
