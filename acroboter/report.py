@@ -54,6 +54,9 @@ def format_table(summaries: dict) -> str:
              f"{'us':>11} {'us':>9} {'us':>7} {'us':>7}")
     lines = [head, units, "-" * len(head)]
     for method, s in summaries.items():
+        if "error" in s:
+            lines.append(f"{method:<13} cannot run: {s['error'][:90]}...")
+            continue
         yaw = f"{s['max_yaw_error_deg']:8.4f}" if s["max_yaw_error_deg"] is not None else f"{'-':>8}"
         tension = (f"{s['min_winch_tension_N']:6.2f}..{s['max_winch_tension_N']:<6.2f}"
                    if s.get("min_winch_tension_N") is not None else "-")
@@ -65,6 +68,9 @@ def format_table(summaries: dict) -> str:
             f"{s['max_tilt_deg']:8.4f} {s['max_constraint_violation']:9.1e} {tension:>15} "
             f"{step['median']:11.1f} {step['mean']:9.1f} {step['p99']:7.1f} {paper_s}"
         )
+    for method, s in summaries.items():
+        if s.get("diverged_at_s") is not None:
+            lines.append(f"{method}: diverged at t = {s['diverged_at_s']:.2f} s; the figures above stop there")
     lines.append("MATLAB: the paper's mean control-step time (R2019b, i7-8700). Paper bounds: 5.3 mm, 1.1 deg.")
     return "\n".join(lines)
 

@@ -104,23 +104,36 @@ def main(argv: list[str] | None = None) -> int:
         scenario = Scenario.from_model(model)
         duration = args.duration if args.duration is not None else path.duration
         rate, step = spec.controller.rate_hz, spec.simulation.step
-        controllers = [make_controller(m, model, path, gains) for m in methods]
         steps = int(round(duration * rate))
         results, summaries, warnings = {}, {}, []
         with tqdm(total=steps * len(methods), unit="step", disable=args.quiet or None,
                   desc="simulating", file=sys.stderr) as bar:
-            for controller in controllers:
-                bar.set_postfix_str(controller.name)
-                r = simulate(model, path, controller, plant, start.q, duration, rate, step, progress=bar.update)
-                results[controller.name] = r
-                summaries[controller.name] = summarize(r, scenario, model.layout)
-                low = summaries[controller.name]["min_winch_tension_N"]
+            for method in methods:
+                bar.set_postfix_str(method)
+                try:
+                    controller = make_controller(method, model, path, gains)
+                    r = simulate(model, path, controller, plant, start.q, duration, rate, step,
+                                 progress=bar.update, allow_divergence=True)
+                except (SingularSystemError, RecoveryError) as err:
+                    # This method cannot handle this system (e.g. MLM and redundant constraints): say
+                    # why, and go on with the others.
+                    summaries[method] = {"error": str(err)}
+                    warnings.append(f"{method} cannot run on this spec: {err}")
+                    bar.update(steps)
+                    continue
+                results[method] = r
+                summaries[method] = summarize(r, scenario, model.layout)
+                if r.diverged_at is not None:
+                    summaries[method]["diverged_at_s"] = r.diverged_at
+                    warnings.append(f"{method} diverged at t = {r.diverged_at:.2f} s: {r.divergence}")
+                    bar.update(steps - len(r.t) + 1)
+                low = summaries[method]["min_winch_tension_N"]
                 if low is not None and low <= 0:
-                    warnings.append(f"{controller.name}: slack cable, the winch tension reached {low:.3g} N")
+                    warnings.append(f"{method}: slack cable, the winch tension reached {low:.3g} N")
     except (SpecError, StaleModelError, EquilibriumError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    except (SingularSystemError, RecoveryError, SimulationError, ValueError) as err:
+    except (SimulationError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 3
 
@@ -134,9 +147,13 @@ def main(argv: list[str] | None = None) -> int:
     print(format_table(summaries))
     for w in warnings:
         print(f"warning: {w}")
-    if not args.no_plots:
-        write_figures(out, results, scenario, summaries, model.layout.inputs, model.layout.servo_constraints)
+    if not args.no_plots and results:
+        write_figures(out, results, scenario, {m: s for m, s in summaries.items() if m in results},
+                      model.layout.inputs, model.layout.servo_constraints)
     print(f"results in {out}/")
+    if not results:
+        print("error: no method could run on this spec (see the warnings above)", file=sys.stderr)
+        return 3
     return 0
 
 

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .compiled import CompiledModel
-from .controllers import Controller
+from .controllers import Controller, SingularSystemError
 from .path import DesiredPath
 from .plant import Plant, SimulationError
 from .spec import PositionTask, WinchTension, YawTask
@@ -30,6 +30,13 @@ class RunResult:
     # With energy=True, per instant: mechanical energy T + U, and the work so far of the inputs, of the
     # moving anchors (through the constraint forces), and the energy dissipated by damping.
     energy: dict[str, np.ndarray] = field(default_factory=dict)
+    # With allow_divergence: when and why the run was stopped early (None: it ran to the end).
+    diverged_at: float | None = None
+    divergence: str | None = None
+
+
+# A run that strays this far from the path (m) has diverged: nothing useful follows.
+DIVERGENCE_LIMIT_M = 0.5
 
 
 @dataclass
@@ -71,12 +78,18 @@ def simulate(
     plant_step: float,
     progress=None,
     energy: bool = False,
+    allow_divergence: bool = False,
 ) -> RunResult:
     """Run the closed loop from rest at q0 for `duration` seconds.
 
     The path's signals are evaluated once for the whole run (vectorized) at every RK4 stage time;
     the controller reads its row at each control instant. With energy=True the mechanical energy
     and the integrated works are recorded at every instant.
+
+    A run diverges when the state or input stops being finite, the controller's system turns
+    singular, or the tracked point strays more than DIVERGENCE_LIMIT_M from the path. That raises
+    SimulationError, or with allow_divergence returns the run up to that instant with
+    `diverged_at` and `divergence` set.
     """
     lay = model.layout
     n = lay.n
@@ -102,24 +115,36 @@ def simulate(
     sigma_out, phi_out = sigma_fn.outputs["sigma"], phi_fn.outputs["phi"]
     x = plant.initial_state(q0)
     p = lay.path_signal
+    position_rows = Scenario.from_model(model).position_rows
     clock = time.perf_counter
+    diverged_at = divergence = None
     wall0 = clock()
     for k in range(samples):
         t = rec_t[k]
         row = table[2 * substeps * k]
         q, qd = x[:n], x[n : 2 * n]
         t0 = clock()
-        u = controller.compute(q, qd, t, row)
+        try:
+            u = controller.compute(q, qd, t, row)
+        except SingularSystemError as err:
+            if k == 0:
+                raise  # not a divergence: the method cannot handle this system at all
+            diverged_at = t
+            divergence = str(err) if np.isfinite(x).all() else "the state became non-finite"
+            break
         step_s[k] = clock() - t0
         if not (np.isfinite(u).all() and np.isfinite(x).all()):
-            raise SimulationError(
-                f"{controller.name}: the state or input became non-finite at t = {t:.2f} s (the loop diverged)"
-            )
+            diverged_at, divergence = t, "the state or input became non-finite"
+            break
         rec_q[k], rec_qd[k], rec_u[k] = q, qd, u
         sigma_fn.call()  # at the state and signals the controller just loaded
         phi_fn.call()
         rec_sigma[k], rec_phi[k] = sigma_out, phi_out
         rec_des[k] = row[p : p + 4]
+        if np.abs(sigma_out[position_rows]).max() > DIVERGENCE_LIMIT_M:
+            diverged_at, divergence = t, f"the tracked point strayed more than {DIVERGENCE_LIMIT_M} m from the path"
+            k += 1
+            break
         if energy:
             rec_energy[k, 0] = plant.mechanical_energy(q, qd)
             rec_energy[k, 1:] = x[2 * n :]
@@ -129,7 +154,16 @@ def simulate(
         if progress is not None:
             progress(1)
     wall = clock() - wall0
-    result = RunResult(controller.name, rec_t, rec_q, rec_qd, rec_u, rec_sigma, rec_phi, rec_des, step_s, wall)
+    if diverged_at is not None:
+        if not allow_divergence:
+            raise SimulationError(f"{controller.name}: the loop diverged at t = {diverged_at:.2f} s: {divergence}")
+        kept = slice(0, max(k, 1))  # the instants before it went wrong
+        rec_t, rec_q, rec_qd, rec_u = rec_t[kept], rec_q[kept], rec_qd[kept], rec_u[kept]
+        rec_sigma, rec_phi, rec_des, step_s = rec_sigma[kept], rec_phi[kept], rec_des[kept], step_s[kept]
+        if energy:
+            rec_energy = rec_energy[kept]
+    result = RunResult(controller.name, rec_t, rec_q, rec_qd, rec_u, rec_sigma, rec_phi, rec_des, step_s, wall,
+                       diverged_at=diverged_at, divergence=divergence)
     if energy:
         names = ("mechanical", "work_inputs", "work_anchors", "dissipated")
         result.energy = {name: rec_energy[:, i].copy() for i, name in enumerate(names)}

@@ -113,9 +113,19 @@ def test_translating_the_whole_crane_keeps_the_constraints(crane, seed):
 
 @pytest.mark.parametrize("axis", ["vertical", "random"])
 def test_rotating_the_crane_about_its_anchor_keeps_the_constraints(crane, axis):
-    """A rigid rotation about an axis through the (fixed) anchor: r' = w x (r - A), e' = w x e, L' = 0."""
+    """A rigid rotation about an axis through the (fixed) anchor: r' = w x (r - A), e' = w x e, L' = 0.
+
+    The orthonormality and cable rows are rotation invariant everywhere; a redundant row w − u×v is
+    only covariant (its rate is ω × (w − u×v)), so it is checked where it holds: proper rotations.
+    """
     rng = np.random.default_rng(3)
     q, _, s, _, _ = random_state(crane, rng)
+    if crane.layout.redundant_rows:
+        oriented = _oriented_state(crane, rng)
+        for body in crane.spec.bodies:  # random positions, proper orthonormal axes
+            r, _ = body_slices(crane, body.name)
+            oriented[r] = q[r]
+        q = oriented
     [anchor] = anchor_signal_slices(crane) or [None]
     centre = s[anchor] if anchor is not None else np.array(crane.spec.anchors[0].position)
     omega = np.array([0.0, 0.0, 0.7]) if axis == "vertical" else rng.standard_normal(3)
@@ -180,7 +190,8 @@ def test_thrust_actuator_does_virtual_work_f_dot_dr(crane, seed):
     q = _oriented_state(crane, rng)
     h = crane.term("input_matrix", q=q)
     thrusts = [(j, a) for j, a in enumerate(crane.spec.actuators) if isinstance(a, BodyThrust)]
-    assert thrusts
+    if not thrusts:
+        pytest.skip(f"spec {crane.spec.name} has no thrust actuator")
     for j, act in thrusts:
         dr, dtheta, f = 1e-3 * rng.standard_normal(3), 1e-3 * rng.standard_normal(3), 3.0
         _, axes = body_slices(crane, act.body)

@@ -1,0 +1,198 @@
+"""What the penalty formulation buys you: `python -m acroboter.study [redundant|noncollocated|all]`.
+
+- redundant: the default crane, the same crane with redundant geometric constraints (w = u × v on
+  both bodies) and with a redundant task (yaw twice), under MLM, Penalty and Iterative Penalty.
+- noncollocated: the four-input crane (three winches and the yaw torque, task XYZ and yaw) under
+  MLM and the penalty methods with every input recovery (projected, eq12, eq13, eq15, κ = 0, 0.5, 1):
+  which track, which drift, which diverge and when.
+
+Writes a Markdown table, summary.json and figures per study into --out (default results/study).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from .build import REPO
+
+SPECS = REPO / "model_spec"
+REDUNDANT_SPECS = ("acroboter", "acroboter_redundant", "acroboter_redundant_task")
+RECOVERY_CASES = (("projected", None), ("eq12", None), ("eq13", None), ("eq15", None),
+                  ("kappa", 0.0), ("kappa", 0.5), ("kappa", 1.0))
+
+
+def _setup(spec_name: str):
+    from .compiled import CompiledModel
+    from .simulation import Scenario, setup_default
+    from .spec import load_spec
+    from .statics import desired_path, solve_equilibrium
+
+    spec = load_spec(SPECS / f"{spec_name}.toml")
+    model = CompiledModel(spec)
+    path = desired_path(model)
+    start = solve_equilibrium(model, path)
+    return spec, model, path, start, setup_default(model, path), Scenario.from_model(model)
+
+
+def run_case(spec_name: str, method: str, duration: float | None, **overrides) -> dict:
+    """One closed-loop run; the outcome whatever it is: figures, a divergence, or the method's refusal."""
+    from .controllers import Gains, SingularSystemError, make_controller
+    from .recovery import RecoveryError
+    from .simulation import simulate, summarize
+
+    spec, model, path, start, plant, scenario = _setup(spec_name)
+    gains = Gains.from_spec(spec, **overrides)
+    duration = path.duration if duration is None else duration
+    case = {"spec": spec_name, "method": method, **{k: v for k, v in overrides.items() if v is not None}}
+    try:
+        controller = make_controller(method, model, path, gains)
+        result = simulate(model, path, controller, plant, start.q, duration, spec.controller.rate_hz,
+                          spec.simulation.step, allow_divergence=True)
+    except (SingularSystemError, RecoveryError) as err:
+        return {**case, "outcome": "refused", "message": str(err)}
+    summary = summarize(result, scenario, model.layout)
+    error = np.linalg.norm(result.sigma[:, scenario.position_rows], axis=1)
+    outcome = "diverged" if result.diverged_at is not None else "ran to the end"
+    return {**case, "outcome": outcome, "diverged_at_s": result.diverged_at, "divergence": result.divergence,
+            "summary": summary, "t": result.t.tolist(), "position_error_mm": (1e3 * error).tolist(),
+            "winch_min_N": result.u[:, scenario.winch_inputs].min(axis=1).tolist() if scenario.winch_inputs else []}
+
+
+def _label(case: dict) -> str:
+    label = case["method"]
+    if case.get("recovery"):
+        label += f" / {case['recovery']}"
+        if case.get("kappa") is not None:
+            label += f" κ={case['kappa']:g}"
+    return label
+
+
+def study_redundant(duration: float | None, progress) -> list[dict]:
+    cases = []
+    for spec_name in REDUNDANT_SPECS:
+        for method in ("mlm", "penalty", "iterative-3", "iterative-5"):
+            cases.append(run_case(spec_name, method, duration))
+            progress(1)
+    return cases
+
+
+def study_noncollocated(duration: float | None, progress) -> list[dict]:
+    cases = [run_case("acroboter_4input", "mlm", duration)]
+    progress(1)
+    for recovery, kappa in RECOVERY_CASES:
+        for method in ("penalty", "iterative-3"):
+            cases.append(run_case("acroboter_4input", method, duration, recovery=recovery, kappa=kappa))
+            progress(1)
+    return cases
+
+
+def markdown_table(cases: list[dict], with_spec: bool) -> str:
+    head = ("| " + ("spec | " if with_spec else "") + "method | outcome | max pos. error [mm] | rms [mm] | "
+            "max yaw error [°] | max tilt [°] | max \\|φ\\| | min winch tension [N] |")
+    columns = 8 + (1 if with_spec else 0)
+    lines = [head, "|" + "---|" * columns]
+    for c in cases:
+        first = (f"| {c['spec']} | " if with_spec else "| ") + f"{_label(c)} | "
+        if c["outcome"] == "refused":
+            lines.append(first + f"refused: {c['message'].split(':')[0]} | – | – | – | – | – | – |")
+            continue
+        s = c["summary"]
+        outcome = c["outcome"] if c["diverged_at_s"] is None else f"diverged at {c['diverged_at_s']:.2f} s"
+        yaw = f"{s['max_yaw_error_deg']:.4f}" if s["max_yaw_error_deg"] is not None else "–"
+        lines.append(first + f"{outcome} | {s['max_position_error_mm']:.4g} | {s['rms_position_error_mm']:.4g} | "
+                     f"{yaw} | {s['max_tilt_deg']:.3g} | {s['max_constraint_violation']:.1e} | "
+                     f"{s['min_winch_tension_N']:.4g} |")
+    return "\n".join(lines)
+
+
+def figure_errors(cases: list[dict], path: Path, title: str, with_spec: bool) -> None:
+    """Position error over time: the whole run on the left, the first 1.5 s on the right."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5), gridspec_kw={"width_ratios": [3, 2]})
+    colors = plt.cm.tab10(np.linspace(0, 1, 10))
+    shown = [c for c in cases if c["outcome"] != "refused"]
+    # One colour per variant (spec, or recovery); penalty solid, iterative dashed.
+    def key(c):
+        return (c["spec"], c["method"] == "mlm") if with_spec else (c.get("recovery"), c.get("kappa"))
+
+    keys = list(dict.fromkeys(key(c) for c in shown))
+    for c in shown:
+        label = (f"{c['spec']}: " if with_spec else "") + _label(c)
+        if c["diverged_at_s"] is not None:
+            label += f" (diverged {c['diverged_at_s']:.2f} s)"
+        err = np.maximum(np.asarray(c["position_error_mm"]), 1e-6)
+        style = {"color": colors[keys.index(key(c)) % 10], "lw": 1.0,
+                 "ls": "--" if c["method"].startswith("iterative") else "-"}
+        for ax in axes:
+            ax.semilogy(c["t"], err, label=label, **style)
+    for ax in axes:
+        ax.axhline(5.3, color="k", ls=":", lw=1, label="paper's bound, 5.3 mm")
+        ax.set_xlabel("t [s]")
+        ax.grid(alpha=0.3, which="both")
+    axes[1].set_xlim(0, 1.5)
+    axes[0].set_ylabel("|r_SU − r_d| [mm]")
+    axes[0].set_title("whole run")
+    axes[1].set_title("first 1.5 s")
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=7, ncol=3, loc="lower center")
+    fig.suptitle(title)
+    fig.tight_layout(rect=(0, 0.07 + 0.02 * ((len(shown) + 3) // 3), 1, 1))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _write(out: Path, name: str, cases: list[dict], title: str, with_spec: bool) -> str:
+    folder = out / name
+    folder.mkdir(parents=True, exist_ok=True)
+    table = markdown_table(cases, with_spec)
+    (folder / "table.md").write_text(table + "\n")
+    brief = [{k: v for k, v in c.items() if k not in ("t", "position_error_mm", "winch_min_N")} for c in cases]
+    (folder / "summary.json").write_text(json.dumps(brief, indent=2) + "\n")
+    figure_errors(cases, folder / "position_error.png", title, with_spec)
+    return table
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m acroboter.study", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("which", nargs="?", choices=["redundant", "noncollocated", "all"], default="all")
+    parser.add_argument("--duration", type=float, default=None, help="simulated seconds (default: the whole path)")
+    parser.add_argument("--out", type=Path, default=Path("results/study"))
+    args = parser.parse_args(argv)
+    from tqdm import tqdm
+
+    from .compiled import StaleModelError
+    from .spec import SpecError
+
+    total = (12 if args.which in ("redundant", "all") else 0) + (
+        1 + 2 * len(RECOVERY_CASES) if args.which in ("noncollocated", "all") else 0)
+    try:
+        with tqdm(total=total, unit="run", file=sys.stderr) as bar:
+            if args.which in ("redundant", "all"):
+                cases = study_redundant(args.duration, bar.update)
+                print("## Redundant constraints and a redundant task\n")
+                print(_write(args.out, "redundant", cases, "Redundant constraints and task: position error",
+                             with_spec=True))
+            if args.which in ("noncollocated", "all"):
+                cases = study_noncollocated(args.duration, bar.update)
+                print("\n## Non-collocated four-input crane\n")
+                print(_write(args.out, "noncollocated", cases, "Four inputs (non-collocated): position error",
+                             with_spec=False))
+    except (SpecError, StaleModelError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    print(f"\nresults in {args.out}/")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
