@@ -20,7 +20,7 @@ class CasadiFunction:
     def __init__(self, function, inputs: list[np.ndarray]):
         self.function = function
         self.name = function.name()
-        self.inputs = list(inputs)
+        self.inputs = [self._shaped(i, a) for i, a in enumerate(inputs)]
         self.outputs = {}
         for i in range(function.n_out()):
             rows, cols = function.size_out(i)
@@ -33,9 +33,15 @@ class CasadiFunction:
         for out, value in zip(self.outputs.values(), results, strict=True):
             out[...] = value.full().reshape(out.shape, order="F")
 
+    def _shaped(self, index: int, flat: np.ndarray) -> np.ndarray:
+        """A view of a flat (column-major) buffer in the input's own shape, as casadi wants it."""
+        rows, cols = self.function.size_in(index)
+        return flat if cols == 1 else flat.reshape((rows, cols), order="F")
+
     def point_input(self, index: int, address: int) -> None:
         size = self.function.numel_in(index)
-        self.inputs[index] = np.ctypeslib.as_array((ctypes.c_double * size).from_address(address))
+        flat = np.ctypeslib.as_array((ctypes.c_double * size).from_address(address))
+        self.inputs[index] = self._shaped(index, flat)
 
 
 class CasadiModel:

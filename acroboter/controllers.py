@@ -200,7 +200,7 @@ class Penalty(Controller):
             self.u[:] = self.recovery.u
             return self.u
         self._multipliers()
-        self.u[:] = self.recovery.recover(T, self.lam_hat, x, self.lam)
+        self.u[:] = self.recovery.recover(T, self.lam_hat, self._qdd_last, self.lam)
         return self.u
 
     def _multipliers(self) -> None:

@@ -150,21 +150,31 @@ class Cable(_Strict):
     winch: Winch | None = None
 
 
-class WinchTension(_Strict):
+class _ActuatorBase(_Strict):
     name: Name
+    # Generalized force per unit input (a motor constant, or -1 for a reversed mounting).
+    gain: float = 1.0
+
+    @field_validator("gain")
+    @classmethod
+    def _gain_nonzero(cls, value: float) -> float:
+        if value == 0:
+            raise ValueError("expected a nonzero gain (a zero gain is no actuator), found 0")
+        return value
+
+
+class WinchTension(_ActuatorBase):
     kind: Literal["winch_tension"]
     cable: str
 
 
-class BodyTorque(_Strict):
-    name: Name
+class BodyTorque(_ActuatorBase):
     kind: Literal["body_torque"]
     body: str
     axis: Literal["u", "v", "w"]
 
 
-class BodyThrust(_Strict):
-    name: Name
+class BodyThrust(_ActuatorBase):
     kind: Literal["body_thrust"]
     body: str
     axis: Literal["u", "v", "w"]

@@ -169,7 +169,7 @@ def build_symbolic_model(spec: Spec) -> SymbolicModel:
             for k in range(4):
                 if weights[k] != 0:
                     col[i + 3 * k : i + 3 * k + 3] = weights[k] * force
-        columns.append(col)
+        columns.append(act.gain * col if act.gain != 1.0 else col)
     input_matrix = ca.horzcat(*columns)
 
     return SymbolicModel(

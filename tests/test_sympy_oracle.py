@@ -196,7 +196,7 @@ def derive(spec: Spec) -> Oracle:
             col[i : i + 12, 0] = _kron_point(act.point).T * axis(act.body, act.axis)
         else:  # pragma: no cover
             raise AssertionError(f"oracle does not know actuator {act}")
-        columns.append(col)
+        columns.append(sp.nsimplify(act.gain) * col)
     H = sp.Matrix.hstack(*columns)
 
     exprs = {
@@ -263,7 +263,8 @@ def variant_spec() -> Spec:
         {"name": "tension_stay", "kind": "winch_tension", "cable": "stay"},
         {"name": "roll_torque", "kind": "body_torque", "body": "CC", "axis": "u"},
         {"name": "pitch_torque", "kind": "body_torque", "body": "SU", "axis": "v"},
-        {"name": "thrust_w_cc", "kind": "body_thrust", "body": "CC", "axis": "w", "point": [0.0, 0.3, -0.1]},
+        {"name": "thrust_w_cc", "kind": "body_thrust", "body": "CC", "axis": "w", "point": [0.0, 0.3, -0.1],
+         "gain": -2.5},
     ]
     for task in data["task"]:
         if task["kind"] == "yaw":
@@ -441,4 +442,5 @@ def test_energies_and_input_powers_agree_with_rigid_body_physics(name):
                     expected = a @ omega
                 else:
                     expected = a @ (v + np.cross(omega, rot @ np.array(act.point)))
+            expected *= act.gain
             assert_close(np.array([qd @ H[:, col]]), np.array([expected]), f"{name}: power of input {act.name}")

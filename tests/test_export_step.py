@@ -1,0 +1,406 @@
+"""Embedded control step (codegen.export_step): the exported C, compiled with a small C driver, gives the
+same u as the Python controllers (to 1e-8 relative to max(|u|, 1)) at states of a short closed-loop run
+and at noisy copies of some of them (off the constraint manifold, where Ω and μ matter), for penalty,
+MLM and iterative-3 in both formulations, with the spec's gains and with distinct made-up gains; the
+default formulation also against a 40-digit evaluation of the same control law on every shipped spec.
+
+The driver also times the exported step (per-call ns over batches of calls: median, mean, best batch);
+the figure is printed (run with -s) and recorded as a test property, never asserted: the goal is <= 5 us.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import tomllib
+from pathlib import Path
+
+import mpmath
+import numpy as np
+import pytest
+
+from acroboter.compiled import CompiledModel
+from acroboter.controllers import Gains, make_controller
+from acroboter.simulation import setup_default, simulate
+from acroboter.spec import load_spec, parse_spec
+from acroboter.statics import desired_path, solve_equilibrium
+from codegen import export_step
+from codegen.export_step import ExportError, build_step, main, step_name, write_step
+from codegen.generate import generate
+
+REPO = Path(__file__).resolve().parent.parent
+SPEC_PATH = REPO / "model_spec" / "acroboter.toml"
+SHIPPED_SPECS = sorted((REPO / "model_spec").glob("*.toml"))
+RTOL = 1e-8  # |u_C - u_Python| <= RTOL * max(|u|, 1), per component
+N_STATES = 10
+N_NOISY = 4
+# Gains unlike each other and unlike the spec's, so a swapped or dropped gain shows.
+DISTINCT = {"kp": 4.0, "kd": 6.0, "alpha_geometric": 1e5, "alpha_servo": 1e6, "omega": 7.0, "mu": 0.8}
+RUN_SECONDS = 3.0
+# -O2 -fPIC as the project builds its model library; IEEE semantics (never -ffast-math).
+CFLAGS = ("-O2", "-fPIC", "-fno-fast-math")
+TIMING_BATCHES, TIMING_CALLS = 300, 200
+
+DRIVER = r"""
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include "@NAME@.h"
+
+/* Reads "count n ns l" then count states (q[n] qd[n] s[ns] sd[ns] sdd[ns], %.17g text) from argv[1];
+ * prints one line "u <index> u_0 ... u_{l-1}" per state, then "timing_ns <median> <mean> <min>". */
+
+static double now_ns(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return 1e9 * (double)ts.tv_sec + (double)ts.tv_nsec;
+}
+
+static int cmp_double(const void* a, const void* b) {
+  double x = *(const double*)a, y = *(const double*)b;
+  return (x > y) - (x < y);
+}
+
+int main(int argc, char** argv) {
+  casadi_int sz_arg, sz_res, sz_iw, sz_w, i, j;
+  int count, n, ns, l, stride, b, batches = @BATCHES@, calls = @CALLS@;
+  FILE* f;
+  double *data, *u, *w, *times, total = 0.0;
+  casadi_int* iw;
+  const casadi_real** arg;
+  casadi_real** res;
+  const casadi_int* sp;
+  if (argc < 2 || !(f = fopen(argv[1], "r"))) { fprintf(stderr, "cannot open the states file\n"); return 2; }
+  if (fscanf(f, "%d %d %d %d", &count, &n, &ns, &l) != 4) { fprintf(stderr, "bad header\n"); return 2; }
+  /* The generated API must agree with the file: dense column vectors q, qd (n), s, sd, sdd (ns), u (l). */
+  if (@NAME@_n_in() != 5 || @NAME@_n_out() != 1) { fprintf(stderr, "unexpected signature\n"); return 3; }
+  for (i = 0; i < 5; ++i) {
+    sp = @NAME@_sparsity_in(i);
+    if (sp[0] != (i < 2 ? n : ns) || sp[1] != 1) { fprintf(stderr, "input %d has the wrong size\n", (int)i); return 3; }
+  }
+  sp = @NAME@_sparsity_out(0);
+  if (sp[0] != l || sp[1] != 1 || sp[2] != 1) { fprintf(stderr, "output u is not dense [%d]\n", l); return 3; }
+  stride = 2 * n + 3 * ns;
+  data = malloc(sizeof(double) * (size_t)(count * stride));
+  for (i = 0; i < (casadi_int)count * stride; ++i) {
+    if (fscanf(f, "%lf", &data[i]) != 1) { fprintf(stderr, "short states file\n"); return 2; }
+  }
+  fclose(f);
+
+  @NAME@_work(&sz_arg, &sz_res, &sz_iw, &sz_w);
+  arg = calloc((size_t)sz_arg, sizeof *arg);
+  res = calloc((size_t)sz_res, sizeof *res);
+  iw = calloc((size_t)(sz_iw > 0 ? sz_iw : 1), sizeof *iw);
+  w = calloc((size_t)(sz_w > 0 ? sz_w : 1), sizeof *w);
+  u = calloc((size_t)(count * l), sizeof *u);
+  times = malloc(sizeof(double) * (size_t)batches);
+
+  for (i = 0; i < count; ++i) {
+    double* x = data + i * stride;
+    arg[0] = x; arg[1] = x + n; arg[2] = x + 2 * n; arg[3] = x + 2 * n + ns; arg[4] = x + 2 * n + 2 * ns;
+    res[0] = u + i * l;
+    if (@NAME@(arg, res, iw, w, 0) != 0) { fprintf(stderr, "step failed at state %d\n", (int)i); return 4; }
+    printf("u %d", (int)i);
+    for (j = 0; j < l; ++j) printf(" %.17g", u[i * l + j]);
+    printf("\n");
+  }
+
+  /* Timing: batches of calls cycling through the states; per-call time of each batch. */
+  for (b = 0; b < batches; ++b) {
+    double t0 = now_ns();
+    for (i = 0; i < calls; ++i) {
+      double* x = data + (i % count) * stride;
+      arg[0] = x; arg[1] = x + n; arg[2] = x + 2 * n; arg[3] = x + 2 * n + ns; arg[4] = x + 2 * n + 2 * ns;
+      res[0] = u + (i % count) * l;
+      @NAME@(arg, res, iw, w, 0);
+    }
+    times[b] = (now_ns() - t0) / calls;
+    total += times[b];
+  }
+  qsort(times, (size_t)batches, sizeof(double), cmp_double);
+  printf("timing_ns %.1f %.1f %.1f\n", times[batches / 2], total / batches, times[0]);
+  return 0;
+}
+"""
+
+
+@pytest.fixture(scope="module")
+def scenario():
+    """The default spec's model, path and states: N_STATES of a short penalty closed-loop run, plus
+    N_NOISY noisy copies of them (sensor-like noise: φ ≠ 0, so the geometric penalty dynamics enter u)."""
+    spec = load_spec(SPEC_PATH)
+    model = CompiledModel(spec)
+    path = desired_path(model)
+    start = solve_equilibrium(model, path)
+    gains = Gains.from_spec(spec)
+    controller = make_controller("penalty", model, path, gains)
+    run = simulate(model, path, controller, setup_default(model, path), start.q, RUN_SECONDS,
+                   spec.controller.rate_hz, spec.simulation.step)
+    picks = np.linspace(len(run.t) // 10, len(run.t) - 1, N_STATES).round().astype(int)
+    states = [(float(run.t[i]), run.q[i].copy(), run.qd[i].copy()) for i in picks]
+    # Not trivially the equilibrium: the SU moves along the first edge of the path.
+    assert max(np.abs(qd).max() for _, _, qd in states) > 1e-3
+    rng = np.random.default_rng(2024)
+    for t, q, qd in states[:: N_STATES // N_NOISY][:N_NOISY]:
+        states.append((t, q + 1e-4 * rng.standard_normal(q.size), qd + 1e-3 * rng.standard_normal(qd.size)))
+    return spec, model, path, gains, states
+
+
+def compile_driver(source_dir: Path, name: str) -> Path:
+    compiler = os.environ.get("CC", "cc")
+    if shutil.which(compiler) is None:
+        pytest.fail(f"no C compiler '{compiler}' found")
+    driver = source_dir / "driver.c"
+    driver.write_text(
+        DRIVER.replace("@NAME@", name).replace("@BATCHES@", str(TIMING_BATCHES)).replace("@CALLS@", str(TIMING_CALLS))
+    )
+    exe = source_dir / "driver"
+    cmd = [compiler, *CFLAGS, "-I", str(source_dir), str(driver), str(source_dir / f"{name}.c"), "-lm", "-o", str(exe)]
+    result = subprocess.run(cmd, capture_output=True, text=True)
+    assert result.returncode == 0, f"compiling the exported step failed:\n{' '.join(cmd)}\n{result.stderr}"
+    return exe
+
+
+def run_driver(exe: Path, states_file: Path, l: int) -> tuple[np.ndarray, tuple[float, float, float]]:
+    result = subprocess.run([str(exe), str(states_file)], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, f"driver failed ({result.returncode}):\n{result.stderr}"
+    rows, timing = {}, None
+    for line in result.stdout.splitlines():
+        fields = line.split()
+        if fields[0] == "u":
+            rows[int(fields[1])] = [float(v) for v in fields[2:]]
+        elif fields[0] == "timing_ns":
+            timing = tuple(float(v) for v in fields[1:])
+    u = np.array([rows[i] for i in sorted(rows)])
+    assert u.shape[1] == l and timing is not None
+    return u, timing
+
+
+def write_states(path: Path, model, desired, states) -> None:
+    lay = model.layout
+    lines = [f"{len(states)} {lay.n} {lay.n_signals} {lay.l}"]
+    for t, q, qd in states:
+        s, sd, sdd = desired.signal_arrays(t)
+        lines.append(" ".join(f"{v:.17g}" for v in np.concatenate([q, qd, s, sd, sdd])))
+    path.write_text("\n".join(lines) + "\n")
+
+
+def python_inputs(model, desired, gains, method, states) -> np.ndarray:
+    controller = make_controller(method, model, desired, gains)
+    return np.array([controller.compute(q, qd, t).copy() for t, q, qd in states])
+
+
+def exported_inputs(tmp_path: Path, spec, model, desired, method, gains, states, **options):
+    export = build_step(spec, method, gains, spec_path=SPEC_PATH, **options)
+    out = tmp_path / export.name
+    write_step(export, out)
+    exe = compile_driver(out, export.name)
+    states_file = out / "states.txt"
+    write_states(states_file, model, desired, states)
+    return run_driver(exe, states_file, model.layout.l)
+
+
+def relative_error(u_c: np.ndarray, u_py: np.ndarray) -> float:
+    return float((np.abs(u_c - u_py) / np.maximum(np.abs(u_py), 1.0)).max())
+
+
+CASES = [  # (method, build_step options, gain overrides); {} options = the CLI default formulation
+    ("penalty", {}, {}),
+    ("penalty", {"penalty_system": "matrix"}, {}),
+    ("mlm", {}, {}),
+    ("mlm", {"mlm_system": "full"}, {}),
+    ("iterative-3", {}, {}),
+    ("iterative-3", {"penalty_system": "matrix"}, {}),
+    ("penalty", {}, DISTINCT),
+    ("mlm", {}, DISTINCT),
+]
+
+
+def _label(method, options, overrides) -> str:
+    return " ".join([method, *options.values(), *(["distinct-gains"] if overrides else [])])
+
+
+@pytest.mark.parametrize(("method", "options", "overrides"), CASES, ids=[_label(*case) for case in CASES])
+def test_exported_step_matches_python_controller(method, options, overrides, scenario, tmp_path, record_property):
+    spec, model, desired, _, states = scenario
+    gains = Gains.from_spec(spec, **overrides)
+    u_c, (median_ns, mean_ns, min_ns) = exported_inputs(tmp_path, spec, model, desired, method, gains, states,
+                                                        **options)
+    u_py = python_inputs(model, desired, gains, method, states)
+    assert np.all(np.isfinite(u_c))
+    err = relative_error(u_c, u_py)
+    record_property("max_relative_error", err)
+    record_property("step_ns_median", median_ns)
+    record_property("step_ns_mean", mean_ns)
+    label = _label(method, options, overrides)
+    print(f"\n{label}: exported C step {median_ns / 1e3:.2f} us median, {mean_ns / 1e3:.2f} us mean, "
+          f"{min_ns / 1e3:.2f} us best batch; max relative difference from Python {err:.1e}")
+    assert err <= RTOL, f"{label}: exported step differs from the Python controller by {err:.2e} (relative)"
+
+
+@pytest.mark.parametrize(("method", "recovery"), [
+    ("iterative-2", "eq12"),
+    # eq13 needs q̈_N. controllers.Penalty.compute passes q̈₁ to the recovery (its `x`), which differs for
+    # N ≥ 2 (by ~3e-7 here); eq13 equals eq12 exactly, which the export reproduces to 1e-16 for N ≥ 2.
+    ("penalty", "eq13"),
+    ("iterative-2", "eq15"),
+    ("iterative-2", "kappa"),
+])
+@pytest.mark.parametrize("system", ["multipliers", "matrix"])
+def test_other_recoveries_match_python(method, recovery, system, scenario):
+    """The non-default recoveries, through the export's casadi.Function (the graph the C is generated from)."""
+    spec, model, desired, _, states = scenario
+    gains = Gains.from_spec(spec, recovery=recovery, kappa=0.3)
+    step = build_step(spec, method, gains, penalty_system=system).function
+    u_c = np.array([np.asarray(step(q, qd, *desired.signal_arrays(t))).ravel() for t, q, qd in states])
+    u_py = python_inputs(model, desired, gains, method, states)
+    assert relative_error(u_c, u_py) <= RTOL
+
+
+@pytest.fixture(scope="module")
+def redundant_crane(tmp_path_factory):
+    """The default crane with w = u × v added as constraints on both bodies (6 redundant rows)."""
+    data = tomllib.loads(SPEC_PATH.read_text())
+    data["name"] = "redundant_export"
+    for body in data["bodies"]:
+        body["redundant_constraints"] = True
+    spec = parse_spec(data)
+    root = tmp_path_factory.mktemp("redundant")
+    generate(spec, root / "generated")
+    model = CompiledModel(spec, generated_dir=root / "generated", build_dir=root / "build")
+    return spec, model, desired_path(model)
+
+
+@pytest.mark.parametrize("method", ["penalty", "iterative-3"])
+def test_redundant_constraints(method, redundant_crane, scenario, tmp_path):
+    """Redundant rows: the projected recovery leaves them out (as the Python side does); no Tikhonov needed."""
+    spec, model, desired = redundant_crane
+    states = scenario[-1]  # the default crane's: same coordinates, and on (or, noisy, near) w = u × v
+    gains = Gains.from_spec(spec)
+    export = build_step(spec, method, gains)
+    assert export.system == "matrix"  # 'auto': the multiplier form's matrix is nearly singular here
+    assert any("6 redundant constraint rows left out" in note and "no Tikhonov" in note for note in export.notes)
+    write_step(export, tmp_path)
+    exe = compile_driver(tmp_path, export.name)
+    write_states(tmp_path / "states.txt", model, desired, states)
+    u_c, _ = run_driver(exe, tmp_path / "states.txt", model.layout.l)
+    assert relative_error(u_c, python_inputs(model, desired, gains, method, states)) <= RTOL
+
+
+def test_mlm_refuses_redundant_constraints(redundant_crane):
+    spec = redundant_crane[0]
+    with pytest.raises(ExportError, match="singular"):
+        build_step(spec, "mlm", Gains.from_spec(spec))
+
+
+def test_tikhonov_fallback_keeps_u(scenario, monkeypatch):
+    """If the projected recovery's matrix were still rank deficient after the redundant rows are left out,
+    the export adds 1e-12 * trace/size to the normal equations' diagonal: forced here, u stays put."""
+    spec, model, desired, gains, states = scenario
+    monkeypatch.setattr(export_step, "RANK_TOL", 2.0)  # every matrix counts as rank deficient
+    export = build_step(spec, "penalty", gains)
+    assert any("Tikhonov term" in note and "rank deficient" in note for note in export.notes)
+    u_c = np.array([np.asarray(export.function(q, qd, *desired.signal_arrays(t))).ravel() for t, q, qd in states])
+    assert relative_error(u_c, python_inputs(model, desired, gains, "penalty", states)) <= RTOL
+
+
+def _reference_inputs(model, desired, gains, method, states) -> np.ndarray:
+    """The penalty methods with the projected recovery, in 40-digit arithmetic (mpmath), from the model
+    terms at each state: a reference free of the round-off of either formulation."""
+    iterations = 1 if method == "penalty" else int(method.removeprefix("iterative-"))
+    lay = model.layout
+    rows = [i for i in range(lay.m) if i not in lay.redundant_rows]
+    out = []
+    with mpmath.workdps(40):
+        for t, q, qd in states:
+            s, sd, sdd = desired.signal_arrays(t)
+            T = {name: mpmath.matrix(np.atleast_1d(model.term(name, q, qd, s, sd, sdd)).tolist()) for name in (
+                "mass_matrix", "bias_forces", "phi", "phi_q", "phi_dot", "gamma",
+                "sigma", "sigma_q", "sigma_dot", "gamma_s", "input_matrix",
+            )}
+            M, phi_q, sigma_q, H = T["mass_matrix"], T["phi_q"], T["sigma_q"], T["input_matrix"]
+            rho = T["gamma"] + 2 * gains.omega * gains.mu * T["phi_dot"] + gains.omega**2 * T["phi"]
+            rho_s = T["gamma_s"] + 2 * gains.kd * T["sigma_dot"] + gains.kp**2 * T["sigma"]
+            A = M + gains.alpha_geometric * phi_q.T * phi_q + gains.alpha_servo * sigma_q.T * sigma_q
+            force = -gains.alpha_geometric * phi_q.T * rho - gains.alpha_servo * sigma_q.T * rho_s
+            qdd = mpmath.lu_solve(A, force - T["bias_forces"])
+            total = qdd
+            for _ in range(iterations - 1):
+                qdd = mpmath.lu_solve(A, M * qdd + force)
+                total += qdd
+            lam_hat = gains.alpha_servo * (sigma_q * total + iterations * rho_s)
+            B = mpmath.matrix(lay.n, lay.l + len(rows))
+            for r in range(lay.n):
+                for j in range(lay.l):
+                    B[r, j] = H[r, j]
+                for j, row in enumerate(rows):
+                    B[r, lay.l + j] = -phi_q[row, r]
+            minv = M**-1
+            x = mpmath.lu_solve(B.T * minv * B, -(B.T * minv * sigma_q.T) * lam_hat)
+            out.append([float(x[j]) for j in range(lay.l)])
+    return np.array(out)
+
+
+@pytest.mark.parametrize("spec_path", SHIPPED_SPECS, ids=lambda p: p.stem)
+@pytest.mark.parametrize("method", ["penalty", "iterative-3"])
+def test_default_formulation_against_high_precision(method, spec_path):
+    """The default formulation against the 40-digit reference, on every shipped spec. The multiplier form
+    stays far below the Python comparison's tolerance, which the Python controller's own round-off
+    limits (it solves the A form: ~1e-9 on the default crane, up to ~4e-8 on lab_crane's light bodies).
+    Specs with redundant constraints get the A form ('auto'), good to ~1e-9."""
+    spec = load_spec(spec_path)
+    model = CompiledModel(spec)
+    desired = desired_path(model)
+    q0 = solve_equilibrium(model, desired).q
+    rng = np.random.default_rng(5)
+    states = [(t, q0 + 1e-4 * rng.standard_normal(q0.size), 1e-2 * rng.standard_normal(q0.size)) for t in (1.0, 4.0)]
+    export = build_step(spec, method, Gains.from_spec(spec))
+    u_c = np.array([np.asarray(export.function(q, qd, *desired.signal_arrays(t))).ravel() for t, q, qd in states])
+    err = relative_error(u_c, _reference_inputs(model, desired, Gains.from_spec(spec), method, states))
+    assert err <= (1e-10 if export.system == "multipliers" else RTOL)
+
+
+def test_perturbed_gain_is_caught(scenario, tmp_path):
+    """The comparison has teeth: the same C export with kp off by 0.1% fails the tolerance by far."""
+    spec, model, desired, gains, states = scenario
+    wrong = Gains.from_spec(spec, kp=gains.kp * 1.001)
+    u_c, _ = exported_inputs(tmp_path, spec, model, desired, "penalty", wrong, states)
+    u_py = python_inputs(model, desired, gains, "penalty", states)
+    assert relative_error(u_c, u_py) > 100 * RTOL
+
+
+@pytest.mark.parametrize(("gain", "factor"), [
+    ("kp", 1.001), ("kd", 1.001), ("omega", 1.001), ("mu", 1.001), ("alpha_servo", 1.1), ("alpha_geometric", 2.0),
+])
+def test_every_gain_reaches_the_step(gain, factor, scenario):
+    """Each gain moves u beyond the tolerance (through the export's casadi.Function, the C's graph):
+    a gain the export dropped or swapped would fail the comparisons above."""
+    spec, model, desired, _, states = scenario
+    gains = Gains.from_spec(spec, **DISTINCT)
+    wrong = Gains.from_spec(spec, **(DISTINCT | {gain: DISTINCT[gain] * factor}))
+    step = build_step(spec, "penalty", wrong).function
+    u_c = np.array([np.asarray(step(q, qd, *desired.signal_arrays(t))).ravel() for t, q, qd in states])
+    assert relative_error(u_c, python_inputs(model, desired, gains, "penalty", states)) > 3 * RTOL
+
+
+def test_cli_writes_c_and_header_with_documented_gains(tmp_path):
+    out = tmp_path / "cli"
+    assert main(["--spec", str(SPEC_PATH), "--method", "iterative-3", "--kd", "6", "--out", str(out)]) == 0
+    spec = load_spec(SPEC_PATH)
+    name = step_name(spec, "iterative-3", "projected")
+    source, header = (out / f"{name}.c").read_text(), (out / f"{name}.h").read_text()
+    for text in (source, header):
+        assert text.startswith("/*\n")
+        assert "kd = 6.0" in text and "baked in as constants" in text and "CasADi 3.8.2" in text
+    assert f"int {name}(const casadi_real** arg, casadi_real** res" in header
+    assert main(["--method", "iterative-0", "--out", str(tmp_path / "bad")]) == 2
+
+
+def test_export_is_deterministic(tmp_path):
+    spec = load_spec(SPEC_PATH)
+    export = build_step(spec, "mlm", Gains.from_spec(spec), spec_path=SPEC_PATH)
+    first = [p.read_bytes() for p in write_step(export, tmp_path / "a")]
+    export = build_step(spec, "mlm", Gains.from_spec(spec), spec_path=SPEC_PATH)
+    assert first == [p.read_bytes() for p in write_step(export, tmp_path / "b")]
