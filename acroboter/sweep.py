@@ -1,6 +1,7 @@
 """Penalty-number study on Dask: `python -m acroboter.sweep` (see --help).
 
-The grid: the penalty numbers α (by default α̃ = α̂ = α, one value per decade from 1e3 to 1e12), the
+The grid: the penalty numbers α (by default α̃ = α̂ = α, one value per decade from 1e1 to 1e16: the
+usual range 1e3..1e12 and enough beyond it on both sides to see each method break down), the
 constraint penalty's natural frequency Ω, and the methods penalty and iterative-N, plus one MLM
 reference run (MLM has no penalty numbers). Every grid point is one closed-loop simulation of the
 spec's path, run as one task on a dask.distributed cluster: by default a LocalCluster of worker
@@ -36,7 +37,7 @@ from pathlib import Path
 from .build import REPO
 
 DEFAULT_SPEC = REPO / "model_spec" / "acroboter.toml"
-DEFAULT_ALPHAS = "1e3:1e12"
+DEFAULT_ALPHAS = "1e1:1e16"
 DEFAULT_OMEGAS = "5,10,20"
 DEFAULT_ITERATIONS = "1,3,5,10"
 ALPHA_MODES = ("tied", "geometric", "servo", "grid")
@@ -167,19 +168,19 @@ def _context(spec_text: str, source: str) -> _Context:
     if key not in cache:
         import tomllib
 
-        from .build import is_current
+        from .build import BUILD_DIR, GENERATED_DIR, is_current
         from .compiled import CompiledModel
         from .simulation import Scenario, setup_default
         from .spec import parse_spec
         from .statics import desired_path, solve_equilibrium
 
         spec = parse_spec(tomllib.loads(spec_text), source)
-        if not is_current(spec.name):
+        if not (GENERATED_DIR / spec.name / "manifest.json").is_file() or not is_current(spec.name):
             import socket
 
             raise MissingLibraryError(
                 f"worker on {socket.gethostname()}: no compiled model library for spec '{spec.name}' under "
-                f"{REPO / 'build'}; sweep tasks never compile. Run `make build` (or `python -m acroboter.build "
+                f"{BUILD_DIR}; sweep tasks never compile. Run `make build` (or `python -m acroboter.build "
                 f"{spec.name}`) in this checkout on every worker machine, then rerun the sweep."
             )
         model = CompiledModel(spec)
@@ -194,9 +195,10 @@ def _status_of(err: Exception) -> str:
 
     text = " ".join(str(err).split())
     if isinstance(err, SimulationError):
-        found = re.search(r"at t = ([-+0-9.eE]+) s", text)
+        found = re.search(r"at t = ([-+0-9.eE]+) s:? ?(.*)", text)
         if found:
-            return f"diverged at t = {found.group(1)} s"
+            why = found.group(2).strip(" ()")
+            return f"diverged at t = {found.group(1)} s" + (f" ({why})" if why else "")
     return f"error: {text}"
 
 
@@ -269,13 +271,17 @@ def run_case(spec_text: str, source: str, case: Case, duration: float | None, co
     try:
         controller = make_controller(case.method, ctx.model, ctx.path, gains)
         result = simulate(ctx.model, ctx.path, controller, ctx.plant, ctx.q0, duration, spec.controller.rate_hz,
-                          spec.simulation.step)
-        summary = summarize(result, ctx.scenario, ctx.model.layout)
-        row.update({k: summary[k] for k in ("max_position_error_mm", "rms_position_error_mm", "max_yaw_error_deg",
-                                            "max_tilt_deg", "max_constraint_violation", "min_winch_tension_N",
-                                            "max_winch_tension_N")})
-        row["median_control_step_us"] = summary["control_step_us"]["median"]
-        row["status"] = "ok"
+                          spec.simulation.step, allow_divergence=True)
+        if result.diverged_at is not None:  # stopped early: its figures would describe a broken run
+            row["status"] = f"diverged at t = {result.diverged_at:.2f} s ({result.divergence})"
+            result = None
+        else:
+            summary = summarize(result, ctx.scenario, ctx.model.layout)
+            row.update({k: summary[k] for k in ("max_position_error_mm", "rms_position_error_mm",
+                                                "max_yaw_error_deg", "max_tilt_deg", "max_constraint_violation",
+                                                "min_winch_tension_N", "max_winch_tension_N")})
+            row["median_control_step_us"] = summary["control_step_us"]["median"]
+            row["status"] = "ok"
     except (SingularSystemError, SimulationError, RecoveryError, LinAlgError, ValueError, FloatingPointError) as err:
         row["status"] = _status_of(err)
         result = None
@@ -322,6 +328,14 @@ def open_client(scheduler: str | None = None, workers: int = 2, connect_timeout:
         Client(cluster) as client,
     ):
         yield client
+
+
+def _worker_count(client) -> int:
+    try:
+        info = client.scheduler_info(n_workers=-1)  # newer distributed lists only a few workers by default
+    except TypeError:
+        info = client.scheduler_info()
+    return len(info["workers"])
 
 
 @dataclass
@@ -399,7 +413,7 @@ def sweep(spec_path: Path = DEFAULT_SPEC, *, alphas: list[float] | None = None, 
     cases = make_grid(alphas, omegas, iterations, alpha_mode, pen.alpha_geometric, pen.alpha_servo)
     t0 = time.perf_counter()
     with open_client(scheduler, workers, connect_timeout) as client:
-        n_workers = len(client.scheduler_info(n_workers=-1)["workers"]) if scheduler else workers
+        n_workers = _worker_count(client) if scheduler else workers
         rows = run_sweep(client, Path(spec_path), cases, duration, progress=progress, kp=kp, kd=kd, mu=mu)
     result = SweepResult(rows, time.perf_counter() - t0, n_workers)
     if out is not None:
@@ -421,6 +435,17 @@ def write_csv(path: Path, rows: list[dict]) -> None:
         writer.writeheader()
         for row in rows:
             writer.writerow({k: ("" if row.get(k) is None else row[k]) for k in COLUMNS})
+
+
+def read_csv(path: Path) -> list[dict]:
+    """Rows of a sweep.csv, typed as the tasks return them (empty cells: None)."""
+    ints, strs = {"iterations"}, {"method", "status", "worker"}
+    rows = []
+    with Path(path).open(newline="") as f:
+        for raw in csv.DictReader(f):
+            rows.append({k: (None if v == "" else v if k in strs else int(v) if k in ints else float(v))
+                         for k, v in raw.items()})
+    return rows
 
 
 def _x_key(alpha_mode: str) -> str:
@@ -505,9 +530,9 @@ def _category(row: dict) -> str:
     return "soft" if soft > SOFT_RESIDUAL else "large"
 
 
-def _describe(segment: list[dict], ref_err: float, xk: str) -> str:
+def _describe(segment: list[dict], ref_err: float, xk: str, symbol: str = "α") -> str:
     kind = _category(segment[0])
-    where = "α = " + _fmt_range([r[xk] for r in segment], ".0e")
+    where = f"{symbol} = " + _fmt_range([r[xk] for r in segment], ".0e")
     errs = [r["max_position_error_mm"] for r in segment if _ok(r)]
     err = (f"error {_fmt_range(errs, '.3g', ' mm')} = {_fmt_range([e / ref_err for e in errs], '.3g')}x MLM"
            if errs else "")
@@ -515,7 +540,9 @@ def _describe(segment: list[dict], ref_err: float, xk: str) -> str:
              and math.isfinite(r["cond_penalty_matrix"])]
     if kind == "diverged":
         times = [float(re.search(r"t = ([-+0-9.eE]+)", r["status"]).group(1)) for r in segment]
-        return f"the loop diverges (non-finite state at t = {_fmt_range(times, 'g', ' s')}) at {where}"
+        whys = sorted({m.group(1) for r in segment if (m := re.search(r"\((.*)\)$", r["status"]))})
+        why = f": {'; '.join(whys)}" if whys else ""
+        return f"the loop diverges (at t = {_fmt_range(times, 'g', ' s')}{why}) at {where}"
     if kind == "not-pd":
         cond = f"; cond(A) {_fmt_range(conds, '.1e')} at the start, beyond 1/eps" if conds else ""
         return f"A is not positive definite in floating point (Cholesky fails{cond}) at {where}"
@@ -531,8 +558,8 @@ def _describe(segment: list[dict], ref_err: float, xk: str) -> str:
     return f"{err} at {where}"
 
 
-def _side(group: list[dict], indices: range, ref_err: float, xk: str) -> str:
-    """Runs outward from the good band, in segments of the same failure kind."""
+def _segments(group: list[dict], indices) -> list[list[dict]]:
+    """Runs in the order of `indices`, split where the failure kind changes."""
     segments: list[list[dict]] = []
     for i in indices:
         r = group[i]
@@ -540,12 +567,27 @@ def _side(group: list[dict], indices: range, ref_err: float, xk: str) -> str:
             segments[-1].append(r)
         else:
             segments.append([r])
-    return "; then ".join(_describe(seg, ref_err, xk) for seg in segments)
+    return segments
+
+
+def _band(group: list[dict], limit: float) -> tuple[int, int] | None:
+    """Indices (lo, hi) of the widest contiguous run of good rows (finished, error <= limit)."""
+    good = [_ok(r) and _err(r) <= limit for r in group]
+    best = None
+    i = 0
+    while i < len(group):
+        j = i
+        while j < len(group) and good[j]:
+            j += 1
+        if j > i and (best is None or j - i > best[1] - best[0] + 1):
+            best = (i, j - 1)
+        i = max(j, i + 1)
+    return best
 
 
 def findings(rows: list[dict], alpha_mode: str = "tied", tolerance: float = 2.0) -> list[str]:
-    """Per method (and Ω, merged where identical): the contiguous α range within `tolerance` x MLM's
-    max position error, and how the runs below and above it break down."""
+    """Per method (Ω values with the same outcome merged): the contiguous α range within `tolerance` x
+    MLM's max position error, and how the runs below and above it break down."""
     ref = _mlm(rows)
     if ref is None or not _ok(ref):
         return ["no MLM reference: " + (ref["status"] if ref else "not in the grid")]
@@ -555,56 +597,75 @@ def findings(rows: list[dict], alpha_mode: str = "tied", tolerance: float = 2.0)
     symbol = {"tied": "α", "geometric": "α̃", "servo": "α̂", "grid": "α̃"}[alpha_mode]
     lines = [f"reference: MLM max position error {ref_err:.3g} mm; 'good' = finished and max error <= "
              f"{tolerance:g}x MLM = {limit:.3g} mm"]
-    groups: dict[tuple, list[dict]] = {}
+    groups: dict[tuple, dict[float, list[dict]]] = {}
     for r in rows:
         if r["method"] != "mlm":
-            g = (r["iterations"], r["alpha_servo"] if alpha_mode == "grid" else None, r["omega"])
-            groups.setdefault(g, []).append(r)
-    texts: dict[tuple, dict[str, list[float]]] = {}
-    for (n, aserv, omega), group in sorted(groups.items()):
-        group.sort(key=lambda r: r[xk])
-        good = [_ok(r) and _err(r) <= limit for r in group]
-        xs = [r[xk] for r in group]
-        if not any(good):
-            best = min(group, key=lambda r: _err(r) if _ok(r) else math.inf)
-            text = f"never within {tolerance:g}x MLM; " + (
-                f"best {best['max_position_error_mm']:.3g} mm at {symbol} = {best[xk]:.0e}" if _ok(best)
-                else "no run finished: " + _side(group, range(len(group)), ref_err, xk))
-        else:
-            # the widest contiguous good band
-            lo = hi = -1
-            i = 0
-            while i < len(group):
-                j = i
-                while j < len(group) and good[j]:
-                    j += 1
-                if j - i > hi - lo + 1:
-                    lo, hi = i, j - 1
-                i = max(j, i + 1)
-            errs = [_err(r) for r in group[lo : hi + 1]]
-            decades = math.log10(xs[hi] / xs[lo])
-            text = (f"good for {xs[lo]:.0e} <= {symbol} <= {xs[hi]:.0e} ({decades:g} decades, error "
-                    f"{_fmt_range(errs, '.3g', ' mm')})")
-            if lo == 0 and hi == len(group) - 1:
-                text += ", i.e. the whole grid"
-            if lo > 0:
-                text += f"\n    below: {_side(group, range(lo - 1, -1, -1), ref_err, xk)}"
-            if hi < len(group) - 1:
-                text += f"\n    above: {_side(group, range(hi + 1, len(group)), ref_err, xk)}"
+            g = (r["iterations"], r["alpha_servo"] if alpha_mode == "grid" else None)
+            groups.setdefault(g, {}).setdefault(r["omega"], []).append(r)
+    for (n, aserv), by_omega in sorted(groups.items()):
+        # Outcome of each Ω: the band and the (kind, α values) of the segments below and above it.
+        outcomes: dict[tuple, list[tuple[list[dict], tuple | None]]] = {}
+        for omega in sorted(by_omega):
+            group = sorted(by_omega[omega], key=lambda r: r[xk])
+            band = _band(group, limit)
+            if band is None:
+                shape: tuple = ("none",)
+            else:
+                lo, hi = band
+                below = _segments(group, range(lo - 1, -1, -1))
+                above = _segments(group, range(hi + 1, len(group)))
+                shape = (group[lo][xk], group[hi][xk],
+                         tuple((_category(s[0]), tuple(r[xk] for r in s)) for s in below),
+                         tuple((_category(s[0]), tuple(r[xk] for r in s)) for s in above))
+            outcomes.setdefault(shape, []).append((group, band))
         label = method_name(n) + (f", α̂ = {aserv:.0e}" if alpha_mode == "grid" else "")
-        texts.setdefault((label, n, aserv), {}).setdefault(text, []).append(omega)
-    for (label, _, _), by_text in texts.items():
-        for text, omegas in by_text.items():
-            lines.append(f"{label} (Ω = {', '.join(f'{o:g}' for o in omegas)}): {text}")
+        for shape, members in outcomes.items():
+            omegas = ", ".join(f"{g[0]['omega']:g}" for g, _ in members)
+            head = f"{label} (Ω = {omegas}): "
+            if shape == ("none",):
+                finished = [r for g, _ in members for r in g if _ok(r)]
+                if finished:
+                    best = min(finished, key=_err)
+                    lines.append(head + f"never within {tolerance:g}x MLM; best {best['max_position_error_mm']:.3g} "
+                                        f"mm at {symbol} = {best[xk]:.0e}")
+                else:
+                    lines.append(head + "no run finished: " + "; then ".join(
+                        _describe([r for g, _ in members for r in seg], ref_err, xk, symbol)
+                        for seg in _segments(members[0][0], range(len(members[0][0])))))
+                continue
+            group0, (lo0, hi0) = members[0]
+            errs = [_err(r) for g, (lo, hi) in members for r in g[lo : hi + 1]]
+            decades = math.log10(group0[hi0][xk] / group0[lo0][xk])
+            text = (f"good for {group0[lo0][xk]:.0e} <= {symbol} <= {group0[hi0][xk]:.0e} ({decades:g} decades, "
+                    f"error {_fmt_range(errs, '.3g', ' mm')})")
+            if lo0 == 0 and hi0 == len(group0) - 1:
+                text += ", i.e. the whole grid"
+            for side, indices in (("below", lambda g, lo, hi: range(lo - 1, -1, -1)),
+                                  ("above", lambda g, lo, hi: range(hi + 1, len(g)))):
+                per_member = [_segments(g, indices(g, lo, hi)) for g, (lo, hi) in members]
+                if not per_member[0]:
+                    continue
+                merged = [[r for segs in per_member for r in segs[k]] for k in range(len(per_member[0]))]
+                text += f"\n    {side}: " + "; then ".join(_describe(seg, ref_err, xk, symbol) for seg in merged)
+            lines.append(head + text)
     # How much Ω matters: spread of the max error over Ω at the same method and penalty numbers.
     spread: dict[tuple, list[float]] = {}
     for r in rows:
         if r["method"] != "mlm" and _ok(r):
             spread.setdefault((r["iterations"], r["alpha_geometric"], r["alpha_servo"]), []).append(_err(r))
-    spreads = [max(v) / min(v) - 1 for v in spread.values() if len(v) > 1 and min(v) > 0]
+    conds: dict[tuple, float] = {}
+    for r in rows:
+        if r["method"] != "mlm" and r.get("cond_penalty_matrix") is not None:
+            key = (r["iterations"], r["alpha_geometric"], r["alpha_servo"])
+            conds[key] = max(conds.get(key, 0.0), r["cond_penalty_matrix"])
+    spreads = [(max(v) / min(v) - 1, max(v) <= limit and conds.get(k, 0.0) <= ILL_CONDITIONED)
+               for k, v in spread.items() if len(v) > 1 and min(v) > 0]
     if spreads:
-        lines.append(f"Ω: at equal method and penalty numbers the max error changes by at most "
-                     f"{100 * max(spreads):.2g} % between the Ω values (median {100 * sorted(spreads)[len(spreads) // 2]:.2g} %)")
+        in_band = [s for s, good in spreads if good]
+        text = (f"at most {100 * max(in_band):.2g} % where good and cond(A) <= {ILL_CONDITIONED:.0e}, "
+                if in_band else "")
+        lines.append(f"Ω: at equal method and penalty numbers the max error differs between the Ω values by "
+                     f"{text}at most {100 * max(s for s, _ in spreads):.2g} % over all finished runs")
     failed = [r for r in rows if not _ok(r)]
     if failed:
         kinds = {}
@@ -702,6 +763,10 @@ def write_figures(out: Path, rows: list[dict], alpha_mode: str = "tied", toleran
                     ax.plot(failed_x, [0.03] * len(failed_x), "x", color="red", ms=7, mew=2,
                             transform=ax.get_xaxis_transform(), label="diverged / error", clip_on=False)
                 ax.grid(True, which="major", alpha=0.3)
+                if key == "max_constraint_violation" and mi == ncol - 1:
+                    # the plant holds |φ| at round-off: show it against a few decades, not its jitter
+                    lo, hi = ax.get_ylim()
+                    ax.set_ylim(min(lo, hi / 1e3), max(hi, lo * 1e3))
                 if qi == 0:
                     ax.set_title(method)
                 if qi == nrow - 1:
@@ -714,7 +779,7 @@ def write_figures(out: Path, rows: list[dict], alpha_mode: str = "tied", toleran
             for handle, label in zip(handles, labels, strict=True):
                 seen.setdefault(label, handle)
         fig.suptitle(title, fontsize=10)
-        fig.legend(list(seen.values()), list(seen.keys()), loc="outside upper center", ncol=min(len(seen), 7),
+        fig.legend(list(seen.values()), list(seen.keys()), loc="outside lower center", ncol=min(len(seen), 7),
                    fontsize=8, frameon=False)
         fig.savefig(out / name, dpi=110)
         plt.close(fig)
