@@ -103,16 +103,15 @@ class MLM(Controller):
                 f"MLM needs as many servo-constraints as inputs, found {self.k} servo-constraints for {self.l} "
                 "inputs (redundant task): its matrix is not square. Use the penalty or iterative penalty method."
             )
-        self._getrf, self._getrs, self._gecon = lapack.get_lapack_funcs(
-            ("getrf", "getrs", "gecon"), (self.terms["schur"],)
-        )
+        self._gesv, self._gecon = lapack.get_lapack_funcs(("gesv", "gecon"), (self.terms["schur"],))
         self.rcond = np.nan
         self._y = np.zeros(self.m + self.l)
 
     def compute(self, q, qd, t, signals=None):
         self._load(q, qd, t, signals)
         T = self.terms
-        lu, piv, info = self._getrf(T["schur"], overwrite_a=True)
+        # One LU (gesv) for the solution, then LAPACK's condition estimate on the same factors.
+        lu, _, y, info = self._gesv(T["schur"], T["schur_rhs"], overwrite_a=True, overwrite_b=True)
         self.rcond = self._gecon(lu, T["schur_norm1"][0])[0] if info == 0 else 0.0
         if info != 0 or self.rcond < MLM_RCOND_LIMIT:
             size = self.n + self.m + self.l
@@ -121,7 +120,6 @@ class MLM(Controller):
                 "geometric constraints are redundant or the task is not reachable by the inputs. MLM needs "
                 "independent constraints; use the penalty or iterative penalty method, which handle redundancy."
             )
-        y, _ = self._getrs(lu, piv, T["schur_rhs"])
         self._y = y
         self.u[:] = y[self.m :]
         return self.u

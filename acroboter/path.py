@@ -68,38 +68,47 @@ class DesiredPath:
             for a in spec.anchors
             if a.follows_path
         ]
-        self._start = self.start_point.tolist()
-        self._zero = [0.0] * (3 * self.n_signals)
+        # flat(): a template holding the fixed values, and the entries that follow the path.
+        ns, p = self.n_signals, layout.path_signal
+        self._path_index = (p, ns + p, 2 * ns + p)
+        self._last_edge = len(self._dur) - 1
+        self._template = [0.0] * (3 * ns)
+        self._follow = []
+        for j, anchor0, follows in self.anchors:
+            for c in range(3):
+                if follows[c]:
+                    self._follow.append((j + c, c, anchor0[c] - self.start_point[c]))
+                else:
+                    self._template[j + c] = anchor0[c]
 
     # --- one instant ------------------------------------------------------------------------------
     def flat(self, t: float) -> list[float]:
-        """[s, ṡ, s̈] at time t as a flat list (layout order: anchors, then x y z yaw)."""
-        k = min(max(bisect.bisect_right(self._t0, t) - 1, 0), len(self._dur) - 1)
+        """[s, ṡ, s̈] at time t as a flat list (layout order: anchors, then x y z yaw).
+
+        Scalar Python on purpose: it runs once per control step, where numpy's per-call overhead
+        on 3-vectors would cost more than the arithmetic.
+        """
+        t = float(t)  # numpy scalars make every operation below several times slower
+        k = bisect.bisect_right(self._t0, t) - 1
+        k = 0 if k < 0 else (self._last_edge if k > self._last_edge else k)
         T = self._dur[k]
         s, ds, dds = quintic((t - self._t0[k]) / T)
         ds /= T
         dds /= T * T
-        o, d = self._origin[k], self._delta[k]
-        pos = [o[0] + s * d[0], o[1] + s * d[1], o[2] + s * d[2]]
-        vel = [ds * d[0], ds * d[1], ds * d[2]]
-        acc = [dds * d[0], dds * d[1], dds * d[2]]
+        ox, oy, oz = self._origin[k]
+        dx, dy, dz = self._delta[k]
         D = self.duration
-        y, dy, ddy = quintic(t / D)
+        y, yd, ydd = quintic(t / D)
         turn = self.yaw_turn
-        out = self._zero.copy()
-        ns, p = self.n_signals, self.layout.path_signal
-        out[p : p + 4] = pos + [self.start_yaw + turn * y]
-        out[ns + p : ns + p + 4] = vel + [turn * dy / D]
-        out[2 * ns + p : 2 * ns + p + 4] = acc + [turn * ddy / (D * D)]
-        start = self._start
-        for j, anchor0, follows in self.anchors:
-            for c in range(3):
-                if follows[c]:
-                    out[j + c] = anchor0[c] + pos[c] - start[c]
-                    out[ns + j + c] = vel[c]
-                    out[2 * ns + j + c] = acc[c]
-                else:
-                    out[j + c] = anchor0[c]
+        out = self._template.copy()
+        p, v, a = self._path_index
+        out[p], out[p + 1], out[p + 2], out[p + 3] = ox + s * dx, oy + s * dy, oz + s * dz, self.start_yaw + turn * y
+        out[v], out[v + 1], out[v + 2], out[v + 3] = ds * dx, ds * dy, ds * dz, turn * yd / D
+        out[a], out[a + 1], out[a + 2], out[a + 3] = dds * dx, dds * dy, dds * dz, turn * ydd / (D * D)
+        for i, c, offset in self._follow:  # moving anchors: start position + path displacement
+            out[i] = offset + out[p + c]
+            out[i + v - p] = out[v + c]
+            out[i + a - p] = out[a + c]
         return out
 
     def signals(self, t: float, s: np.ndarray, sd: np.ndarray, sdd: np.ndarray) -> None:
