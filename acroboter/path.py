@@ -111,10 +111,6 @@ class DesiredPath:
             out[i + a - p] = out[a + c]
         return out
 
-    def signals(self, t: float, s: np.ndarray, sd: np.ndarray, sdd: np.ndarray) -> None:
-        """Write s(t), ṡ(t), s̈(t) into the given arrays."""
-        s[:], sd[:], sdd[:] = self.signal_arrays(t)
-
     def signal_arrays(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         flat = np.array(self.flat(t))
         ns = self.n_signals

@@ -209,5 +209,3 @@ def setup_default(model: CompiledModel, path: DesiredPath):
     sim = model.spec.simulation
     return Plant(model, path, sim.baumgarte_zeta, sim.baumgarte_omega)
 
-
-__all__ = ["RunResult", "Scenario", "simulate", "summarize", "setup_default", "DesiredPath"]

@@ -15,7 +15,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .compiled import CompiledModel
-from .layout import nominal_coordinates
+from .layout import body_rotation, nominal_coordinates
 from .path import DesiredPath
 from .spec import PositionTask, YawTask
 
@@ -37,9 +37,7 @@ def start_targets(model: CompiledModel) -> tuple[np.ndarray, float]:
     spec = model.spec
     position = next(t for t in spec.task if isinstance(t, PositionTask))
     body = spec.body(position.body)
-    a = math.radians(body.initial_yaw_deg)
-    rot = np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]])
-    start_point = np.array(body.initial_position) + rot @ np.array(position.point)
+    start_point = np.array(body.initial_position) + body_rotation(body.initial_yaw_deg) @ np.array(position.point)
     yaw_task = next((t for t in spec.task if isinstance(t, YawTask)), None)
     start_yaw = math.radians(spec.body(yaw_task.body).initial_yaw_deg) if yaw_task else 0.0
     return start_point, start_yaw
