@@ -100,39 +100,18 @@ def write_figures(out: Path, results: dict[str, RunResult], scenario: Scenario, 
     ax.legend(loc="upper left", fontsize=8)
     written.append(_save(fig, out / "path_3d.png"))
 
-    # Fig. 3: servo-constraint errors over time.
-    k = first.sigma.shape[1]
-    fig, axes = plt.subplots(k, 1, figsize=(9, 1.6 * k + 1), sharex=True)
-    axes = np.atleast_1d(axes)
-    for method, r in results.items():
-        for i in range(k):
-            scale = 1e3 if i in range(scenario.position_rows.start, scenario.position_rows.stop) else 1.0
-            axes[i].plot(r.t, scale * r.sigma[:, i], lw=0.8, label=method)
-    for i in range(k):
-        unit = "mm" if i in range(scenario.position_rows.start, scenario.position_rows.stop) else "-"
-        axes[i].set_ylabel(f"σ{i + 1} [{unit}]", fontsize=8)
-        axes[i].set_title(servo_names[i], fontsize=8, loc="right")
-        axes[i].grid(alpha=0.3)
-    axes[0].legend(fontsize=7, ncol=len(results))
-    axes[-1].set_xlabel("t [s]")
-    fig.suptitle("Servo-constraint errors")
-    written.append(_save(fig, out / "servo_errors.png"))
-
-    # Inputs over time.
-    l = first.u.shape[1]
-    fig, axes = plt.subplots(l, 1, figsize=(9, 1.6 * l + 1), sharex=True)
-    axes = np.atleast_1d(axes)
-    for method, r in results.items():
-        for i in range(l):
-            axes[i].step(r.t, r.u[:, i], where="post", lw=0.8, label=method)
-    for i in range(l):
-        axes[i].set_ylabel(f"u{i + 1}", fontsize=8)
-        axes[i].set_title(input_names[i], fontsize=8, loc="right")
-        axes[i].grid(alpha=0.3)
-    axes[0].legend(fontsize=7, ncol=len(results))
-    axes[-1].set_xlabel("t [s]")
-    fig.suptitle("Inputs (held over each control period)")
-    written.append(_save(fig, out / "inputs.png"))
+    # Fig. 3: servo-constraint errors over time (positions in mm).
+    rows = range(scenario.position_rows.start, scenario.position_rows.stop)
+    scales = [1e3 if i in rows else 1.0 for i in range(first.sigma.shape[1])]
+    written.append(_stacked_time_series(
+        {m: r.sigma * scales for m, r in results.items()}, results, servo_names,
+        [f"σ{i + 1} [{'mm' if i in rows else '-'}]" for i in range(len(scales))],
+        "Servo-constraint errors", out / "servo_errors.png", plt))
+    # Inputs over time, held over each control period.
+    written.append(_stacked_time_series(
+        {m: r.u for m, r in results.items()}, results, input_names,
+        [f"u{i + 1}" for i in range(first.u.shape[1])],
+        "Inputs (held over each control period)", out / "inputs.png", plt, held=True))
 
     # Control-step time per method beside the paper's MATLAB figures.
     methods = list(summaries)
@@ -152,6 +131,29 @@ def write_figures(out: Path, results: dict[str, RunResult], scenario: Scenario, 
     ax.grid(axis="y", alpha=0.3, which="both")
     written.append(_save(fig, out / "control_step_time.png"))
     return written
+
+
+def _stacked_time_series(values: dict, results: dict, names: list[str], ylabels: list[str], title: str,
+                         path: Path, plt, held: bool = False) -> Path:
+    """One panel per column of values[method] (samples x columns), every method in each panel."""
+    columns = len(names)
+    fig, axes = plt.subplots(columns, 1, figsize=(9, 1.6 * columns + 1), sharex=True)
+    axes = np.atleast_1d(axes)
+    for method, data in values.items():
+        t = results[method].t
+        for i in range(columns):
+            if held:
+                axes[i].step(t, data[:, i], where="post", lw=0.8, label=method)
+            else:
+                axes[i].plot(t, data[:, i], lw=0.8, label=method)
+    for i in range(columns):
+        axes[i].set_ylabel(ylabels[i], fontsize=8)
+        axes[i].set_title(names[i], fontsize=8, loc="right")
+        axes[i].grid(alpha=0.3)
+    axes[0].legend(fontsize=7, ncol=len(values))
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle(title)
+    return _save(fig, path)
 
 
 def _save(fig, path: Path) -> Path:
