@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: run test setup build generate check-generated lint bench clean
+.PHONY: run test setup build generate check-generated bench study sweep clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -35,6 +35,13 @@ test: build
 
 bench: build
 	$(PY) -m acroboter.bench
+
+# The redundancy / non-collocation study and the penalty-number sweep (Dask, local cluster).
+study: build
+	$(PY) -m acroboter.study
+
+sweep: build
+	$(PY) -m acroboter.sweep
 
 clean:
 	rm -rf build results
