@@ -75,10 +75,20 @@ def main(argv: list[str] | None = None) -> int:
                         help="states timed on the casadi.Function path (b) (it is slow)")
     parser.add_argument("--out", type=Path, default=Path("results"), help="folder for bench.json")
     args = parser.parse_args(argv)
+    if args.repeats < 1 or args.casadi_states < 1:
+        parser.error("--repeats and --casadi-states must be at least 1")
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    for m in methods:
+        if m not in ("mlm", "penalty") and not (m.startswith("iterative-") and m[10:].isdigit() and int(m[10:]) >= 1):
+            parser.error(f"unknown method '{m}': use mlm, penalty or iterative-N")
+    if not methods:
+        parser.error("--methods names no method")
 
     from .casadi_backend import CasadiModel
     from .compiled import CompiledModel, StaleModelError
-    from .controllers import Gains, make_controller
+    from .controllers import Gains, SingularSystemError, make_controller
+    from .plant import SimulationError
+    from .recovery import RecoveryError
     from .simulation import setup_default, simulate
     from .spec import SpecError, load_spec
     from .statics import desired_path, solve_equilibrium
@@ -89,7 +99,6 @@ def main(argv: list[str] | None = None) -> int:
     except (SpecError, StaleModelError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     gains = Gains.from_spec(spec)
     path = desired_path(model)
     start = solve_equilibrium(model, path)
@@ -109,16 +118,31 @@ def main(argv: list[str] | None = None) -> int:
     model_terms_us = stats(samples)
     print(f"benchmarking on {platform.processor() or platform.machine()}, {spec.name}, "
           f"{path.duration:g} s scenario ...", file=sys.stderr)
-    controllers = {m: make_controller(m, model, path, gains) for m in methods}
+    controllers = {}
+    for m in methods:  # a method that cannot handle this spec is left out, with its reason
+        try:
+            controllers[m] = make_controller(m, model, path, gains)
+            controllers[m].compute(start.q, np.zeros(model.layout.n), 0.0)
+        except (SingularSystemError, RecoveryError) as err:
+            controllers.pop(m, None)
+            print(f"  {m} left out: {err}", file=sys.stderr)
+    methods = list(controllers)
+    if not methods:
+        print("error: no method can run on this spec", file=sys.stderr)
+        return 3
     casadi_model = CasadiModel(spec)
     casadi_path = desired_path(casadi_model)
     slow = {m: make_controller(m, casadi_model, casadi_path, gains) for m in methods}
     # Whole closed loops, best of 3 (interleaved, so a slow stretch of the machine hits all alike).
     runs, walls = {}, {m: [] for m in methods}
-    for _ in range(3):
-        for m, controller in controllers.items():
-            runs[m] = simulate(model, path, controller, plant, start.q, path.duration, rate, h)
-            walls[m].append(runs[m].sim_wall_s)
+    try:
+        for _ in range(3):
+            for m, controller in controllers.items():
+                runs[m] = simulate(model, path, controller, plant, start.q, path.duration, rate, h)
+                walls[m].append(runs[m].sim_wall_s)
+    except SimulationError as err:
+        print(f"error: the scenario does not run to the end, nothing to time: {err}", file=sys.stderr)
+        return 3
     # The states of the real scenario (MLM's run) for every method's control-step timing.
     reference = runs[methods[0]]
     states = list(zip(reference.q, reference.qd, reference.t, strict=True))

@@ -8,12 +8,20 @@ s = [position of each moving anchor (3 each) ... | x_d, y_d, z_d, yaw_d].
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .spec import PATH_SIGNALS, BodyThrust, BodyTorque, LevelTask, PositionTask, Spec, WinchTension, YawTask
+from .spec import (
+    PATH_SIGNALS,
+    BodyThrust,
+    LevelTask,
+    PositionTask,
+    Spec,
+    WinchTension,
+    YawTask,
+    body_rotation,
+)
 
 
 @dataclass(frozen=True)
@@ -28,6 +36,7 @@ class Layout:
     anchor_signal: dict[str, int] = field(default_factory=dict)  # moving anchor -> first signal index
     path_signal: int = 0  # index of x_d; y_d, z_d, yaw_d follow
     redundant_rows: tuple[int, ...] = ()  # constraint rows implied by the others (w = u × v)
+    input_units: list[str] = field(default_factory=list)  # "N" or "N·m" per input
 
     @property
     def n(self) -> int:
@@ -82,11 +91,8 @@ def build_layout(spec: Spec) -> Layout:
         elif isinstance(task, LevelTask):
             servo += [f"{task.body} level {task.axis}_{c}" for c in "xy"]
 
-    inputs = []
-    for act in spec.actuators:
-        unit = "N" if isinstance(act, (WinchTension, BodyThrust)) else "N·m"
-        assert isinstance(act, (WinchTension, BodyTorque, BodyThrust))
-        inputs.append(f"{act.name} [{unit}]")
+    inputs = [act.name for act in spec.actuators]
+    input_units = ["N" if isinstance(act, (WinchTension, BodyThrust)) else "N·m" for act in spec.actuators]
 
     signals: list[str] = []
     anchor_signal = {}
@@ -97,13 +103,7 @@ def build_layout(spec: Spec) -> Layout:
     path_signal = len(signals)
     signals += [f"{s}_d" for s in PATH_SIGNALS]
     return Layout(coords, constraints, servo, inputs, signals, body_offset, winch_index, anchor_signal, path_signal,
-                  tuple(redundant_rows))
-
-
-def body_rotation(yaw_deg: float) -> np.ndarray:
-    """Rotation about the world z axis; its columns are the body axes u, v, w."""
-    a = math.radians(yaw_deg)
-    return np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]])
+                  tuple(redundant_rows), input_units)
 
 
 def nominal_coordinates(spec: Spec, layout: Layout) -> np.ndarray:

@@ -13,7 +13,11 @@
 - eq12: u = −(HᵀH)⁻¹Hᵀ σ_qᵀ λ̂
 - eq13: u = (HᵀH)⁻¹Hᵀ (M q̈ + c + φ_qᵀ λ)
 - eq15: u = λ̂ (only meaningful when H = −σ_qᵀ)
-- kappa: u = −H† σ_qᵀ λ̂ with H† = κ(HᵀH)⁻¹Hᵀ + (1 − κ)σ_q (the paper's non-collocated blend)
+- kappa: u = −H† σ_qᵀ λ̂ with H† = κ(HᵀH)⁻¹Hᵀ − (1 − κ)σ_q, the paper's non-collocated blend. The
+  paper prints +(1 − κ)σ_q, but with its own convention H = −σ_qᵀ that term points against the
+  pseudo-inverse (κ = 0.5 would give u = 0 on a collocated system); −σ_q is the transpose
+  approximation Hᵀ of H† there, so κ blends two consistent inverses and every κ gives u = λ̂ when
+  H = −σ_qᵀ with orthonormal rows.
 """
 
 from __future__ import annotations
@@ -99,6 +103,6 @@ class InputRecovery:
         elif kind == "eq15":
             self.u[:] = lam_hat
         else:  # kappa
-            blend = self.kappa * np.linalg.solve(H.T @ H, H.T) + (1.0 - self.kappa) * sigma_q
+            blend = self.kappa * np.linalg.solve(H.T @ H, H.T) - (1.0 - self.kappa) * sigma_q
             self.u[:] = -blend @ self._servo_force
         return self.u

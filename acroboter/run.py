@@ -8,6 +8,7 @@ method and the figures.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -20,9 +21,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
         prog="python -m acroboter.run",
         description="Simulate the crane under the inverse-dynamics controllers and report tracking and timing.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    p.add_argument("--spec", type=Path, default=DEFAULT_SPEC, help="model spec (TOML)")
+    p.add_argument("--spec", type=Path, default=DEFAULT_SPEC, help="model spec (TOML) (default: %(default)s)")
     p.add_argument("--method", action="append", metavar="METHOD",
                    help="mlm, penalty, iterative or iterative-N; repeat or comma-separate "
                         "(default: mlm, penalty and iterative with the spec's iteration counts)")
@@ -38,12 +38,18 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--kp", type=float, default=None, help="servo gain k_P, 1/s (default: spec)")
     p.add_argument("--kd", type=float, default=None, help="servo gain k_D, 1/s (default: spec)")
     p.add_argument("--duration", type=float, default=None, help="simulated seconds (default: the whole path)")
-    p.add_argument("--out", type=Path, default=Path("results"), help="output folder")
+    p.add_argument("--out", type=Path, default=Path("results"), help="output folder (default: %(default)s)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
+    for name in ("duration", "kappa", "alpha_geometric", "alpha_servo", "omega", "mu", "kp", "kd"):
+        value = getattr(args, name)
+        if value is not None and not math.isfinite(value):
+            p.error(f"--{name.replace('_', '-')} must be a finite number, found {value}")
     if args.duration is not None and args.duration <= 0:
         p.error("--duration must be positive")
+    if args.out.exists() and not args.out.is_dir():
+        p.error(f"--out {args.out} is a file, not a folder")
     if args.kappa is not None and not 0.0 <= args.kappa <= 1.0:
         p.error("--kappa must be in [0, 1]")
     for name in ("alpha_geometric", "alpha_servo", "omega", "mu", "kp", "kd"):
@@ -57,6 +63,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
             p.error(f"--iterations takes comma-separated whole numbers, found '{args.iterations}'")
         if any(i < 1 for i in args.iterations):
             p.error("--iterations must be at least 1")
+    try:
+        expand_methods(args.method, args.iterations or [1])
+    except ValueError as err:
+        p.error(str(err))
     return args
 
 
@@ -114,9 +124,9 @@ def main(argv: list[str] | None = None) -> int:
                     controller = make_controller(method, model, path, gains)
                     r = simulate(model, path, controller, plant, start.q, duration, rate, step,
                                  progress=bar.update, allow_divergence=True)
-                except (SingularSystemError, RecoveryError) as err:
-                    # This method cannot handle this system (e.g. MLM and redundant constraints): say
-                    # why, and go on with the others.
+                except (SingularSystemError, RecoveryError, SimulationError) as err:
+                    # This method cannot handle this system (e.g. MLM and redundant constraints), or
+                    # failed at its first step: say why, and go on with the others.
                     summaries[method] = {"error": str(err)}
                     warnings.append(f"{method} cannot run on this spec: {err}")
                     bar.update(steps)
@@ -133,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
     except (SpecError, StaleModelError, EquilibriumError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    except (SimulationError, ValueError) as err:
+    except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 3
 
@@ -148,8 +158,10 @@ def main(argv: list[str] | None = None) -> int:
     for w in warnings:
         print(f"warning: {w}")
     if not args.no_plots and results:
+        lay = model.layout
+        input_labels = [f"{name} [{unit}]" for name, unit in zip(lay.inputs, lay.input_units, strict=True)]
         write_figures(out, results, scenario, {m: s for m, s in summaries.items() if m in results},
-                      model.layout.inputs, model.layout.servo_constraints)
+                      input_labels, lay.servo_constraints)
     print(f"results in {out}/")
     if not results:
         print("error: no method could run on this spec (see the warnings above)", file=sys.stderr)

@@ -37,6 +37,8 @@ class RunResult:
 
 # A run that strays this far from the path (m) has diverged: nothing useful follows.
 DIVERGENCE_LIMIT_M = 0.5
+# Longest run simulate records: 2 hours at 50 Hz (about 200 MB of records for the default crane).
+MAX_CONTROL_STEPS = 360_000
 
 
 @dataclass
@@ -82,8 +84,9 @@ def simulate(
 ) -> RunResult:
     """Run the closed loop from rest at q0 for `duration` seconds.
 
-    The path's signals are evaluated once for the whole run (vectorized) at every RK4 stage time;
-    the controller reads its row at each control instant. With energy=True the mechanical energy
+    The path's signals are evaluated once for the whole run (vectorized) at every RK4 stage time
+    for the plant; the controller evaluates them itself at each control instant (that is part of
+    its timed step, as on a real controller). With energy=True the mechanical energy
     and the integrated works are recorded at every instant.
 
     A run diverges when the state or input stops being finite, the controller's system turns
@@ -101,7 +104,14 @@ def simulate(
             "fix simulation.step or controller.rate_hz in the spec"
         )
     h = period / substeps
+    if not (math.isfinite(duration) and duration > 0):
+        raise SimulationError(f"the duration must be a positive number of seconds, found {duration}")
     steps = int(round(duration * rate_hz))
+    if steps > MAX_CONTROL_STEPS:
+        raise SimulationError(
+            f"{duration:g} s at {rate_hz:g} Hz is {steps} control steps, more than {MAX_CONTROL_STEPS} (the records "
+            "would not fit in memory): shorten the duration or the path (path.mean_speed)"
+        )
     samples = steps + 1
     table = plant.stage_table(0.0, h, steps * substeps)
     rec_t = np.arange(samples) * period
@@ -125,7 +135,7 @@ def simulate(
         q, qd = x[:n], x[n : 2 * n]
         t0 = clock()
         try:
-            u = controller.compute(q, qd, t, row)
+            u = controller.compute(q, qd, t)  # evaluates the path itself: the timed step is all of it
         except SingularSystemError as err:
             if k == 0:
                 raise  # not a divergence: the method cannot handle this system at all
@@ -155,9 +165,9 @@ def simulate(
             progress(1)
     wall = clock() - wall0
     if diverged_at is not None:
-        if not allow_divergence:
+        if not allow_divergence or k == 0:  # k == 0: not one instant was recorded, nothing to report
             raise SimulationError(f"{controller.name}: the loop diverged at t = {diverged_at:.2f} s: {divergence}")
-        kept = slice(0, max(k, 1))  # the instants before it went wrong
+        kept = slice(0, k)  # the instants before it went wrong
         rec_t, rec_q, rec_qd, rec_u = rec_t[kept], rec_q[kept], rec_qd[kept], rec_u[kept]
         rec_sigma, rec_phi, rec_des, step_s = rec_sigma[kept], rec_phi[kept], rec_des[kept], step_s[kept]
         if energy:

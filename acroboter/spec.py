@@ -278,15 +278,19 @@ class Spec(_Strict):
 # --- checks that need the whole spec ---------------------------------------------------------
 
 
+def body_rotation(yaw_deg: float) -> np.ndarray:
+    """Rotation about the world z axis; its columns are the body axes u, v, w."""
+    a = math.radians(yaw_deg)
+    return np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]])
+
+
 def _end_position(spec: Spec, end: str) -> np.ndarray:
     """World position of a cable end in the initial configuration."""
     if "." not in end:
         return np.array(spec.anchor(end).position)
     body_name, point_name = end.split(".", 1)
     body = spec.body(body_name)
-    yaw = math.radians(body.initial_yaw_deg)
-    rot = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]])
-    return np.array(body.initial_position) + rot @ np.array(body.point(point_name))
+    return np.array(body.initial_position) + body_rotation(body.initial_yaw_deg) @ np.array(body.point(point_name))
 
 
 def _listing(names) -> str:
@@ -404,6 +408,12 @@ def _check_references(spec: Spec) -> list[tuple[str, str]]:
         problems.append(
             ("task", "expected exactly one servo-constraint of kind 'position' (the point the path moves), "
              f"found {len(positions)} (kinds given: {given})")
+        )
+    waypoints = np.array(spec.path.waypoints, dtype=float)
+    if not (np.linalg.norm(np.diff(waypoints, axis=0), axis=1) > 0).any():
+        problems.append(
+            ("path.waypoints", "expected at least two distinct waypoints (the path moves the tracked point; a "
+             f"yaw-only path is not supported), found {len(waypoints)} equal ones")
         )
     for i, anchor in enumerate(spec.anchors):
         if len(set(anchor.follows_path)) != len(anchor.follows_path):

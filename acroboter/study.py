@@ -168,6 +168,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=None, help="simulated seconds (default: the whole path)")
     parser.add_argument("--out", type=Path, default=Path("results/study"))
     args = parser.parse_args(argv)
+    if args.duration is not None and not (args.duration > 0 and args.duration < 1e5):
+        parser.error("--duration must be a positive number of seconds (below 1e5)")
     from tqdm import tqdm
 
     from .compiled import StaleModelError

@@ -8,7 +8,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from acroboter.spec import SpecError, load_spec
+from acroboter.spec import Spec, SpecError, load_spec
 from codegen.generate import REPO, generate
 
 SPEC_DIR = REPO / "model_spec"
@@ -19,8 +19,21 @@ def _specs(paths: list[str]) -> list[Path]:
     return [Path(p) for p in paths] if paths else sorted(SPEC_DIR.glob("*.toml"))
 
 
+def load_all(spec_paths: list[Path]) -> list[tuple[Path, Spec]]:
+    """Every spec, validated, with distinct names (each name is a folder of generated/)."""
+    specs = [(path, load_spec(path)) for path in spec_paths]
+    first: dict[str, Path] = {}
+    for path, spec in specs:
+        if spec.name in first:
+            raise SpecError(str(path), [("name", f"expected a name of its own, found '{spec.name}', the name of "
+                                                 f"{first[spec.name]} too: each crane needs its own name "
+                                                 "(its folder generated/<name>/)")])
+        first[spec.name] = path
+    return specs
+
+
 def cmd_generate(spec_paths: list[Path], out_root: Path) -> int:
-    specs = [(path, load_spec(path)) for path in spec_paths]  # all valid before anything is written
+    specs = load_all(spec_paths)  # all valid before anything is written
     for path, spec in specs:
         out_dir = generate(spec, out_root)
         print(f"generated {out_dir.relative_to(REPO) if out_dir.is_relative_to(REPO) else out_dir} from {path.name}")
@@ -51,8 +64,8 @@ def cmd_check(spec_paths: list[Path], committed: Path, whole_tree: bool) -> int:
     with tempfile.TemporaryDirectory(prefix="acroboter-check-") as tmp:
         fresh = Path(tmp)
         problems = []
-        for path in spec_paths:
-            out_dir = generate(load_spec(path), fresh)
+        for _, spec in load_all(spec_paths):
+            out_dir = generate(spec, fresh)
             if not whole_tree:
                 problems += compare_trees(out_dir, committed / out_dir.name, prefix=f"{out_dir.name}/")
         if whole_tree:

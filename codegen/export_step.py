@@ -372,9 +372,9 @@ def _penalty(graph: _Graph, iterations: int, system: str) -> ca.MX:
     if kind == "eq13":  # u = (HᵀH)⁻¹Hᵀ (M q̈ + c + φ_qᵀλ)
         generalized = ca.mtimes(mass_mx, x) + P["bias_forces"] + ca.mtimes(P["phi_q"].T, lam)
         return ca.solve(P["hth"], ca.mtimes(P["h_t"], generalized), LINSOL_SPD)
-    # kappa: u = −(κ(HᵀH)⁻¹Hᵀ + (1 − κ)σ_q) σ_qᵀλ̂
+    # kappa: u = −(κ(HᵀH)⁻¹Hᵀ − (1 − κ)σ_q) σ_qᵀλ̂ (sign of the σ_q term: see acroboter/recovery.py)
     pseudo = ca.solve(P["hth"], ca.mtimes(P["h_servo"], lam_hat), LINSOL_SPD)
-    return -(g.kappa * pseudo + (1.0 - g.kappa) * ca.mtimes(P["servo_servo"], lam_hat))
+    return -(g.kappa * pseudo - (1.0 - g.kappa) * ca.mtimes(P["servo_servo"], lam_hat))
 
 
 def _recovery_prelude(graph: _Graph) -> dict[str, ca.SX]:

@@ -124,8 +124,10 @@ class GenerationContext:
                 "constraints": lay.constraints,
                 "servo_constraints": lay.servo_constraints,
                 "inputs": lay.inputs,
+                "input_units": lay.input_units,
                 "signals": lay.signals,
                 "redundant_constraint_rows": list(lay.redundant_rows),
+                "independent_constraint_rows": structured.independent_rows(self.model),
                 "parameters": list(structured.PARAMS),
             },
             "functions": {

@@ -12,6 +12,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from acroboter.layout import nominal_coordinates
 from codegen.symbolic import SymbolicModel
 
 PARAMS = ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu")
@@ -155,7 +156,26 @@ def penalty_iteration_function(model: SymbolicModel, name: str) -> ca.Function:
 
 
 def independent_rows(model: SymbolicModel) -> list[int]:
-    return [i for i in range(model.layout.m) if i not in model.layout.redundant_rows]
+    """The constraint rows not implied by earlier ones, in order.
+
+    Flagged rows (w − u×v) are dropped outright; any other dependency (a duplicated cable, say) is
+    found from the rank of φ_q at the spec's nominal configuration: a row is kept if it raises the
+    rank of the rows kept so far. Structural redundancy holds at every configuration, so one
+    configuration decides it.
+    """
+    lay = model.layout
+    q, s = model.inputs[0], model.inputs[2]
+    signals = np.zeros(lay.n_signals)
+    for anchor in model.spec.anchors:
+        if anchor.name in lay.anchor_signal:
+            j = lay.anchor_signal[anchor.name]
+            signals[j : j + 3] = anchor.position
+    jac = np.array(ca.Function("phi_q", [q, s], [model.phi_q])(nominal_coordinates(model.spec, lay), signals))
+    keep: list[int] = []
+    for i in range(lay.m):
+        if i not in lay.redundant_rows and np.linalg.matrix_rank(jac[keep + [i]]) == len(keep) + 1:
+            keep.append(i)
+    return keep
 
 
 def plant_derivative(model: SymbolicModel, u: ca.SX, zeta: ca.SX, omega: ca.SX, rows: list[int]) -> ca.SX:

@@ -82,9 +82,12 @@ def test_help_lists_the_options():
     (["--recovery", "magic"], "invalid choice"),
     (["--iterations", "two"], "whole numbers"),
     (["--spec", "no/such/spec.toml"], "no/such/spec.toml"),
+    (["--kp", "nan"], "--kp must be a finite number"),
+    (["--alpha-servo", "inf"], "--alpha-servo must be a finite number"),
+    (["--out", "README.md"], "is a file, not a folder"),
 ])
 def test_bad_input_is_a_clear_error(args, words, tmp_path):
-    proc = run_cli(*args, "--out", str(tmp_path), "--quiet")
+    proc = run_cli("--out", str(tmp_path), *args, "--quiet")
     assert proc.returncode != 0
     assert words in proc.stderr
     assert "Traceback" not in proc.stderr

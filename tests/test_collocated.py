@@ -102,6 +102,15 @@ def test_projected_eq12_and_eq15_agree_when_collocated(toy, method):
             assert _rel(u[r], u["projected"]) < 1e-9, r
 
 
+@pytest.mark.parametrize("kappa", [0.0, 0.5, 1.0])
+def test_every_kappa_gives_eq15_when_collocated(toy, kappa):
+    """H = −σ_qᵀ with orthonormal σ_q rows: the pseudo-inverse and the transpose approximation agree,
+    so the κ blend must return u = λ̂ for every κ (it would not with the paper's printed +σ_q)."""
+    for q, qd, t in states(toy):
+        u15 = _solve(toy, "penalty", q, qd, t, recovery="eq15")[0]
+        assert _rel(_solve(toy, "penalty", q, qd, t, recovery="kappa", kappa=kappa)[0], u15) < 1e-9
+
+
 def test_at_another_attitude_projected_and_eq12_still_agree_but_eq15_does_not(toy):
     """Collocated in range but H ≠ −σ_qᵀ: the pseudo-inverse recoveries agree, u = λ̂ does not."""
     for q, qd, t in states(toy, aligned=False):

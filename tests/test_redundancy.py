@@ -92,3 +92,29 @@ def test_noncollocated_recoveries_that_assume_collocation_lose_the_load(recovery
     assert result.diverged_at is not None and result.diverged_at < 2.0
     if recovery in ("eq12", "eq13") or kappa == 1.0:
         assert np.abs(result.u[0, :3]).max() < 1e-5  # no winch tension from the first step on
+
+
+def test_a_duplicated_cable_is_handled_by_the_penalty_methods(tmp_path):
+    """Redundancy the spec does not flag (a second main cable, identical to the first): the code
+    generator finds the dependent row, MLM refuses, the penalty methods track as on the default."""
+    from codegen.generate import generate
+
+    text = (SPECS / "acroboter.toml").read_text().replace('name = "acroboter"', 'name = "acroboter_dup"', 1)
+    text += '\n[[cables]]\nname = "main_again"\nends = ["climbing_unit", "CC.top"]\nlength = 1.5\n'
+    path = tmp_path / "acroboter_dup.toml"
+    path.write_text(text)
+    spec = load_spec(path)
+    generate(spec, tmp_path / "generated")
+    model = CompiledModel(spec, generated_dir=tmp_path / "generated", build_dir=tmp_path / "build")
+    desired = desired_path(model)
+    start = solve_equilibrium(model, desired)
+    gains = Gains.from_spec(spec)
+    with pytest.raises(SingularSystemError, match="redundant"):
+        make_controller("mlm", model, desired, gains).compute(start.q, np.zeros(model.layout.n), 0.0)
+    reference = short_run("acroboter", "penalty", duration=3.0)[1]
+    controller = make_controller("penalty", model, desired, gains)
+    result = simulate(model, desired, controller, setup_default(model, desired), start.q, 3.0,
+                      spec.controller.rate_hz, spec.simulation.step)
+    s = summarize(result, Scenario.from_model(model), model.layout)
+    assert s["max_position_error_mm"] == pytest.approx(reference["max_position_error_mm"], rel=0.10)
+    assert s["max_constraint_violation"] < 1e-6

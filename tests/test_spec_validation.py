@@ -170,6 +170,10 @@ CASES = [
          [*(f"'{r}'" for r in RECOVERIES), "found 'eq99'"]),
     Case("kappa above 1", _set("controller", "penalty", "kappa", value=2.0), "controller.penalty.kappa",
          ["at most 1", "found 2.0"]),
+    Case("path that does not move", _set("path", "waypoints", value=[[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]),
+         "path.waypoints", ["at least two distinct waypoints", "yaw-only", "found 2 equal"]),
+    Case("zero actuator gain", _set("actuators", 0, "gain", value=0.0), "actuators[0].gain",
+         ["nonzero gain", "found 0"]),
 ]
 
 
@@ -296,3 +300,14 @@ def test_cli_reports_unreadable_spec(tmp_path, content, words):
     assert result.returncode == 2
     assert "Traceback" not in result.stderr + result.stdout
     assert all(w in result.stderr for w in words), result.stderr
+
+
+def test_cli_refuses_two_specs_with_one_name(tmp_path):
+    """Both would write generated/<name>/: the second is an error, and nothing is written."""
+    copy = tmp_path / "copy.toml"
+    copy.write_text((REPO / "model_spec" / "acroboter.toml").read_text().replace("mass = 8.0", "mass = 8.5"))
+    out = tmp_path / "out"
+    result = _run_cli("generate", REPO / "model_spec" / "acroboter.toml", copy, "--out", out)
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert "expected a name of its own, found 'acroboter'" in result.stderr
+    assert not out.exists() or list(out.iterdir()) == []
