@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 
 setup: $(STAMP)
 
-# Compile every generated/<spec>/ into build/<spec>/lib<spec>.so (-O2 -fPIC, no fast-math).
+# Compile every generated/<spec>/ into build/<spec>/lib<spec>-<sources hash>.so (-O2 -fPIC, no fast-math).
 build: $(STAMP)
 	$(PY) -m acroboter.build
 

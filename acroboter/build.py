@@ -46,7 +46,7 @@ def is_current(spec_name: str, generated_dir: Path = GENERATED_DIR, build_dir: P
 
 
 def build(spec_name: str, generated_dir: Path = GENERATED_DIR, build_dir: Path = BUILD_DIR) -> Path:
-    """Compile generated/<spec_name>/*.c into build/<spec_name>/lib<spec_name>.so."""
+    """Compile generated/<spec_name>/*.c into build/<spec_name>/lib<spec_name>-<sources hash>.so."""
     source_dir = generated_dir / spec_name
     sources = sorted(source_dir.glob("*.c"))
     if not sources:

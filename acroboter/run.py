@@ -15,6 +15,7 @@ from pathlib import Path
 from .build import REPO
 
 DEFAULT_SPEC = REPO / "model_spec" / "acroboter.toml"
+WARM_UP_STEPS = 200  # untimed control steps at the start state before each method's run
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -115,6 +116,7 @@ def main(argv: list[str] | None = None) -> int:
         duration = args.duration if args.duration is not None else path.duration
         rate, step = spec.controller.rate_hz, spec.simulation.step
         steps = int(round(duration * rate))
+        start_rates = np.zeros(model.layout.n)
         results, summaries, warnings = {}, {}, []
         with tqdm(total=steps * len(methods), unit="step", disable=args.quiet or None,
                   desc="simulating", file=sys.stderr) as bar:
@@ -122,6 +124,8 @@ def main(argv: list[str] | None = None) -> int:
                 bar.set_postfix_str(method)
                 try:
                     controller = make_controller(method, model, path, gains)
+                    for _ in range(WARM_UP_STEPS):  # steady-state step times: first calls page code in
+                        controller.compute(start.q, start_rates, 0.0)
                     r = simulate(model, path, controller, plant, start.q, duration, rate, step,
                                  progress=bar.update, allow_divergence=True)
                 except (SingularSystemError, RecoveryError, SimulationError) as err:
