@@ -170,7 +170,6 @@ class Penalty(Controller):
             self._chain_start = second.outputs  # the first call reads these
             self._chain_end = (first if (iterations - 1) % 2 == 1 else second).outputs
         self.fast_recovery = gains.recovery == "projected"
-        self.needs_multipliers = gains.recovery == "eq13"
 
     def compute(self, q, qd, t, signals=None):
         self._load(q, qd, t, signals)

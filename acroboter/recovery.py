@@ -47,7 +47,6 @@ class InputRecovery:
         self.kind, self.kappa, self.l = kind, kappa, l
         self.mass = mass
         self.u = np.zeros(l)
-        self.rank_deficient_steps = 0  # how often the QR fallback ran
         self._servo_force = np.zeros(n)
         self._force = np.zeros(n)
         self._hth = np.zeros((l, l))
@@ -78,7 +77,6 @@ class InputRecovery:
 
     def _projected(self, terms: dict, lam_hat: np.ndarray) -> None:
         # Singular normal equations: Δλ is not unique; pivoted QR picks the minimum-norm solution.
-        self.rank_deficient_steps += 1
         stacked = np.hstack([terms["input_matrix"], -terms["phi_q"].T])
         np.matmul(terms["sigma_q"].T, lam_hat, out=self._servo_force)
         sol = lstsq(self._inv_chol @ stacked, -(self._inv_chol @ self._servo_force), lapack_driver="gelsy",

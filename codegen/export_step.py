@@ -48,7 +48,7 @@ import casadi as ca
 import numpy as np
 from scipy.linalg import cholesky, solve_triangular
 
-from acroboter.controllers import Gains
+from acroboter.controllers import MLM_RCOND_LIMIT, Gains
 from acroboter.layout import Layout, nominal_coordinates
 from acroboter.spec import RECOVERIES, Spec, SpecError, load_spec
 from codegen.generate import INPUT_NAMES, REPO
@@ -68,7 +68,6 @@ GAIN_OPTIONS = ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu", "ka
 # deficient (redundant constraints): then, and only then, a Tikhonov term makes its normal equations solvable.
 RANK_TOL = 1e-10
 TIKHONOV = 1e-12
-MLM_RCOND_LIMIT = 1e-13  # as acroboter.controllers: below it, MLM's system counts as singular
 MLM_SYSTEMS = ("reduced", "full")
 PENALTY_SYSTEMS = ("auto", "multipliers", "matrix")
 SYSTEM_TEXT = {
