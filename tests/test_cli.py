@@ -101,3 +101,16 @@ def test_bad_spec_is_a_clear_error(tmp_path):
     assert proc.returncode == 2
     assert "bodies[1].mass" in proc.stderr and "-8.0" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize("module, args, words", [
+    ("acroboter.bench", ["--methods", "foo"], "unknown method 'foo'"),
+    ("acroboter.bench", ["--repeats", "0"], "at least 1"),
+    ("acroboter.study", ["--duration", "-1"], "positive number of seconds"),
+    ("acroboter.sweep", ["--alphas", "abc"], "alphas"),
+])
+def test_other_clis_reject_bad_options_cleanly(module, args, words, tmp_path):
+    proc = subprocess.run([sys.executable, "-m", module, *args, "--out", str(tmp_path)], capture_output=True,
+                          text=True, cwd=REPO, timeout=120)
+    assert proc.returncode == 2
+    assert words in proc.stderr and "Traceback" not in proc.stderr
