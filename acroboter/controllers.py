@@ -157,6 +157,7 @@ class Penalty(Controller):
         self._qdd_last = np.zeros(n)
         self._potrf, self._potrs = lapack.get_lapack_funcs(("potrf", "potrs"), (self.mass,))
         self.recovery = InputRecovery(gains.recovery, self.mass, self.m, self.k, self.l, gains.kappa)
+        self.u = self.recovery.u  # the recovery writes the input in place: one buffer, no copy
         if iterations > 1:
             # Iterations 2..N: two bindings of the generated update read each other's outputs, so the
             # chain runs without copies; both read the factor and force where penalty_terms left them.
@@ -194,10 +195,9 @@ class Penalty(Controller):
             self._qdd_last = self._chain_end["qdd_next"]
             self._qdd_sum = self._chain_end["qdd_sum_next"]
         if self.fast_recovery and self.recovery.projected_fast(T, self._qdd_sum, self.iterations) is not None:
-            self.u[:] = self.recovery.u
             return self.u
         self._multipliers()
-        self.u[:] = self.recovery.recover(T, self.lam_hat, self._qdd_last, self.lam)
+        self.recovery.recover(T, self.lam_hat, self._qdd_last, self.lam)
         return self.u
 
     def _multipliers(self) -> None:

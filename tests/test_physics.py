@@ -261,6 +261,14 @@ def _central(f, h):
     return (f(h) - f(-h)) / (2 * h)
 
 
+def _jacobian_fd(crane, name: str, q: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Central finite differences of a model term in q, one column per coordinate."""
+    n = crane.layout.n
+    return np.column_stack([
+        _central(lambda t, k=k: crane.term(name, q=q + t * np.eye(n)[k], s=s), 1e-6) for k in range(n)
+    ])
+
+
 def _assert_close(got, want, rel=1e-6):
     scale = max(np.abs(want).max(), 1.0)
     np.testing.assert_allclose(got, want, rtol=0, atol=rel * scale)
@@ -272,11 +280,7 @@ def test_phi_q_matches_finite_differences(crane, data):
     n, ns = crane.layout.n, crane.layout.n_signals
     q = crane.q0 + data.draw(hnp.arrays(np.float64, n, elements=st.floats(-0.3, 0.3)), label="q - q0")
     s = crane.s0 + data.draw(hnp.arrays(np.float64, ns, elements=st.floats(-0.3, 0.3)), label="s - s0")
-    phi_q = crane.term("phi_q", q=q, s=s)
-    fd = np.column_stack([
-        _central(lambda t, k=k: crane.term("phi", q=q + t * np.eye(n)[k], s=s), 1e-6) for k in range(n)
-    ])
-    _assert_close(phi_q, fd)
+    _assert_close(crane.term("phi_q", q=q, s=s), _jacobian_fd(crane, "phi", q, s))
 
 
 @settings(max_examples=8, deadline=None)
@@ -284,12 +288,7 @@ def test_phi_q_matches_finite_differences(crane, data):
 def test_sigma_q_matches_finite_differences(crane, seed):
     rng = np.random.default_rng(seed)
     q, _, s, _, _ = random_state(crane, rng, spread=0.3)
-    sigma_q = crane.term("sigma_q", q=q, s=s)
-    fd = np.column_stack([
-        _central(lambda t, k=k: crane.term("sigma", q=q + t * np.eye(crane.layout.n)[k], s=s), 1e-6)
-        for k in range(crane.layout.n)
-    ])
-    _assert_close(sigma_q, fd)
+    _assert_close(crane.term("sigma_q", q=q, s=s), _jacobian_fd(crane, "sigma", q, s))
 
 
 @settings(max_examples=8, deadline=None)
