@@ -7,6 +7,11 @@ linear algebra and input recovery all included) on the states of the real scenar
 in the same run; it times each method's whole closed-loop simulation (wall time, real-time
 factor) and measures the memory the control step and the plant step allocate and keep
 (tracemalloc). Prints a table and writes bench.json.
+
+It also times what input limits cost (--limits-spec, default the four-cable crane): each method's
+control step on that crane's states (a) with its limits (5..300 N, never reached on the path: the
+distribution of the internal force and the bound check), (b) without limits, and (c) with every
+winch's max at 99 % of its static tension, so the bounded QP (DAQP) runs at every step.
 """
 
 from __future__ import annotations
@@ -73,6 +78,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=5, help="passes over the scenario's states")
     parser.add_argument("--casadi-states", type=int, default=500,
                         help="states timed on the casadi.Function path (b) (it is slow)")
+    parser.add_argument("--limits-spec", type=Path, default=REPO / "model_spec" / "acroboter_4cable.toml",
+                        help="crane on which the cost of input limits is timed (default: %(default)s)")
     parser.add_argument("--out", type=Path, default=Path("results"), help="folder for bench.json")
     args = parser.parse_args(argv)
     if args.repeats < 1 or args.casadi_states < 1:
@@ -183,6 +190,12 @@ def main(argv: list[str] | None = None) -> int:
     print(format_table(results))
     print(f"all model terms at one state (model_terms, one ctypes call): median {model_terms_us['median']:.2f} us, "
           f"p99 {model_terms_us['p99']:.2f} us")
+    try:
+        limits = bench_limits(args.limits_spec, methods, args.repeats)
+    except (SpecError, StaleModelError, SimulationError, SingularSystemError) as err:
+        print(f"error: cannot time the input limits on {args.limits_spec}: {err}", file=sys.stderr)
+        return 3
+    print(format_limits_table(limits))
     args.out.mkdir(parents=True, exist_ok=True)
     doc = {
         "spec": spec.name,
@@ -191,10 +204,69 @@ def main(argv: list[str] | None = None) -> int:
         "date": time.strftime("%Y-%m-%d"),
         "model_terms_us": model_terms_us,
         "methods": results,
+        "limits": limits,
     }
     (args.out / "bench.json").write_text(json.dumps(doc, indent=2) + "\n")
     print(f"written {args.out / 'bench.json'}")
     return 0
+
+
+def bench_limits(spec_path: Path, methods: list[str], repeats: int) -> dict:
+    """Control step on a crane's own scenario with its limits, without, and saturated at every step."""
+    from .compiled import CompiledModel
+    from .controllers import Gains, make_controller, unbounded
+    from .simulation import setup_default, simulate
+    from .spec import load_spec
+    from .statics import desired_path, solve_equilibrium
+
+    spec = load_spec(spec_path)
+    model = CompiledModel(spec)
+    path, gains = desired_path(model), Gains.from_spec(spec)
+    start = solve_equilibrium(model, path)
+    rate, h = spec.controller.rate_hz, spec.simulation.step
+    reference = simulate(model, path, make_controller(methods[0], model, path, gains), setup_default(model, path),
+                         start.q, path.duration, rate, h)
+    states = list(zip(reference.q, reference.qd, reference.t, strict=True))
+    lower, upper, preferred = spec.input_limits()
+    winches = np.isfinite(upper) & (lower >= 0)
+    saturating = upper.copy()
+    saturating[winches] = 0.99 * start.inputs[winches]
+    variants = {"spec limits": None, "no limits": unbounded(spec), "saturated": (lower, saturating, preferred)}
+    controllers = {(m, v): make_controller(m, model, path, gains, limits=lim)
+                   for m in methods for v, lim in variants.items()}
+    times = {key: [] for key in controllers}
+    for _ in range(repeats):  # interleaved passes
+        for key, controller in controllers.items():
+            times[key].append(time_steps(controller, states, 1)[0])
+    out = {"spec": spec.name, "variants": {"saturated": "every winch's max at 0.99 x its static tension"},
+           "methods": {}}
+    for m in methods:
+        row = {}
+        for v in variants:
+            controller = controllers[(m, v)]
+            row[v] = {"control_step_us": stats(np.array(times[(m, v)])),
+                      "qp_solves_per_step": controller.limits.qp_solves / (repeats * len(states))}
+        row["extra_us_with_limits"] = (row["spec limits"]["control_step_us"]["median"]
+                                       - row["no limits"]["control_step_us"]["median"])
+        row["extra_us_saturated"] = (row["saturated"]["control_step_us"]["median"]
+                                     - row["no limits"]["control_step_us"]["median"])
+        out["methods"][m] = row
+    return out
+
+
+def format_limits_table(limits: dict) -> str:
+    head = (f"{'method':<12} {'spec limits':>11} {'no limits':>9} {'saturated':>9} {'QP/step':>7} "
+            f"{'extra (limits)':>14} {'extra (saturated)':>17}")
+    lines = [f"input limits on {limits['spec']} (control step median, us; saturated: "
+             f"{limits['variants']['saturated']}):", head, "-" * len(head)]
+    for m, r in limits["methods"].items():
+        lines.append(
+            f"{m:<12} {r['spec limits']['control_step_us']['median']:11.1f} "
+            f"{r['no limits']['control_step_us']['median']:9.1f} {r['saturated']['control_step_us']['median']:9.1f} "
+            f"{r['saturated']['qp_solves_per_step']:7.2f} {r['extra_us_with_limits']:14.1f} "
+            f"{r['extra_us_saturated']:17.1f}"
+        )
+    return "\n".join(lines)
 
 
 def _cores() -> int | None:

@@ -15,6 +15,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.linalg import lapack
 
+from .distribution import PENALTY_SECONDARY_WEIGHT, BoundedInputs, DistributionError
 from .path import DesiredPath
 from .recovery import InputRecovery
 from .spec import Spec
@@ -25,6 +26,12 @@ MLM_RCOND_LIMIT = 1e-13
 
 class SingularSystemError(RuntimeError):
     """The controller's linear system has no unique solution (e.g. redundant constraints)."""
+
+
+def unbounded(spec: Spec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Limits that bound nothing (for the ideal inverse dynamics), with the spec's preferred values."""
+    _, _, preferred = spec.input_limits()
+    return np.full(preferred.size, -np.inf), np.full(preferred.size, np.inf), preferred
 
 
 @dataclass(frozen=True)
@@ -50,32 +57,59 @@ class Gains:
 
 
 class Controller:
-    """Shared part: load state, signals and parameters into the model's input buffers."""
+    """Shared part: load state, signals and parameters into the model's input buffers.
+
+    Every controller honours the spec's input limits (acroboter.distribution): an unbounded
+    solution within them is used as it is; otherwise, or where there are more inputs than
+    servo-constraints (redundant actuation), a small bounded QP gives the input.
+    """
 
     name = "controller"
     terms_function = ""
+    bounded_function = ""
+    secondary_weight = 0.0  # acroboter.distribution: 0 lexicographic, > 0 weighted
 
-    def __init__(self, model, path: DesiredPath, gains: Gains):
-        """`model`: a CompiledModel, or any backend with the same buffers and functions."""
+    def __init__(self, model, path: DesiredPath, gains: Gains, limits=None):
+        """`model`: a CompiledModel, or any backend with the same buffers and functions.
+
+        `limits`: (min, max, preferred) per input; default the spec's (Spec.input_limits).
+        """
         self.model, self.path, self.gains = model, path, gains
         lay = model.layout
         self.n, self.m, self.k, self.l = lay.n, lay.m, lay.k, lay.l
         self._params = gains.parameter_vector()
         self._fn = model.functions[self.terms_function]
         self.terms = self._fn.outputs  # refreshed by every _load
+        self._bounded_fn = model.functions[self.bounded_function]
+        self.bounded_terms = self._bounded_fn.outputs
         self._q, self._qd, self._p, self._signals = model.q, model.qd, model.p, model.signals
         self.lam = np.zeros(self.m)
         self.lam_hat = np.zeros(self.k)
         self.u = np.zeros(self.l)
+        self.limits = BoundedInputs(*(model.spec.input_limits() if limits is None else limits),
+                                    weight=self.secondary_weight if self.l > self.k else 0.0)
+        # Per input after each compute(): -1 held at its lower limit, +1 at its upper limit, 0 free.
+        self.limit_state = self.limits.limit_state
+        # More inputs than servo-constraints: the task leaves internal forces free, always distribute.
+        self.redundant_inputs = self.l > self.k
 
-    def _load(self, q: np.ndarray, qd: np.ndarray, t: float, signals) -> None:
+    def _distribute(self, hessian: np.ndarray, gradient: np.ndarray) -> np.ndarray:
+        """The bounded input (acroboter.distribution) into self.u."""
+        try:
+            self.u[:] = self.limits.solve(hessian, gradient)
+        except DistributionError as err:
+            raise SingularSystemError(f"{self.name}: {err}") from None
+        return self.u
+
+    def _load(self, q: np.ndarray, qd: np.ndarray, t: float, signals, function=None) -> None:
+        """State, signals and gains into the input buffers, then one call of `function` (default: the terms)."""
         self._q[:] = q
         self._qd[:] = qd
         self._signals[:] = self.path.flat(t) if signals is None else signals
         if self.model.parameters_owner is not self:  # another controller may have set other gains
             self._p[:] = self._params
             self.model.parameters_owner = self
-        self._fn.call()
+        (function or self._fn).call()
 
     def compute(self, q: np.ndarray, qd: np.ndarray, t: float, signals=None) -> np.ndarray:
         """The input u at state (q, q̇) and time t (a view of an internal buffer).
@@ -95,19 +129,28 @@ class MLM(Controller):
 
     name = "mlm"
     terms_function = "mlm_terms"
+    bounded_function = "mlm_bounded_terms"
 
-    def __init__(self, model, path: DesiredPath, gains: Gains):
-        super().__init__(model, path, gains)
-        if self.k != self.l:
+    def __init__(self, model, path: DesiredPath, gains: Gains, limits=None):
+        super().__init__(model, path, gains, limits)
+        if self.k > self.l:
             raise SingularSystemError(
-                f"MLM needs as many servo-constraints as inputs, found {self.k} servo-constraints for {self.l} "
-                "inputs (redundant task): its matrix is not square. Use the penalty or iterative penalty method."
+                f"MLM needs at least as many inputs as servo-constraints, found {self.k} servo-constraints for "
+                f"{self.l} inputs (redundant task): its matrix is not square. Use the penalty or iterative "
+                "penalty method."
             )
         self._gesv, self._gecon = lapack.get_lapack_funcs(("gesv", "gecon"), (self.terms["schur"],))
         self.rcond = np.nan
         self._y = np.zeros(self.m + self.l)
+        self._y_current = True  # False when the applied u is not the Schur solution (limits, redundancy)
 
     def compute(self, q, qd, t, signals=None):
+        if self.redundant_inputs:
+            # E u = e has a family of solutions (internal forces): the distribution picks one.
+            self._load(q, qd, t, signals, self._bounded_fn)
+            B = self.bounded_terms
+            self._y_current = False
+            return self._distribute(B["hessian"], B["gradient"])
         self._load(q, qd, t, signals)
         T = self.terms
         # One LU (gesv) for the solution, then LAPACK's condition estimate on the same factors.
@@ -121,17 +164,38 @@ class MLM(Controller):
                 "independent constraints; use the penalty or iterative penalty method, which handle redundancy."
             )
         self._y = y
-        self.u[:] = y[self.m :]
-        return self.u
+        self._y_current = True
+        if self.limits.accept(y[self.m :]):
+            self.u[:] = y[self.m :]
+            return self.u
+        # A limit is in the way: the bounded input closest to realising the servo accelerations.
+        self._y_current = False
+        self._bounded_fn.call()
+        B = self.bounded_terms
+        return self._distribute(B["hessian"], B["gradient"])
+
+    def _reactions(self) -> None:
+        """y = [λ; u] for the applied u, when it is not the Schur solution: λ from the same system."""
+        if self._y_current:
+            return
+        self._fn.call()  # Schur terms at the state still in the buffers
+        T, m = self.terms, self.m
+        schur = T["schur"]
+        rhs = T["schur_rhs"] - schur[:, m:] @ self.u
+        self._y[:m] = np.linalg.lstsq(schur[:, :m], rhs, rcond=None)[0]
+        self._y[m:] = self.u
+        self._y_current = True
 
     @property
     def qdd(self) -> np.ndarray:
         """q̈ = −M⁻¹(c + W y) of the last step: the acceleration the method commands."""
+        self._reactions()
         T = self.terms
         return -(T["minv_bias"] + T["minv_w"] @ self._y)
 
     @property
     def multipliers(self) -> tuple[np.ndarray, None]:
+        self._reactions()
         return self._y[: self.m], None
 
 
@@ -143,9 +207,11 @@ class Penalty(Controller):
     """
 
     terms_function = "penalty_terms"
+    bounded_function = "penalty_bounded_terms"
+    secondary_weight = PENALTY_SECONDARY_WEIGHT
 
-    def __init__(self, model, path: DesiredPath, gains: Gains, iterations: int = 1):
-        super().__init__(model, path, gains)
+    def __init__(self, model, path: DesiredPath, gains: Gains, iterations: int = 1, limits=None):
+        super().__init__(model, path, gains, limits)
         if iterations < 1:
             raise ValueError("iterations must be at least 1")
         self.iterations = iterations
@@ -171,6 +237,7 @@ class Penalty(Controller):
             self._chain_start = second.outputs  # the first call reads these
             self._chain_end = (first if (iterations - 1) % 2 == 1 else second).outputs
         self.fast_recovery = gains.recovery == "projected"
+        self._gradient = np.zeros(self.l)
 
     def compute(self, q, qd, t, signals=None):
         self._load(q, qd, t, signals)
@@ -194,11 +261,26 @@ class Penalty(Controller):
                 call()
             self._qdd_last = self._chain_end["qdd_next"]
             self._qdd_sum = self._chain_end["qdd_sum_next"]
-        if self.fast_recovery and self.recovery.projected_fast(T, self._qdd_sum, self.iterations) is not None:
+        if self.redundant_inputs and self.fast_recovery:
+            return self._bounded_projected()  # the fit leaves internal forces free: distribute them
+        if not (self.fast_recovery and self.recovery.projected_fast(T, self._qdd_sum, self.iterations) is not None):
+            self._multipliers()
+            self.recovery.recover(T, self.lam_hat, self._qdd_last, self.lam)
+        if self.limits.accept(self.u):
             return self.u
+        # A limit is in the way: the same fit, bounded.
+        if self.fast_recovery:
+            return self._bounded_projected()
         self._multipliers()
-        self.recovery.recover(T, self.lam_hat, self._qdd_last, self.lam)
-        return self.u
+        return self._distribute(*self.recovery.least_squares(T, self.lam_hat, self._qdd_last, self.lam))
+
+    def _bounded_projected(self) -> np.ndarray:
+        """The projected recovery's fit ½uᵀGu + gᵀu, g = servo_map · λ̂, within the limits."""
+        self._bounded_fn.call()  # at the state and parameters penalty_terms just read
+        self._multipliers()
+        B = self.bounded_terms
+        np.matmul(B["servo_map"], self.lam_hat, out=self._gradient)
+        return self._distribute(B["hessian"], self._gradient)
 
     def _multipliers(self) -> None:
         """λ̂_N = Σ α̂(σ_q q̈_i + ρ_s) over the N iterations (eq. 18 summed), likewise λ_N (eq. 17)."""
@@ -222,12 +304,12 @@ class Penalty(Controller):
         return self.lam, self.lam_hat
 
 
-def make_controller(method: str, model, path: DesiredPath, gains: Gains) -> Controller:
-    """'mlm', 'penalty' or 'iterative-N'."""
+def make_controller(method: str, model, path: DesiredPath, gains: Gains, limits=None) -> Controller:
+    """'mlm', 'penalty' or 'iterative-N'; `limits` (min, max, preferred) default to the spec's."""
     if method == "mlm":
-        return MLM(model, path, gains)
+        return MLM(model, path, gains, limits)
     if method == "penalty":
-        return Penalty(model, path, gains, iterations=1)
+        return Penalty(model, path, gains, iterations=1, limits=limits)
     if method.startswith("iterative-") and method.removeprefix("iterative-").isdigit():
-        return Penalty(model, path, gains, iterations=int(method.removeprefix("iterative-")))
+        return Penalty(model, path, gains, iterations=int(method.removeprefix("iterative-")), limits=limits)
     raise ValueError(f"unknown method '{method}': use mlm, penalty or iterative-N (N >= 1)")

@@ -83,6 +83,29 @@ class InputRecovery:
                     check_finite=False)[0]
         self.u[:] = sol[: self.l]
 
+    def least_squares(self, terms: dict, lam_hat: np.ndarray, qdd: np.ndarray, lam: np.ndarray):
+        """(G, g) of ½uᵀGu + gᵀu whose minimiser is this recovery's u (after recover()), for the limits.
+
+        eq12 and eq13 are least squares in H u: bounded, they stay the same fit. eq15 and kappa are
+        explicit maps: bounded, they give the input within the limits closest to their u.
+        (The projected recovery has its own terms: codegen.structured.penalty_bounded_terms.)
+        """
+        H = terms["input_matrix"]
+        if self.kind in ("eq12", "eq13"):
+            if self.kind == "eq12":  # min ½|H u + σ_qᵀ λ̂|²
+                np.matmul(terms["sigma_q"].T, lam_hat, out=self._force)
+            else:  # min ½|H u − (M q̈ + c + φ_qᵀ λ)|²
+                np.matmul(self.mass, qdd, out=self._force)
+                self._force += terms["bias_forces"]
+                self._force += terms["phi_q"].T @ lam
+                self._force *= -1.0
+            np.matmul(H.T, H, out=self._hth)
+            np.matmul(H.T, self._force, out=self._hrhs)
+            return self._hth, self._hrhs
+        np.copyto(self._hth, np.eye(self.l))  # eq15, kappa: min ½|u − u_recovered|²
+        np.negative(self.u, out=self._hrhs)
+        return self._hth, self._hrhs
+
     def recover(self, terms: dict, lam_hat: np.ndarray, qdd: np.ndarray, lam: np.ndarray) -> np.ndarray:
         """u from the penalty step's terms (codegen.structured.penalty_terms), λ̂, q̈ and λ."""
         kind = self.kind

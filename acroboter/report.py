@@ -33,17 +33,23 @@ def write_csv(path: Path, result: RunResult, scenario: Scenario) -> None:
     k, l = result.sigma.shape[1], result.u.shape[1]
     header = ["t", "x", "y", "z", "yaw_deg", "x_d", "y_d", "z_d", "yaw_d_deg"]
     header += [f"sigma_{i + 1}" for i in range(k)] + [f"u_{i + 1}" for i in range(l)]
+    # Per cable: the tension at the start of the step after the instant, and 1 where it was slack.
+    header += [f"tension_{name}_N" for name in result.cable_names] + [f"slack_{name}" for name in result.cable_names]
     columns = [result.t[:, None], pos, yaw[:, None], result.desired[:, :3], np.degrees(result.desired[:, 3:4]),
-               result.sigma, result.u]
-    table = np.hstack(columns)
+               result.sigma, result.u, result.cable_tension, (result.cable_active == 0).astype(float)]
+    rows = np.hstack(columns).tolist()
+    nc = len(result.cable_names)
+    if nc:  # the slack flags as 0 / 1
+        rows = [row[:-nc] + [int(v) for v in row[-nc:]] for row in rows]
     with path.open("w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(header)
-        writer.writerows(table.tolist())
+        writer.writerows(rows)
 
 
-def write_summary(path: Path, spec_name: str, summaries: dict, duration: float, warnings: list[str]) -> None:
-    doc = {"spec": spec_name, "duration_s": duration, "methods": summaries, "warnings": warnings}
+def write_summary(path: Path, spec_name: str, summaries: dict, duration: float, warnings: list[str],
+                  extra: dict | None = None) -> None:
+    doc = {"spec": spec_name, "duration_s": duration, "methods": summaries, "warnings": warnings, **(extra or {})}
     path.write_text(json.dumps(doc, indent=2) + "\n")
 
 
@@ -76,7 +82,8 @@ def format_table(summaries: dict) -> str:
 
 
 def write_figures(out: Path, results: dict[str, RunResult], scenario: Scenario, summaries: dict,
-                  input_names: list[str], servo_names: list[str]) -> list[Path]:
+                  input_names: list[str], servo_names: list[str], input_limits=None) -> list[Path]:
+    """The run's figures; `input_limits` (min, max) per input are drawn on the inputs' panels."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -111,7 +118,8 @@ def write_figures(out: Path, results: dict[str, RunResult], scenario: Scenario, 
     written.append(_stacked_time_series(
         {m: r.u for m, r in results.items()}, results, input_names,
         [f"u{i + 1}" for i in range(first.u.shape[1])],
-        "Inputs (held over each control period)", out / "inputs.png", plt, held=True))
+        "Inputs (held over each control period; dashed: limits)", out / "inputs.png", plt, held=True,
+        limits=input_limits))
 
     # Control-step time per method beside the paper's MATLAB figures.
     methods = list(summaries)
@@ -134,8 +142,11 @@ def write_figures(out: Path, results: dict[str, RunResult], scenario: Scenario, 
 
 
 def _stacked_time_series(values: dict, results: dict, names: list[str], ylabels: list[str], title: str,
-                         path: Path, plt, held: bool = False) -> Path:
-    """One panel per column of values[method] (samples x columns), every method in each panel."""
+                         path: Path, plt, held: bool = False, limits=None) -> Path:
+    """One panel per column of values[method] (samples x columns), every method in each panel.
+
+    `limits`: (lower, upper) arrays, one entry per column; finite ones are drawn as dashed lines
+    (a limit far from the data would squash the panel: the axis is kept on the data plus a margin)."""
     columns = len(names)
     fig, axes = plt.subplots(columns, 1, figsize=(9, 1.6 * columns + 1), sharex=True)
     axes = np.atleast_1d(axes)
@@ -146,6 +157,20 @@ def _stacked_time_series(values: dict, results: dict, names: list[str], ylabels:
                 axes[i].step(t, data[:, i], where="post", lw=0.8, label=method)
             else:
                 axes[i].plot(t, data[:, i], lw=0.8, label=method)
+    if limits is not None:
+        for i, bounds in enumerate(zip(*limits, strict=True)):
+            low, high = min(np.nanmin(d[:, i]) for d in values.values()), max(np.nanmax(d[:, i]) for d in values.values())
+            span = max(high - low, 1e-9)
+            finite = [b for b in bounds if np.isfinite(b)]
+            shown = [b for b in finite if low - 0.5 * span <= b <= high + 0.5 * span]
+            for b in shown:
+                axes[i].axhline(b, color="k", ls="--", lw=0.8)
+            if shown:
+                axes[i].set_ylim(min([low, *shown]) - 0.1 * span, max([high, *shown]) + 0.1 * span)
+            off = [f"{'min' if b == bounds[0] else 'max'} {b:g}" for b in finite if b not in shown]
+            if off:
+                axes[i].text(0.99, 0.04, "limits off scale: " + ", ".join(off), transform=axes[i].transAxes,
+                             fontsize=7, va="bottom", ha="right")
     for i in range(columns):
         axes[i].set_ylabel(ylabels[i], fontsize=8)
         axes[i].set_title(names[i], fontsize=8, loc="right")

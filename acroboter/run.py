@@ -98,6 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     from .plant import SimulationError
     from .recovery import RecoveryError
     from .report import format_table, write_csv, write_figures, write_summary
+    from .feasibility import check_path
     from .simulation import Scenario, setup_default, simulate, summarize
     from .spec import SpecError, load_spec
     from .statics import EquilibriumError, desired_path, solve_equilibrium
@@ -118,6 +119,10 @@ def main(argv: list[str] | None = None) -> int:
         steps = int(round(duration * rate))
         start_rates = np.zeros(model.layout.n)
         results, summaries, warnings = {}, {}, []
+        # Before the run: can the path be followed within the limits at all?
+        feasibility = check_path(model, path, plant, start.q, duration, gains)
+        if feasibility.feasible is False:
+            warnings.append(f"the desired path is {feasibility.message}")
         with tqdm(total=steps * len(methods), unit="step", disable=args.quiet or None,
                   desc="simulating", file=sys.stderr) as bar:
             for method in methods:
@@ -155,7 +160,9 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     for name, r in results.items():
         write_csv(out / f"{name}.csv", r, scenario)
-    write_summary(out / "summary.json", spec.name, summaries, duration, warnings)
+    limits = input_limits_summary(spec, model.layout)
+    write_summary(out / "summary.json", spec.name, summaries, duration, warnings,
+                  extra={"input_limits": limits, "path_feasibility": feasibility.to_dict()})
     print(f"spec {spec.name}: {duration:g} s at {rate:g} Hz, plant RK4 h = {step * 1e3:g} ms; "
           f"start tensions {np.array2string(start.inputs, precision=4)}")
     print(format_table(summaries))
@@ -165,12 +172,29 @@ def main(argv: list[str] | None = None) -> int:
         lay = model.layout
         input_labels = [f"{name} [{unit}]" for name, unit in zip(lay.inputs, lay.input_units, strict=True)]
         write_figures(out, results, scenario, {m: s for m, s in summaries.items() if m in results},
-                      input_labels, lay.servo_constraints)
+                      input_labels, lay.servo_constraints, input_limits=spec.input_limits()[:2])
     print(f"results in {out}/")
     if not results:
         print("error: no method could run on this spec (see the warnings above)", file=sys.stderr)
         return 3
+    saturated = [m for m, s in summaries.items() if s.get("saturated")]
+    if feasibility.feasible is False or saturated:
+        reason = (feasibility.message.removeprefix("not feasible with these limits: ") if feasibility.feasible is False
+                  else "the check before the run passed, but the closed loop needed more")
+        held = f"; inputs held at a limit by {', '.join(saturated)}" if saturated else ""
+        print(f"the path was not feasible with these limits: {reason}{held}")
     return 0
+
+
+def input_limits_summary(spec, layout) -> dict:
+    """Each input's resolved [min, max] and preferred value (null: unbounded on that side)."""
+    lower, upper, preferred = spec.input_limits()
+
+    def finite(v: float):
+        return float(v) if math.isfinite(v) else None
+
+    return {name: {"min": finite(lo), "max": finite(hi), "preferred": float(p), "unit": unit}
+            for name, unit, lo, hi, p in zip(layout.inputs, layout.input_units, lower, upper, preferred, strict=True)}
 
 
 if __name__ == "__main__":

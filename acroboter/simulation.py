@@ -33,6 +33,21 @@ class RunResult:
     # With allow_divergence: when and why the run was stopped early (None: it ran to the end).
     diverged_at: float | None = None
     divergence: str | None = None
+    # Cables (spec order, names in cable_names), per instant: the tension (N) at the start of the
+    # plant step that follows the instant (for the last instant: the tension a step from there with
+    # the input computed at that instant would start with, Plant.probe), and whether the cable was
+    # taut (1) or slack (0) in that step.
+    cable_names: list[str] = field(default_factory=list)
+    cable_tension: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    cable_active: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int8))
+    # Per cable: how often it switched between taut and slack during the run (the plant's count,
+    # including switches that are undone before the next instant).
+    cable_transitions: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    # Per instant: Σ (T⁺ − T⁻) of the plant's inelastic cable impacts so far (J, ≤ 0 for fixed anchors).
+    impact_energy: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    # Per instant and input: the controller's limit_state (−1 at the lower limit, +1 at the upper, 0 free).
+    limit_state: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int8))
+    control_period: float = 0.0  # s
 
 
 # A run that strays this far from the path (m) has diverged: nothing useful follows.
@@ -87,7 +102,9 @@ def simulate(
     The path's signals are evaluated once for the whole run (vectorized) at every RK4 stage time
     for the plant; the controller evaluates them itself at each control instant (that is part of
     its timed step, as on a real controller). With energy=True the mechanical energy
-    and the integrated works are recorded at every instant.
+    and the integrated works are recorded at every instant (with the impacts' kinetic energy change
+    as "impacts": mechanical − mechanical[0] = work_inputs + work_anchors − dissipated + impacts).
+    Every instant also records the cables' tensions and activity and the controller's limit_state.
 
     A run diverges when the state or input stops being finite, the controller's system turns
     singular, or the tracked point strays more than DIVERGENCE_LIMIT_M from the path. That raises
@@ -120,6 +137,10 @@ def simulate(
     rec_sigma, rec_phi = np.zeros((samples, lay.k)), np.zeros((samples, lay.m))
     rec_des = np.zeros((samples, 4))
     rec_energy = np.zeros((samples, 4)) if energy else None
+    n_cables = len(plant.cable_names)
+    rec_tension, rec_active = np.zeros((samples, n_cables)), np.ones((samples, n_cables), dtype=np.int8)
+    rec_limit = np.zeros((samples, lay.l), dtype=np.int8)
+    rec_impact = np.zeros(samples)
     step_s = np.zeros(samples)
     sigma_fn, phi_fn = model.functions["sigma"], model.functions["phi"]
     sigma_out, phi_out = sigma_fn.outputs["sigma"], phi_fn.outputs["phi"]
@@ -147,20 +168,27 @@ def simulate(
             diverged_at, divergence = t, "the state or input became non-finite"
             break
         rec_q[k], rec_qd[k], rec_u[k] = q, qd, u
+        rec_limit[k] = controller.limit_state
+        rec_impact[k] = plant.impact_energy
         sigma_fn.call()  # at the state and signals the controller just loaded
         phi_fn.call()
         rec_sigma[k], rec_phi[k] = sigma_out, phi_out
         rec_des[k] = row[p : p + 4]
-        if np.abs(sigma_out[position_rows]).max() > DIVERGENCE_LIMIT_M:
-            diverged_at, divergence = t, f"the tracked point strayed more than {DIVERGENCE_LIMIT_M} m from the path"
-            k += 1
-            break
         if energy:
             rec_energy[k, 0] = plant.mechanical_energy(q, qd)
             rec_energy[k, 1:] = x[2 * n :]
+        strayed = np.abs(sigma_out[position_rows]).max() > DIVERGENCE_LIMIT_M
+        if strayed or k == steps:  # no step follows: the tensions a step from here would start with
+            plant.probe(x, rec_u[k], t)
+            rec_tension[k], rec_active[k] = plant.start_tension, plant.start_active
+        if strayed:
+            diverged_at, divergence = t, f"the tracked point strayed more than {DIVERGENCE_LIMIT_M} m from the path"
+            k += 1
+            break
         if k == steps:
             break
         plant.advance(x, rec_u[k], h, table, k * substeps, substeps)
+        rec_tension[k], rec_active[k] = plant.start_tension, plant.start_active
         if progress is not None:
             progress(1)
     wall = clock() - wall0
@@ -170,13 +198,19 @@ def simulate(
         kept = slice(0, k)  # the instants before it went wrong
         rec_t, rec_q, rec_qd, rec_u = rec_t[kept], rec_q[kept], rec_qd[kept], rec_u[kept]
         rec_sigma, rec_phi, rec_des, step_s = rec_sigma[kept], rec_phi[kept], rec_des[kept], step_s[kept]
+        rec_tension, rec_active = rec_tension[kept], rec_active[kept]
+        rec_limit, rec_impact = rec_limit[kept], rec_impact[kept]
         if energy:
             rec_energy = rec_energy[kept]
     result = RunResult(controller.name, rec_t, rec_q, rec_qd, rec_u, rec_sigma, rec_phi, rec_des, step_s, wall,
-                       diverged_at=diverged_at, divergence=divergence)
+                       diverged_at=diverged_at, divergence=divergence, cable_names=list(plant.cable_names),
+                       cable_tension=rec_tension, cable_active=rec_active,
+                       cable_transitions=plant.transitions.copy(), impact_energy=rec_impact,
+                       limit_state=rec_limit, control_period=period)
     if energy:
         names = ("mechanical", "work_inputs", "work_anchors", "dissipated")
         result.energy = {name: rec_energy[:, i].copy() for i, name in enumerate(names)}
+        result.energy["impacts"] = rec_impact.copy()
     return result
 
 
@@ -211,6 +245,32 @@ def summarize(result: RunResult, scenario: Scenario, layout) -> dict:
         "p99": float(np.percentile(us, 99)),
     }
     summary["sim_wall_s"] = float(result.sim_wall_s)
+    # Times from the records: every instant but the last stands for the control period after it.
+    period = result.control_period
+    held = slice(0, max(len(result.t) - 1, 0))
+    summary["cables"] = {
+        name: {
+            "time_slack_s": float(np.count_nonzero(result.cable_active[held, c] == 0) * period),
+            "transitions": int(result.cable_transitions[c]),
+            "min_tension_N": float(result.cable_tension[:, c].min()) if len(result.t) else None,
+            "max_tension_N": float(result.cable_tension[:, c].max()) if len(result.t) else None,
+        }
+        for c, name in enumerate(result.cable_names)
+    }
+    limits = result.limit_state[held]
+    summary["inputs"] = {
+        name: {
+            "time_at_lower_limit_s": float(np.count_nonzero(limits[:, i] == -1) * period),
+            "time_at_upper_limit_s": float(np.count_nonzero(limits[:, i] == 1) * period),
+        }
+        for i, name in enumerate(layout.inputs)
+    }
+    # Saturation: the instants at which some input was held by a limit, and what tracking cost then.
+    saturated = result.limit_state.any(axis=1) if result.limit_state.size else np.zeros(len(result.t), dtype=bool)
+    summary["saturated"] = bool(saturated.any())
+    summary["time_saturated_s"] = float(np.count_nonzero(saturated[held]) * period)
+    summary["max_position_error_while_saturated_mm"] = (
+        1e3 * float(pos_err[saturated].max()) if saturated.any() else None)
     return summary
 
 

@@ -150,10 +150,19 @@ class Cable(_Strict):
     winch: Winch | None = None
 
 
+# A limit may be infinite (TOML inf / -inf: unbounded on that side), never NaN.
+Limit = Annotated[float, Field(allow_inf_nan=True)]
+
+
 class _ActuatorBase(_Strict):
     name: Name
     # Generalized force per unit input (a motor constant, or -1 for a reversed mounting).
     gain: float = 1.0
+    # [min, max] of the input in its own unit (N, N·m); default: see default_limits().
+    limits: Annotated[list[Limit], _exactly(2, "2 numbers [min, max]")] | None = None
+    # The value the tension distribution pulls an input towards where the task leaves it free (the
+    # internal forces of redundant actuation); default: the middle of finite limits (see preferred_value).
+    preferred: float | None = None
 
     @field_validator("gain")
     @classmethod
@@ -162,10 +171,44 @@ class _ActuatorBase(_Strict):
             raise ValueError("expected a nonzero gain (a zero gain is no actuator), found 0")
         return value
 
+    @field_validator("limits")
+    @classmethod
+    def _limits_ordered(cls, value: list[float] | None) -> list[float] | None:
+        if value is None:
+            return value
+        low, high = value
+        if math.isnan(low) or math.isnan(high):
+            raise ValueError(f"expected numbers or ±inf as [min, max], found {value}")
+        if not low < high:
+            raise ValueError(f"expected min < max, found min = {low:g} and max = {high:g}")
+        if low == math.inf or high == -math.inf:
+            raise ValueError(f"expected a finite min or max on the side it bounds, found {value}")
+        return value
+
+    def default_limits(self) -> tuple[float, float]:
+        return (-math.inf, math.inf)
+
+    def resolved_limits(self) -> tuple[float, float]:
+        """[min, max] in the input's unit: the spec's, or the kind's default."""
+        return tuple(self.limits) if self.limits is not None else self.default_limits()
+
+    def preferred_value(self) -> float:
+        """The spec's preferred value, else the middle of two finite limits, the finite one, or 0."""
+        if self.preferred is not None:
+            return self.preferred
+        low, high = self.resolved_limits()
+        if math.isfinite(low) and math.isfinite(high):
+            return 0.5 * (low + high)
+        return low if math.isfinite(low) else (high if math.isfinite(high) else 0.0)
+
 
 class WinchTension(_ActuatorBase):
     kind: Literal["winch_tension"]
     cable: str
+
+    def default_limits(self) -> tuple[float, float]:
+        # A cable pulls and never pushes: the tension gain·u stays >= 0.
+        return (0.0, math.inf) if self.gain > 0 else (-math.inf, 0.0)
 
 
 class BodyTorque(_ActuatorBase):
@@ -260,7 +303,8 @@ class Spec(_Strict):
     def model_dict(self) -> dict:
         """The part of the spec that the generated C depends on (path, gains, rates are run-time)."""
         return self.model_dump(
-            mode="json", include={"name", "gravity", "anchors", "bodies", "cables", "actuators", "task"}
+            mode="json", include={"name", "gravity", "anchors", "bodies", "cables", "actuators", "task"},
+            exclude={"actuators": {"__all__": {"limits", "preferred"}}},  # read at run time
         )
 
     def model_hash(self) -> str:
@@ -273,6 +317,12 @@ class Spec(_Strict):
 
     def anchor(self, name: str) -> Anchor:
         return next(a for a in self.anchors if a.name == name)
+
+    def input_limits(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(min, max, preferred) per input, in the spec's actuator order."""
+        limits = np.array([a.resolved_limits() for a in self.actuators], dtype=float).reshape(-1, 2)
+        preferred = np.array([a.preferred_value() for a in self.actuators], dtype=float)
+        return limits[:, 0].copy(), limits[:, 1].copy(), preferred
 
 
 # --- checks that need the whole spec ---------------------------------------------------------
@@ -400,6 +450,17 @@ def _check_references(spec: Spec) -> list[tuple[str, str]]:
         else:
             body_ok(f"{base}.body", act.body)
 
+    for i, act in enumerate(spec.actuators):
+        low, high = act.resolved_limits()
+        if act.preferred is not None and not low <= act.preferred <= high:
+            problems.append((f"actuators[{i}] ({act.name}).preferred",
+                             f"expected a value within the limits [{low:g}, {high:g}], found {act.preferred:g}"))
+        if isinstance(act, WinchTension) and (low < 0 if act.gain > 0 else high > 0):
+            side = "min >= 0" if act.gain > 0 else "max <= 0 (the gain is negative)"
+            problems.append((f"actuators[{i}] ({act.name}).limits",
+                             f"expected limits that never make the cable push (a winch only pulls: {side}), "
+                             f"found [{low:g}, {high:g}] with gain {act.gain:g}"))
+
     for i, task in enumerate(spec.task):
         body_ok(f"task[{i}] ({task.kind}).body", task.body)
     positions = [t for t in spec.task if isinstance(t, PositionTask)]
@@ -454,10 +515,16 @@ def _clean_loc(loc: tuple, data: Any) -> list:
     return parts
 
 
-def _format_loc(parts: list) -> str:
+def _format_loc(parts: list, data: Any = None) -> str:
     loc = ""
-    for part in parts:
+    for k, part in enumerate(parts):
         loc += f"[{part}]" if isinstance(part, int) else (f".{part}" if loc else str(part))
+        # name the actuator, as the cross-field checks do: actuators[0] (tension_1).limits
+        if k == 1 and parts[0] == "actuators" and isinstance(part, int) and len(parts) > 2 and isinstance(data, dict):
+            items = data.get(parts[0])
+            item = items[part] if isinstance(items, list) and 0 <= part < len(items) else None
+            if isinstance(item, dict) and isinstance(item.get("name"), str):
+                loc += f" ({item['name']})"
     return loc or "(top level)"
 
 
@@ -547,7 +614,7 @@ def _format_pydantic(err: ValidationError, data: Any) -> list[tuple[str, str]]:
     for e in err.errors(include_url=False):
         parts = _clean_loc(e["loc"], data)
         parts, text = _describe(e, parts, data)
-        problem = (_format_loc(parts), text)
+        problem = (_format_loc(parts, data), text)
         if problem not in problems:
             problems.append(problem)
     return problems

@@ -14,13 +14,14 @@ from pathlib import Path
 import casadi as ca
 
 from acroboter.spec import Spec
-from codegen import structured
+from codegen import plant, structured
 from codegen.symbolic import SymbolicModel, build_symbolic_model
 
 REPO = Path(__file__).resolve().parent.parent
 # Sources whose content decides the generated code (besides the spec and CasADi's version).
 CODEGEN_SOURCES = (
-    "codegen/symbolic.py", "codegen/structured.py", "codegen/generate.py", "acroboter/spec.py", "acroboter/layout.py",
+    "codegen/symbolic.py", "codegen/structured.py", "codegen/plant.py", "codegen/generate.py", "acroboter/spec.py",
+    "acroboter/layout.py",
 )
 INPUT_NAMES = ("q", "qd", "s", "sd", "sdd")
 
@@ -98,10 +99,13 @@ class GenerationContext:
             self.register(name, terms)
         self.register_solver_terms("mlm_terms", structured.mlm_terms)
         self.register_solver_terms("penalty_terms", structured.penalty_terms)
+        # Called only where inputs are redundant or a limit is hit: the unbounded hot path stays as it was.
+        self.register_solver_terms("mlm_bounded_terms", structured.mlm_bounded_terms)
+        self.register_solver_terms("penalty_bounded_terms", structured.penalty_bounded_terms)
         self.functions["penalty_iteration"] = structured.penalty_iteration_function(
             self.model, f"{self.spec.name}_penalty_iteration"
         )
-        self.functions["plant_step"] = structured.plant_step_function(self.model, f"{self.spec.name}_plant_step")
+        self.functions["plant_step"] = plant.plant_step_function(self.model, f"{self.spec.name}_plant_step")
         return self
 
     def header(self) -> str:

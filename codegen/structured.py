@@ -1,4 +1,4 @@
-"""Solver-shaped terms: what each controller and the plant need per step, in one generated call.
+"""Solver-shaped terms: what each controller needs per step, in one generated call (the plant: codegen/plant.py).
 
 The mass matrix of natural coordinates is constant, so M⁻¹ is a numeric (sparse) constant here and
 every product with it is folded into the generated code. Parameters that a user may change at run
@@ -123,6 +123,61 @@ def penalty_terms(model: SymbolicModel, p: ca.SX) -> dict[str, ca.SX]:
     }
 
 
+def _constrained_projections(model: SymbolicModel, columns: ca.SX) -> tuple[ca.SX, ca.SX]:
+    """(P X, M⁻¹φ_qᵀ S⁻¹ γ) with P = M⁻¹ − M⁻¹φ_qᵀ S⁻¹ φ_q M⁻¹, S = φ_q M⁻¹ φ_qᵀ (independent rows).
+
+    P f is the acceleration a generalized force f causes on the constraint manifold (the
+    constraint reactions taken out); −M⁻¹φ_qᵀ S⁻¹ γ is the part the constraints' own γ causes.
+    """
+    minv = constant_inverse_mass(model)
+    rows = independent_rows(model)
+    phi_q, gamma = model.phi_q[rows, :], model.gamma[rows]
+    minv_phi_t = ca.mtimes(minv, phi_q.T)
+    minv_x = ca.mtimes(minv, columns)
+    solved = cholesky_solve(ca.mtimes(phi_q, minv_phi_t), ca.horzcat(ca.mtimes(phi_q, minv_x), gamma))
+    px = minv_x - ca.mtimes(minv_phi_t, solved[:, : columns.shape[1]])
+    return px, ca.mtimes(minv_phi_t, solved[:, columns.shape[1]])
+
+
+def mlm_bounded_terms(model: SymbolicModel, p: ca.SX) -> dict[str, ca.SX]:
+    """MLM's servo-constraints as a least-squares problem in u, for bounded or redundant inputs.
+
+    The constrained dynamics give q̈(u) = P (H u − c) − M⁻¹φ_qᵀ S⁻¹ γ, and MLM asks
+    σ_q q̈ = −ρ_s: E u = e with E = σ_q P H, e = −ρ_s + σ_q P c + σ_q M⁻¹φ_qᵀ S⁻¹ γ. Returned as the
+    Hessian EᵀE and gradient −Eᵀe of ½|E u − e|², plus E and e: where the inputs are free and E
+    is square this is MLM's own solution; with more inputs than servo-constraints it leaves the
+    internal forces free, with limits it measures what saturation costs (in servo accelerations).
+    """
+    _, rho_s = servo_and_constraint_rates(model, p)
+    p_cols, gamma_part = _constrained_projections(model, ca.horzcat(model.input_matrix, model.bias_forces))
+    l = model.layout.l
+    e_map = ca.mtimes(model.sigma_q, p_cols[:, :l])
+    target = -rho_s + ca.mtimes(model.sigma_q, p_cols[:, l] + gamma_part)
+    return {
+        "hessian": ca.mtimes(e_map.T, e_map),
+        "gradient": -ca.mtimes(e_map.T, target),
+        "servo_map": e_map,
+        "servo_target": target,
+    }
+
+
+def penalty_bounded_terms(model: SymbolicModel, p: ca.SX) -> dict[str, ca.SX]:
+    """The projected recovery as a least-squares problem in u alone, for bounded or redundant inputs.
+
+    Eliminating the free reactions Δλ from min |H u − φ_qᵀ Δλ + σ_qᵀ λ̂|² in the M⁻¹ metric leaves
+    ½ uᵀ G u + gᵀ u with G = Hᵀ P H and g = Hᵀ P σ_qᵀ λ̂ = servo_map · λ̂ (P as in
+    _constrained_projections): the same fit as penalty_terms' recovery, whose minimiser it is when
+    G is nonsingular, and a problem a bounded QP solver takes when it is not (internal forces).
+    """
+    h = model.input_matrix
+    l = model.layout.l
+    p_cols, _ = _constrained_projections(model, ca.horzcat(h, model.sigma_q.T))
+    return {
+        "hessian": ca.mtimes(h.T, p_cols[:, :l]),
+        "servo_map": ca.mtimes(h.T, p_cols[:, l:]),
+    }
+
+
 def _projected_recovery(model, minv_b, b, sigma_q, rho_s, alpha_s) -> dict[str, ca.SX]:
     l = model.layout.l
     servo_map = cholesky_solve(ca.mtimes(b.T, minv_b), ca.mtimes(minv_b.T, sigma_q.T))[:l, :]
@@ -176,56 +231,3 @@ def independent_rows(model: SymbolicModel) -> list[int]:
         if i not in lay.redundant_rows and np.linalg.matrix_rank(jac[keep + [i]]) == len(keep) + 1:
             keep.append(i)
     return keep
-
-
-def plant_derivative(model: SymbolicModel, u: ca.SX, zeta: ca.SX, omega: ca.SX, rows: list[int]) -> ca.SX:
-    """ẋ of x = [q, q̇, W_inputs, W_anchors, E_damping] for the Baumgarte DAE (design §9).
-
-    Only the independent constraint rows take part: redundant rows describe no extra physics and
-    would make the multiplier system singular.
-    """
-    qd = model.inputs[1]
-    minv = constant_inverse_mass(model)
-    phi, phi_q, phi_dot, gamma = model.phi[rows], model.phi_q[rows, :], model.phi_dot[rows], model.gamma[rows]
-    applied = ca.mtimes(model.input_matrix, u) - model.bias_forces
-    minv_applied = ca.mtimes(minv, applied)
-    # φ_q q̈ = −γ − 2ζω φ̇ − ω² φ with q̈ = M⁻¹(f − φ_qᵀλ):  (φ_q M⁻¹ φ_qᵀ) λ = φ_q M⁻¹ f + γ + 2ζωφ̇ + ω²φ
-    schur = ca.mtimes(ca.mtimes(phi_q, minv), phi_q.T)
-    lam = cholesky_solve(schur, ca.mtimes(phi_q, minv_applied) + gamma + 2 * zeta * omega * phi_dot + omega**2 * phi)
-    qdd = minv_applied - ca.mtimes(minv, ca.mtimes(phi_q.T, lam))
-    power_inputs = ca.dot(u, ca.mtimes(model.input_matrix.T, qd))
-    power_anchors = ca.dot(lam, phi_dot - ca.mtimes(phi_q, qd))  # λᵀ φ_t: work of moving anchors
-    power_damping = ca.dot(qd, ca.gradient(model.dissipation, qd))
-    return ca.vertcat(qd, qdd, power_inputs, power_anchors, power_damping)
-
-
-def plant_step_function(model: SymbolicModel, name: str) -> ca.Function:
-    """One RK4 step: (x, u, [h, ζ_B, ω_B], signals at t, t + h/2, t + h) -> x(t + h)."""
-    q, qd, s, sd, sdd = model.inputs
-    n, ns = q.shape[0], s.shape[0]
-    lay = model.layout
-    rows = independent_rows(model)
-    u = ca.SX.sym("u", lay.l)
-    zeta, omega = ca.SX.sym("zeta"), ca.SX.sym("omega")
-    deriv = ca.Function(
-        f"{name}_derivative",
-        [ca.vertcat(q, qd), u, zeta, omega, s, sd, sdd],
-        [plant_derivative(model, u, zeta, omega, rows)],
-        {"cse": True},
-    )
-    x = ca.MX.sym("x", 2 * n + 3)
-    um = ca.MX.sym("u", lay.l)
-    settings = ca.MX.sym("settings", 3)  # h, ζ_B, ω_B
-    stage = ca.MX.sym("stage_signals", 9 * ns)  # [s, ṡ, s̈] at t, t + h/2, t + h
-    h, z, w = settings[0], settings[1], settings[2]
-
-    def f(xx, k):
-        sig = stage[3 * ns * k : 3 * ns * (k + 1)]
-        return deriv(xx[: 2 * n], um, z, w, sig[:ns], sig[ns : 2 * ns], sig[2 * ns :])
-
-    k1 = f(x, 0)
-    k2 = f(x + 0.5 * h * k1, 1)
-    k3 = f(x + 0.5 * h * k2, 1)
-    k4 = f(x + h * k3, 2)
-    x_next = x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
-    return ca.Function(name, [x, um, settings, stage], [x_next], ["x", "u", "settings", "stage_signals"], ["x_next"])

@@ -74,6 +74,8 @@ def random_extra_input(pair: Pair, name: str, size: int, model_inputs, rng: np.r
     if name == "stage_signals":  # [s, ṡ, s̈] at t, t + h/2, t + h
         sig = np.concatenate([model_inputs[k] for k in ("s", "sd", "sdd")])
         return np.concatenate([sig + 1e-3 * k * rng.standard_normal(sig.size) for k in range(3)])
+    if name == "cable_active":  # the plant's cable mask: 1 taut, 0 slack
+        return rng.integers(0, 2, size).astype(float)
     if name == "chol":  # LAPACK potrf's upper factor of an SPD matrix (the lower triangle is not read)
         n = pair.layout.n
         a = rng.standard_normal((n, n))

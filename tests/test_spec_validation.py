@@ -139,13 +139,13 @@ CASES = [
          "actuators[0] (tension_1).cable", ["cable with a winch", "found 'L9'", "not a defined cable"]),
     Case("two winch tensions on one cable", _set("actuators", 1, "cable", value="L1"),
          "actuators[1] (tension_2).cable", ["one winch_tension actuator per cable", "'L1'", "actuators[0]"]),
-    Case("unknown actuator kind", _set("actuators", 0, "kind", value="rocket"), "actuators[0].kind",
+    Case("unknown actuator kind", _set("actuators", 0, "kind", value="rocket"), "actuators[0] (tension_1).kind",
          ["'winch_tension', 'body_torque', 'body_thrust'", "found 'rocket'"]),
-    Case("actuator without kind", _pop("actuators", 4, "kind"), "actuators[4].kind",
+    Case("actuator without kind", _pop("actuators", 4, "kind"), "actuators[4] (thrust_u).kind",
          ["required", "'winch_tension', 'body_torque', 'body_thrust'", "missing"]),
-    Case("actuator field of another kind", _set("actuators", 0, "axis", value="w"), "actuators[0].axis",
+    Case("actuator field of another kind", _set("actuators", 0, "axis", value="w"), "actuators[0] (tension_1).axis",
          ["unknown key 'axis'", "cable"]),
-    Case("bad actuator axis", _set("actuators", 3, "axis", value="z"), "actuators[3].axis",
+    Case("bad actuator axis", _set("actuators", 3, "axis", value="z"), "actuators[3] (yaw_torque).axis",
          ["'u', 'v' or 'w'", "found 'z'"]),
     Case("duplicate body name", _append("bodies", 1), "bodies[2].name",
          ["unique body or anchor name", "'SU' again", "bodies[1].name"]),
@@ -172,8 +172,22 @@ CASES = [
          ["at most 1", "found 2.0"]),
     Case("path that does not move", _set("path", "waypoints", value=[[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]),
          "path.waypoints", ["at least two distinct waypoints", "yaw-only", "found 2 equal"]),
-    Case("zero actuator gain", _set("actuators", 0, "gain", value=0.0), "actuators[0].gain",
+    Case("zero actuator gain", _set("actuators", 0, "gain", value=0.0), "actuators[0] (tension_1).gain",
          ["nonzero gain", "found 0"]),
+    Case("limits in the wrong order", _set("actuators", 1, "limits", value=[10.0, 5.0]),
+         "actuators[1] (tension_2).limits", ["min < max", "min = 10", "max = 5"]),
+    Case("non-numeric limit", _set("actuators", 0, "limits", value=[0.0, "lots"]),
+         "actuators[0] (tension_1).limits[1]", ["expected a number", "'lots'"]),
+    Case("NaN limit", _set("actuators", 3, "limits", value=[float("nan"), 1.0]),
+         "actuators[3] (yaw_torque).limits", ["numbers or ±inf", "nan"]),
+    Case("one limit", _set("actuators", 4, "limits", value=[1.0]),
+         "actuators[4] (thrust_u).limits", ["2 numbers [min, max]", "1 item"]),
+    Case("winch limits that push", _set("actuators", 2, "limits", value=[-5.0, 300.0]),
+         "actuators[2] (tension_3).limits", ["never make the cable push", "min >= 0", "[-5, 300]"]),
+    Case("upper limit of -inf", _set("actuators", 5, "limits", value=[float("-inf"), float("-inf")]),
+         "actuators[5] (thrust_v).limits", ["min < max"]),
+    Case("preferred outside the limits", _set("actuators", 0, "preferred", value=-1.0),
+         "actuators[0] (tension_1).preferred", ["within the limits [0, inf]", "found -1"]),
 ]
 
 
@@ -311,3 +325,26 @@ def test_cli_refuses_two_specs_with_one_name(tmp_path):
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert "expected a name of its own, found 'acroboter'" in result.stderr
     assert not out.exists() or list(out.iterdir()) == []
+
+
+def test_limits_default_by_actuator_kind_and_gain():
+    """Winches pull (tension gain·u >= 0), thrusts and torques are unbounded unless the spec says."""
+    data = raw_spec("acroboter")
+    data["actuators"][1]["gain"] = -1.0  # reversed mounting: pulling is u <= 0
+    data["actuators"][4]["limits"] = [-2.0, float("inf")]
+    data["actuators"][5]["preferred"] = 0.5
+    low, high, preferred = parse_spec(data).input_limits()
+    inf = float("inf")
+    assert low.tolist() == [0.0, -inf, 0.0, -inf, -2.0, -inf]
+    assert high.tolist() == [inf, 0.0, inf, inf, inf, inf]
+    assert preferred.tolist() == [0.0, 0.0, 0.0, 0.0, -2.0, 0.5]
+
+
+def test_limits_do_not_change_the_generated_code():
+    """Limits are read at run time: editing them keeps the spec's model hash (no regeneration)."""
+    data = raw_spec("acroboter")
+    before = parse_spec(data).model_hash()
+    data["actuators"][0]["limits"] = [5.0, 300.0]
+    data["actuators"][0]["preferred"] = 20.0
+    assert parse_spec(data).model_hash() == before
+

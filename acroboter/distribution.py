@@ -1,0 +1,148 @@
+"""Bounded input distribution: the inputs closest to what the controller asks, within the limits.
+
+Every controller ends with a small least-squares problem in the inputs u (l of them):
+
+    primary     minimise ½ uᵀ G u + gᵀ u        (G positive semidefinite, l × l)
+    subject to  min ≤ u ≤ max                   (the spec's limits: a winch never pushes)
+    secondary   among the primary's minimisers, the one closest to u_pref (½|u − u_pref|²)
+
+G and g come from the controller: the projected recovery's fit of the servo force in the M⁻¹
+metric (penalty methods), or the servo-constraint accelerations |E u − e|² (MLM). The secondary
+objective is the tension distribution of cable robots: where there are more inputs than the task
+needs (four winches for the three of them a position and a level need), the primary leaves the
+internal forces, the cables pulling against each other, free; they are set to the spec's
+preferred values (`preferred`, default the middle of the limits) instead of growing without bound.
+
+How it is solved:
+1. If the caller has an unbounded solution it trusts (the unique one when the inputs are not
+   redundant, computed as it always was) and it is within the limits, that is the answer: the
+   results of a crane whose limits are never reached are those of an unbounded controller.
+2. Otherwise G is decomposed (LAPACK syevd, l × l). Lexicographic (MLM, weight 0): directions with
+   an eigenvalue below RANK_TOLERANCE × the largest are internal forces Z (exactly free: MLM's E u = e
+   has a family of solutions), and the solution is the minimum-norm least squares plus Z Zᵀ u_pref.
+   Weighted (the penalty methods' fit, weight = PENALTY_SECONDARY_WEIGHT): ½ μ|u − u_pref|² with
+   μ = weight × G's largest eigenvalue is added throughout. The projected fit is never exact on a
+   non-collocated crane, and there the cables' internal force moves its residual by 1e-10..1e-9 of
+   G's scale, depending on the configuration: taken literally it would drive the cables to their
+   limits for nothing (seen on the four-cable crane); the weighted form keeps them at the preferred
+   level wherever the fit cares less than μ, and changes the rest by ~μ / (eigenvalue) relative.
+   Within the limits: done.
+3. Otherwise a strictly convex QP with simple bounds: the Hessian of step 2 (the internal
+   directions of the lexicographic case weighted by SECONDARY_WEIGHT × the largest eigenvalue), solved
+   by DAQP, a dual active-set solver for small dense QPs (a workspace set up once, no allocation per
+   solve). The inputs that end on a limit are reported in `limit_state` (DAQP's active set):
+   saturation is never silent.
+"""
+
+from __future__ import annotations
+
+import daqp
+import numpy as np
+from scipy.linalg import lapack
+
+# Eigenvalues of G below this fraction of the largest are internal forces (round-off leaves them
+# at ~1e-15 relative where they are exactly zero).
+RANK_TOLERANCE = 1e-9
+# Weight of the secondary objective on the internal forces in the bounded QP (lexicographic case),
+# relative to G's largest eigenvalue.
+SECONDARY_WEIGHT = 1e-9
+# The penalty methods' weighted secondary objective (redundant inputs), relative likewise: four
+# decades above the internal force's share of the fit on the four-cable crane (1e-10..2e-9), four
+# below its real directions (~4e-2).
+PENALTY_SECONDARY_WEIGHT = 1e-6
+# DAQP's feasibility tolerance on the bounds it leaves inactive (its default, 1e-6, is loose for N).
+PRIMAL_TOLERANCE = 1e-9
+
+
+class DistributionError(RuntimeError):
+    """The QP solver did not return an optimal solution (the controller reports it, never NaN)."""
+
+
+class BoundedInputs:
+    """Solve the bounded, prioritised least squares above for one controller (buffers reused)."""
+
+    def __init__(self, lower: np.ndarray, upper: np.ndarray, preferred: np.ndarray, weight: float = 0.0):
+        """`weight` > 0: the secondary objective is always on, ½ weight·g_max |u − u_pref|² added to the
+        primary (g_max = G's largest eigenvalue), for fits whose internal-force directions are not
+        exactly free (see the module docstring); 0: strictly lexicographic."""
+        self.lower = np.asarray(lower, dtype=float).copy()
+        self.upper = np.asarray(upper, dtype=float).copy()
+        self.preferred = np.asarray(preferred, dtype=float).copy()
+        self.weight = float(weight)
+        l = self.lower.size
+        self.l = l
+        self.bounded = bool(np.isfinite(self.lower).any() or np.isfinite(self.upper).any())
+        self.u = np.zeros(l)
+        self.limit_state = np.zeros(l, dtype=np.int8)
+        self._syevd = lapack.get_lapack_funcs("syevd", (np.zeros((1, 1)),))
+        self._hessian = np.zeros((l, l))
+        self._gradient = np.zeros(l)
+        self._none = np.zeros((0, l))
+        self._qp = daqp.Model()
+        self._qp.setup(np.eye(l), np.zeros(l), self._none, self.upper, self.lower)
+        self._qp.settings = {"primal_tol": PRIMAL_TOLERANCE}
+        self.qp_solves = 0  # how many steps needed the QP (diagnostics)
+
+    def within_limits(self, u: np.ndarray) -> bool:
+        return bool((u >= self.lower).all() and (u <= self.upper).all())
+
+    def accept(self, u: np.ndarray) -> bool:
+        """Take a trusted unbounded solution if it is within the limits (step 1)."""
+        if not self.bounded or self.within_limits(u):
+            self.u[:] = u
+            self.limit_state[:] = 0
+            return True
+        return False
+
+    def solve(self, hessian: np.ndarray, gradient: np.ndarray) -> np.ndarray:
+        """The bounded, prioritised minimiser (steps 2 and 3); writes self.u and self.limit_state."""
+        eigenvalues, vectors, info = self._syevd(hessian, compute_v=1, lower=0)
+        if info != 0 or not np.isfinite(eigenvalues).all():
+            raise DistributionError(
+                f"the input distribution's Hessian could not be decomposed (LAPACK syevd info {info}): "
+                "the controller's terms are not finite"
+            )
+        largest = max(float(eigenvalues[-1]), 0.0)
+        np.copyto(self._hessian, hessian)
+        self._gradient[:] = gradient
+        if self.weight > 0:
+            # Weighted: (G + μI) u = −g + μ u_pref, μ = weight · g_max.
+            mu = self.weight * largest if largest > 0 else 1.0
+            self._hessian[np.diag_indices(self.l)] += mu
+            self._gradient -= mu * self.preferred
+            u = -(vectors @ ((vectors.T @ self._gradient) / (eigenvalues + mu)))
+        else:
+            # Lexicographic: minimum-norm least squares + the internal forces (Z) at u_pref.
+            internal = eigenvalues <= RANK_TOLERANCE * largest if largest > 0 else np.ones(self.l, dtype=bool)
+            kept = ~internal
+            u = -(vectors[:, kept] @ ((vectors[:, kept].T @ gradient) / eigenvalues[kept]))
+            z = vectors[:, internal]
+            if z.size:
+                u += z @ (z.T @ self.preferred)
+                # For the QP: the internal forces get a small weight, so that it is strictly convex.
+                mu = SECONDARY_WEIGHT * largest if largest > 0 else 1.0
+                self._hessian += mu * (z @ z.T)
+                self._gradient -= mu * (z @ (z.T @ self.preferred))
+        if self.within_limits(u):
+            self.u[:] = u
+            self.limit_state[:] = 0
+            return self.u
+        # Bounded: the strictly convex QP with simple bounds.
+        self._hessian += self._hessian.T  # exactly symmetric (×2; the gradient too)
+        self._hessian *= 0.5
+        self._qp.update(H=self._hessian, f=self._gradient)
+        x, _, exitflag, info = self._qp.solve()
+        self.qp_solves += 1
+        if exitflag < 1 or not np.isfinite(x).all():
+            raise DistributionError(
+                f"the bounded input distribution failed (DAQP exit flag {exitflag}): the limits or the "
+                "controller's terms are inconsistent"
+            )
+        # The active set is DAQP's: a bound with a nonzero multiplier holds its input (exactly on it;
+        # negative multipliers are lower bounds). Inactive bounds hold to PRIMAL_TOLERANCE: snap those too.
+        lam = info["lam"]
+        self.limit_state[:] = 0
+        self.limit_state[lam < 0] = -1
+        self.limit_state[lam > 0] = 1
+        np.clip(x, self.lower, self.upper, out=self.u)
+        return self.u
