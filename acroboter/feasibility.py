@@ -97,7 +97,8 @@ def check_path(model, path: DesiredPath, plant, q0: np.ndarray, duration: float,
     checked = float(run.t[-1]) if run.t.size else 0.0
     tail = ""
     if run.diverged_at is not None:
-        tail = f"; the ideal motion itself diverges at t = {run.diverged_at:.2f} s ({run.divergence}), checked until then"
+        tail = (f"; the ideal motion itself diverges at t = {run.diverged_at:.2f} s ({run.divergence}), "
+                "checked until then")
     if first is None:
         return Feasibility(True if run.diverged_at is None else None, checked,
                            f"feasible: the ideal inputs stay within the limits at all {run.t.size} instants" + tail,

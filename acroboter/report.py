@@ -159,7 +159,8 @@ def _stacked_time_series(values: dict, results: dict, names: list[str], ylabels:
                 axes[i].plot(t, data[:, i], lw=0.8, label=method)
     if limits is not None:
         for i, bounds in enumerate(zip(*limits, strict=True)):
-            low, high = min(np.nanmin(d[:, i]) for d in values.values()), max(np.nanmax(d[:, i]) for d in values.values())
+            low = min(np.nanmin(d[:, i]) for d in values.values())
+            high = max(np.nanmax(d[:, i]) for d in values.values())
             span = max(high - low, 1e-9)
             finite = [b for b in bounds if np.isfinite(b)]
             shown = [b for b in finite if low - 0.5 * span <= b <= high + 0.5 * span]

@@ -95,10 +95,10 @@ def main(argv: list[str] | None = None) -> int:
 
     from .compiled import CompiledModel, StaleModelError
     from .controllers import Gains, SingularSystemError, make_controller
+    from .feasibility import check_path
     from .plant import SimulationError
     from .recovery import RecoveryError
     from .report import format_table, write_csv, write_figures, write_summary
-    from .feasibility import check_path
     from .simulation import Scenario, setup_default, simulate, summarize
     from .spec import SpecError, load_spec
     from .statics import EquilibriumError, desired_path, solve_equilibrium
