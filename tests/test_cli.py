@@ -61,12 +61,16 @@ def test_csv_columns_and_rows(short_run):
     header = rows[0]
     expected = ["t", "x", "y", "z", "yaw_deg", "x_d", "y_d", "z_d", "yaw_d_deg"]
     expected += [f"sigma_{i}" for i in range(1, 7)] + [f"u_{i}" for i in range(1, 7)]
+    cables = ("main", "L1", "L2", "L3")
+    expected += [f"tension_{c}_N" for c in cables] + [f"slack_{c}" for c in cables]
     assert header == expected
     assert len(rows) == 1 + 51  # 1 s at 50 Hz, both ends
     first = dict(zip(header, map(float, rows[1]), strict=True))
     assert first["t"] == 0.0
     assert first["z"] == pytest.approx(0.35, abs=1e-9)  # p0 of the design
     assert first["u_1"] == pytest.approx(26.75, abs=0.01)
+    assert first["tension_L1_N"] == pytest.approx(26.75, abs=0.01)  # the plant's cable pulls with u_1
+    assert all(first[f"slack_{c}"] == 0 for c in cables)
 
 
 def test_help_lists_the_options():
