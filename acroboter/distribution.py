@@ -17,18 +17,20 @@ How it is solved:
 1. If the caller has an unbounded solution it trusts (the unique one when the inputs are not
    redundant, computed as it always was) and it is within the limits, that is the answer: the
    results of a crane whose limits are never reached are those of an unbounded controller.
-2. Otherwise G is decomposed (LAPACK syevd, l × l). Lexicographic (MLM, weight 0): directions with
-   an eigenvalue below RANK_TOLERANCE × the largest are internal forces Z (exactly free: MLM's E u = e
-   has a family of solutions), and the solution is the minimum-norm least squares plus Z Zᵀ u_pref.
-   Weighted (the penalty methods' fit, weight = PENALTY_SECONDARY_WEIGHT): ½ μ|u − u_pref|² with
-   μ = weight × G's largest eigenvalue is added throughout. The projected fit is never exact on a
-   non-collocated crane, and there the cables' internal force moves its residual by 1e-10..1e-9 of
-   G's scale, depending on the configuration: taken literally it would drive the cables to their
-   limits for nothing (seen on the four-cable crane); the weighted form keeps them at the preferred
-   level wherever the fit cares less than μ, and changes the rest by ~μ / (eigenvalue) relative.
+2. Otherwise, with G's scale taken as its mean eigenvalue tr(G)/l: lexicographic (MLM, weight 0):
+   G is decomposed (LAPACK syevd, l × l), directions with an eigenvalue below RANK_TOLERANCE × the
+   scale are internal forces Z (exactly free: MLM's E u = e has a family of solutions), and the
+   solution is the minimum-norm least squares plus Z Zᵀ u_pref. Weighted (the penalty methods' fit,
+   weight = PENALTY_SECONDARY_WEIGHT): ½ μ|u − u_pref|² with μ = weight × scale is added
+   throughout, and (G + μI) u = μ u_pref − g is solved by Cholesky. The projected fit is never exact on a
+   non-collocated crane, and there the cables' internal force moves its residual by 1e-10..2e-9 of
+   G's largest eigenvalue, depending on the configuration: taken literally it would drive the cables
+   to their limits for next to nothing (seen on the four-cable crane); the weighted form keeps them
+   near the preferred level wherever the fit cares less than μ, and changes the rest by
+   ~μ / (eigenvalue) relative (see PENALTY_SECONDARY_WEIGHT for the trade).
    Within the limits: done.
 3. Otherwise a strictly convex QP with simple bounds: the Hessian of step 2 (the internal
-   directions of the lexicographic case weighted by SECONDARY_WEIGHT × the largest eigenvalue), solved
+   directions of the lexicographic case weighted by SECONDARY_WEIGHT × the scale), solved
    by DAQP, a dual active-set solver for small dense QPs (a workspace set up once, no allocation per
    solve). The inputs that end on a limit are reported in `limit_state` (DAQP's active set):
    saturation is never silent.
@@ -40,16 +42,19 @@ import daqp
 import numpy as np
 from scipy.linalg import lapack
 
-# Eigenvalues of G below this fraction of the largest are internal forces (round-off leaves them
-# at ~1e-15 relative where they are exactly zero).
+# Eigenvalues of G below this fraction of its mean eigenvalue are internal forces (round-off leaves
+# them at ~1e-15 relative where they are exactly zero).
 RANK_TOLERANCE = 1e-9
 # Weight of the secondary objective on the internal forces in the bounded QP (lexicographic case),
-# relative to G's largest eigenvalue.
+# relative to G's mean eigenvalue.
 SECONDARY_WEIGHT = 1e-9
-# The penalty methods' weighted secondary objective (redundant inputs), relative likewise: four
-# decades above the internal force's share of the fit on the four-cable crane (1e-10..2e-9), four
-# below its real directions (~4e-2).
-PENALTY_SECONDARY_WEIGHT = 1e-6
+# The penalty methods' weighted secondary objective (redundant inputs), relative likewise. A trade:
+# the internal force does lower the fit's residual a little, so a larger weight balances the cables
+# better and tracks worse. On the four-cable crane's 55 s path (tension range, max position error):
+# 4e-6: 17.1..23.3 N, 0.075 mm; 1e-5: 19.0..21.5 N, 0.098 mm; 1e-4: 20.0..20.4 N, 0.45 mm. The
+# internal force's share of the fit there is 4e-10..8e-9 of G's mean eigenvalue, its other
+# directions' share at least 0.16.
+PENALTY_SECONDARY_WEIGHT = 1e-5
 # DAQP's feasibility tolerance on the bounds it leaves inactive (its default, 1e-6, is loose for N).
 PRIMAL_TOLERANCE = 1e-9
 
@@ -62,8 +67,8 @@ class BoundedInputs:
     """Solve the bounded, prioritised least squares above for one controller (buffers reused)."""
 
     def __init__(self, lower: np.ndarray, upper: np.ndarray, preferred: np.ndarray, weight: float = 0.0):
-        """`weight` > 0: the secondary objective is always on, ½ weight·g_max |u − u_pref|² added to the
-        primary (g_max = G's largest eigenvalue), for fits whose internal-force directions are not
+        """`weight` > 0: the secondary objective is always on, ½ weight·tr(G)/l |u − u_pref|² added to
+        the primary, for fits whose internal-force directions are not
         exactly free (see the module docstring); 0: strictly lexicographic."""
         self.lower = np.asarray(lower, dtype=float).copy()
         self.upper = np.asarray(upper, dtype=float).copy()
@@ -74,7 +79,8 @@ class BoundedInputs:
         self.bounded = bool(np.isfinite(self.lower).any() or np.isfinite(self.upper).any())
         self.u = np.zeros(l)
         self.limit_state = np.zeros(l, dtype=np.int8)
-        self._syevd = lapack.get_lapack_funcs("syevd", (np.zeros((1, 1)),))
+        self._syevd, self._potrf, self._potrs = lapack.get_lapack_funcs(("syevd", "potrf", "potrs"),
+                                                                        (np.zeros((1, 1)),))
         self._hessian = np.zeros((l, l))
         self._gradient = np.zeros(l)
         self._none = np.zeros((0, l))
@@ -96,31 +102,35 @@ class BoundedInputs:
 
     def solve(self, hessian: np.ndarray, gradient: np.ndarray) -> np.ndarray:
         """The bounded, prioritised minimiser (steps 2 and 3); writes self.u and self.limit_state."""
-        eigenvalues, vectors, info = self._syevd(hessian, compute_v=1, lower=0)
-        if info != 0 or not np.isfinite(eigenvalues).all():
-            raise DistributionError(
-                f"the input distribution's Hessian could not be decomposed (LAPACK syevd info {info}): "
-                "the controller's terms are not finite"
-            )
-        largest = max(float(eigenvalues[-1]), 0.0)
+        # G's scale: its mean eigenvalue. Exact and cheap (also in the exported C, which needs no
+        # eigenvalue solver for it); between 1/l of the largest eigenvalue and the largest.
+        scale = float(np.trace(hessian)) / self.l
+        if not np.isfinite(scale) or not np.isfinite(gradient).all():
+            raise DistributionError("the input distribution's terms are not finite")
         np.copyto(self._hessian, hessian)
         self._gradient[:] = gradient
         if self.weight > 0:
-            # Weighted: (G + μI) u = −g + μ u_pref, μ = weight · g_max.
-            mu = self.weight * largest if largest > 0 else 1.0
+            # Weighted: (G + μI) u = μ u_pref − g, μ = weight · scale (positive definite: Cholesky).
+            mu = self.weight * scale if scale > 0 else 1.0
             self._hessian[np.diag_indices(self.l)] += mu
             self._gradient -= mu * self.preferred
-            u = -(vectors @ ((vectors.T @ self._gradient) / (eigenvalues + mu)))
+            chol, info = self._potrf(self._hessian, lower=False, overwrite_a=False, clean=False)
+            if info != 0:
+                raise DistributionError(f"G + μI is not positive definite (LAPACK potrf info {info})")
+            u, _ = self._potrs(chol, -self._gradient, lower=False)
         else:
             # Lexicographic: minimum-norm least squares + the internal forces (Z) at u_pref.
-            internal = eigenvalues <= RANK_TOLERANCE * largest if largest > 0 else np.ones(self.l, dtype=bool)
+            eigenvalues, vectors, info = self._syevd(hessian, compute_v=1, lower=0)
+            if info != 0 or not np.isfinite(eigenvalues).all():
+                raise DistributionError(f"the distribution's G could not be decomposed (LAPACK syevd info {info})")
+            internal = eigenvalues <= RANK_TOLERANCE * scale if scale > 0 else np.ones(self.l, dtype=bool)
             kept = ~internal
             u = -(vectors[:, kept] @ ((vectors[:, kept].T @ gradient) / eigenvalues[kept]))
             z = vectors[:, internal]
             if z.size:
                 u += z @ (z.T @ self.preferred)
                 # For the QP: the internal forces get a small weight, so that it is strictly convex.
-                mu = SECONDARY_WEIGHT * largest if largest > 0 else 1.0
+                mu = SECONDARY_WEIGHT * scale if scale > 0 else 1.0
                 self._hessian += mu * (z @ z.T)
                 self._gradient -= mu * (z @ (z.T @ self.preferred))
         if self.within_limits(u):
@@ -128,7 +138,7 @@ class BoundedInputs:
             self.limit_state[:] = 0
             return self.u
         # Bounded: the strictly convex QP with simple bounds.
-        self._hessian += self._hessian.T  # exactly symmetric (×2; the gradient too)
+        self._hessian += self._hessian.T  # exactly symmetric: the mean of G and Gᵀ
         self._hessian *= 0.5
         self._qp.update(H=self._hessian, f=self._gradient)
         x, _, exitflag, info = self._qp.solve()
