@@ -13,44 +13,57 @@ x = [q, q̇, W_u, W_anchor, E_d].
 Cables (unilateral constraints). A cable only limits the distance of its ends, |p_a − p_b| ≤ L
 (L fixed, or the winch's length coordinate); its tension 2Lλ is ≥ 0. The plant keeps an activity
 mask `cable_active` (1 taut, 0 slack; all taut at the start) that the generated step takes as an
-input (a slack cable's row drops out of the multiplier system, its λ is exactly 0). Per RK4 substep:
+input (a slack cable's row drops out of the multiplier system, its λ is exactly 0). The step
+reports each cable's tension at its START and gap |p_a − p_b| − L at its END, and two numbers
+(`cable_events`) that say whether a taut cable pushes (tension < −tension_tol, TENSION_TOL_REL ×
+the bodies' weight, ~1.8e-7 N on the default crane: far below any physical tension, above
+round-off) or a slack one ends stretched (gap > GAP_TOL = 1e-12 m). A substep without either costs
+two float comparisons. Otherwise (rare; numpy):
 
-- Taut → slack: the step reports each cable's tension at the START of the step. If a taut cable's
-  is below −tension_tol (TENSION_TOL_REL × the bodies' total weight, so ~1.8e-7 N on the default
-  crane: far below any physical tension, above round-off), it is marked slack and the substep is
-  redone from the same state (the most compressed cable first, until no taut cable pushes). This is
-  a switch of the active set, not an event inside the step: with u held piecewise constant the
-  tension changes smoothly, so the switch is located at step granularity (it happens up to one
-  substep late, while the cable pushes by at most about |dT/dt|·h).
-- Slack → taut: the step reports each cable's gap |p_a − p_b| − L at the END of the step. If a
-  slack cable's gap exceeds GAP_TOL (1e-12 m), the crossing is located inside the substep
-  (Illinois regula falsi on the gap, each evaluation one RK4 step of a fraction θ of the substep
-  with the path's signals at t, t + θh/2, t + θh) to |gap| ≤ GAP_TOL, the state is advanced there
-  and an inelastic impact (restitution 0) is applied with the new active set A (the rigid rows,
-  the taut cables and the cable(s) at contact): Λ solves (φ_A M⁻¹ φ_Aᵀ) Λ = φ_A q̇⁻ + φ_t,A and
-  q̇⁺ = q̇⁻ − M⁻¹ φ_Aᵀ Λ, which leaves φ̇_A = 0. A cable whose impulse comes out compressive is
-  left (or made) slack and Λ is recomputed; a slack cable at contact that the result would
-  stretch is added (a small active-set loop; it raises SimulationError if it finds no
-  consistent set). Then the rest of the substep is integrated with the new mask. The impulse acts
-  in no time: q and the integrated works do not jump; the kinetic energy changes by T⁺ − T⁻,
-  which is ≤ 0 for fixed anchors (an inelastic collision) and is accumulated in `impact_energy`,
-  so that ΔT + ΔU = W_u + W_anchor − E_d + impact_energy holds across the transitions.
+- Force level, at the start of the (partial) step: over the cables at contact with no relative
+  velocity (the taut ones, and slack ones at contact that neither stretch nor separate), the mask is
+  the solution of the complementarity conditions of the plant's own stabilised multiplier system
+  at that instant: taut cables pull, slack ones are not accelerated into stretch. The system is
+  positive definite, so the solution is unique; it is found among all masks of those cables
+  (nearest to the current first). A taut cable that starts to push therefore goes slack at step
+  granularity, from the start-of-step tension: with u held piecewise constant the tension changes
+  smoothly, and the switch comes up to one substep late (while the cable pushes by at most about
+  |dT/dt|·h). A slack cable separating so slowly, under an acceleration back into stretch, that its
+  dip would be shallower than GAP_TOL (too shallow to locate its return) is taken taut there too,
+  with its tiny rate projected out (the energy that return's impact would take, into impact_energy).
+- Slack → taut inside the step: a slack cable that ends the step stretched has its crossing located
+  (scan for a point below −GAP_TOL, then Illinois regula falsi on the gap; each evaluation one RK4
+  step of a fraction θ of the step with the path's signals at t, t + θh/2, t + θh) to |gap| ≤
+  GAP_TOL. The state is advanced there and an inelastic impact (restitution 0) is applied with the
+  new active set A (the rigid rows, the taut cables and the cable(s) at contact): Λ solves
+  (φ_A M⁻¹ φ_Aᵀ) Λ = φ_A q̇⁻ + φ_t,A and q̇⁺ = q̇⁻ − M⁻¹ φ_Aᵀ Λ, which leaves φ̇_A = 0. A with every
+  taut cable's impulse pulling and no slack cable at contact left being stretched is found among
+  all sets of the cables at contact (velocity-level complementarity): a cable whose impulse would
+  push is left (or made) slack and separates. Then the rest of the step runs with the new mask
+  (force level first again). Cascades (a cable pulled taut throws another one slack, which comes
+  back microseconds later) are followed event by event, up to max_events_per_step.
+- Energy: the impulse acts in no time (q and the integrated works do not jump); the kinetic energy
+  changes by T⁺ − T⁻, ≤ 0 for fixed anchors (an inelastic collision), accumulated in
+  `impact_energy`, so that ΔT + ΔU = W_u + W_anchor − E_d + impact_energy holds across the
+  transitions to the integrator's accuracy (tests/test_unilateral.py).
 Why: an inextensible cable that goes taut stops the relative motion along it at once; resolving
 that as an impulse at the located instant keeps the constraint exact (no stiff spring, no
 penetration) and the integration between events is the unchanged smooth RK4.
 
-Limits: slack onset at step granularity (above); re-tension located to ~1e-12 m in gap, but a
-gap that goes positive and back within one substep is not seen; every switch costs a redone step,
-a located impact a few extra steps (events are rare, the step without one only compares the two
-numbers `cable_events` of the generated call with the tolerances); a cable whose row is dependent
+Limits: slack onset at step granularity (above); re-tension located to ~1e-12 m in gap; a gap that
+goes positive and back within one substep is not seen; a slack cable whose gap comes up so smoothly
+from contact that no point below −GAP_TOL brackets it ends that step stretched by a little (seen
+≤ 2e-10 m) and is taken up by the next step's force-level decision; a cable whose row is dependent
 (left out of the plant, codegen.structured.independent_rows) is never switched and reports
-tension 0. Stage signals at fractional times come from `path` (a hand-made table is taken to
-follow `path` when an event happens).
+tension 0. Stage signals at fractional times come from `path` (a hand-made table is taken to follow
+`path` when an event happens). No consistent state within max_events_per_step events raises
+SimulationError (simulate reports it as a divergence).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import combinations
 
 import numpy as np
 
@@ -65,8 +78,10 @@ class SimulationError(RuntimeError):
 TENSION_TOL_REL = 1e-9
 # A slack cable goes taut when its gap exceeds this (m); the crossing is located to the same tolerance.
 GAP_TOL = 1e-12
-# A slack cable at contact counts as stretched by an impulse when its gap grows faster than this (m/s).
+# A slack cable at contact counts as stretched by an impulse when its gap grows faster than this (m/s),
+# and as accelerated into stretch when its gap's acceleration exceeds GAP_ACC_TOL (m/s²).
 GAP_RATE_TOL = 1e-10
+GAP_ACC_TOL = 1e-7
 
 
 @dataclass(frozen=True)
@@ -122,7 +137,7 @@ class Plant:
         self.gap_tol = GAP_TOL
         self._stage_scratch = np.zeros(9 * self.ns)
         self._minv: np.ndarray | None = None
-        self.max_events_per_step = 4 * nc + 4
+        self.max_events_per_step = 50 * nc + 50
         # Per run (reset by initial_state):
         self.start_tension = np.zeros(nc)  # tensions at the start of the first substep of the last advance
         self.start_active = np.ones(nc)  # the mask that substep used
@@ -182,7 +197,7 @@ class Plant:
             point(stage_input, base + 2 * i * row_bytes)  # rows 2i..2i+2 are contiguous
             step()
             if events[0] > tol or events[1] > gap_tol:
-                self._resolve(t0 + i * h, h, i == first_step)
+                self._resolve(t0 + i * h, h, i == first_step, base + 2 * i * row_bytes)
                 continue
             if i == first_step:
                 self.start_tension[:] = self._tension
@@ -234,7 +249,7 @@ class Plant:
 
     def _release_slack(self, t: float) -> None:
         """Taut cables that push at the start of the step go slack (most compressed first), and the
-        step is redone from the same state, until every taut cable pulls."""
+        step is redone from the same state, until every taut cable pulls (used by probe)."""
         for _ in range(len(self._modelled)):
             if self._events[0] <= self.tension_tol:
                 return
@@ -244,67 +259,226 @@ class Plant:
             self._note(t, c, "slack")
             self._step.call()
 
-    def _resolve(self, t: float, h: float, record: bool) -> None:
+    def _point_step(self, t: float, h: float, address: int | None) -> None:
+        """Set the step to [t, t + h]: the table's rows at `address`, else the path's signals."""
+        if address is None:
+            self._set_stage(t, h)
+        else:
+            self._step.point_input(self._stage_input, address)
+            self._settings[0] = h
+
+    def _resolve(self, t: float, h: float, record: bool, address: int) -> None:
         """Finish the substep [t, t + h] from the state in the x buffer, whose step has just been
-        called and flagged a cable event; leaves the end state in the x buffer."""
+        called (stage signals at `address`) and flagged a cable event; leaves the end state in the x
+        buffer and the step's settings at h."""
         tau = 0.0  # fraction of the substep done
-        refused: set[int] = set()  # cables whose re-tension came out compressive in this substep
+        refused: set[int] = set()  # cables whose re-tension came out compressive at the current instant
         for _ in range(self.max_events_per_step):
             start_t, rest = t + tau * h, (1.0 - tau) * h
-            self._release_slack(start_t)
+            here = address if tau == 0.0 else None
+            self._settle(start_t, rest, here, refused, h)
             if record:
                 self.start_tension[:] = self._tension
                 self.start_active[:] = self._active
                 record = False
-            candidates = [c for c in self._modelled
-                          if self._active[c] == 0.0 and c not in refused and self._gap[c] > self.gap_tol]
-            if not candidates:
+            candidates = [c for c in self._modelled if self._active[c] == 0.0 and self._gap[c] > self.gap_tol]
+            located = self._locate(self._x.copy(), start_t, rest, candidates, here) if candidates else None
+            if located is None:  # no slack cable crosses into stretch inside the step
                 self._x[:] = self._x_next
                 self._settings[0] = h
                 return
-            x_start = self._x.copy()
-            theta, x_event, gap = self._locate(x_start, start_t, rest, candidates)
+            theta, x_event, gap = located
             t_event = start_t + theta * rest
+            if theta > 0.0:
+                refused = set()  # a new instant
             contact = [c for c in self._modelled if self._active[c] == 0.0 and c not in refused
                        and gap[c] >= -self.gap_tol]
-            if not contact:
-                contact = [max(candidates, key=lambda k: gap[k])]
-            refused |= self._impact(x_event, t_event, contact, gap, h)
+            if contact:
+                refused |= self._impact(x_event, t_event, contact, gap, h)
             tau += theta * (1.0 - tau)
             self._x[:] = x_event
             if 1.0 - tau <= 1e-12:  # the crossing was at the end of the substep
                 self._settings[0] = h
                 return
-            self._set_stage(t + tau * h, (1.0 - tau) * h)
-            self._step.call()
         raise SimulationError(
             f"more than {self.max_events_per_step} cable events in the plant step at t = {t:.6f} s "
             "(chattering cables): shorten simulation.step"
         )
 
-    def _gaps_after(self, x_start: np.ndarray, t: float, h: float) -> np.ndarray:
+    def _terms_at(self, x: np.ndarray, t: float) -> dict[str, np.ndarray]:
+        n, ns = self.n, self.ns
+        s = self.path.table(np.array([t]))[0]
+        return self.model.evaluate("model_terms", q=x[:n], qd=x[n : 2 * n], s=s[:ns], sd=s[ns : 2 * ns],
+                                   sdd=s[2 * ns :])
+
+    def _contact_state(self, x: np.ndarray, t: float):
+        """The model terms, every cable's gap (m) and gap rate (m/s) at state x and time t."""
+        self._x[:] = x
+        self._set_stage(t, 0.0)  # a step of length 0: its end gap is the gap at x
+        self._step.call()
+        gap = self._gap.copy()
+        terms = self._terms_at(x, t)
+        rate = np.array([self._gap_rate(c, x, terms["phi_dot"][r], gap[c]) for c, r in enumerate(self._cable_row)])
+        return terms, gap, rate
+
+    def _gap_rate(self, cable: int, x: np.ndarray, phi_dot: float, gap: float) -> float:
+        """d/dt (|d| − L) from φ̇ = 2 (d·ḋ − L L̇): (φ̇/2 + L L̇)/|d| − L̇ with |d| = L + gap."""
+        length = self._length(cable, x[: self.n])
+        i = self._winch[cable]
+        length_rate = float(x[self.n + i]) if i is not None else 0.0
+        return (0.5 * phi_dot + length * length_rate) / (length + gap) - length_rate
+
+    def _settle(self, t: float, h: float, address: int | None, refused: set[int], substep: float) -> None:
+        """Make the cable mask consistent at the start of the step [t, t + h] from the x buffer and
+        leave that step called with it.
+
+        Slack cables at contact (gap ≥ −GAP_TOL) that are being stretched get their impact first.
+        Then the cables at contact with no relative velocity (the taut ones and the slack ones at
+        contact that neither stretch nor separate) take the force-level complementarity conditions
+        of the plant's own multiplier system, solved exactly at this instant: a taut cable pulls
+        (2Lλ ≥ −tension_tol), a slack one is not being accelerated into stretch (its row's
+        stabilised acceleration (φ_q q̈ + γ + 2ζωφ̇ + ω²φ)/2L ≤ GAP_ACC_TOL: the same equation the
+        plant enforces when it is taut). The system is positive definite, so exactly one such set
+        exists; it is found among all of them (at most 2^cables small numpy solves, rare), nearest
+        (fewest switches) to the current mask first.
+        """
+        gap_tol = self.gap_tol
+        x = self._x.copy()
+        terms, gap, rate = self._contact_state(x, t)
+        stretching = [c for c in self._modelled if self._active[c] == 0.0 and c not in refused
+                      and gap[c] >= -gap_tol and rate[c] > GAP_RATE_TOL]
+        if stretching:
+            refused |= self._impact(x, t, stretching, gap, substep)
+            terms, gap, rate = self._contact_state(x, t)
+        self._x[:] = x
+        # Slack cables at contact that are not stretched: at rest relative to it, or separating so
+        # slowly under an acceleration back into stretch that the dip (ġ²/2g̈) is below GAP_TOL, too
+        # shallow to locate a return: both are at contact for the force-level decision.
+        taut = [c for c in self._modelled if self._active[c] == 1.0]
+        acc = self._row_accelerations(x, terms, taut)[1]
+        contact = [c for c in self._modelled if self._active[c] == 1.0 or (
+            gap[c] >= -gap_tol and rate[c] <= GAP_RATE_TOL
+            and (rate[c] >= -GAP_RATE_TOL or rate[c] ** 2 <= 2.0 * gap_tol * max(acc[c], 0.0)))]
+        start = self._active.copy()
+        mask = self._force_level(x, terms, contact)
+        self._active[:] = mask
+        # A cable taken taut while still separating (the shallow dip above) would leave Baumgarte to
+        # stop it, with work that no term of the balance holds: its rate is projected out at once
+        # instead (what the return would lose in its impact, ≤ 0, into impact_energy).
+        delta = 0.0
+        if any(mask[c] == 1.0 and start[c] == 0.0 and abs(rate[c]) > GAP_RATE_TOL for c in contact):
+            delta = self._project_rates(x, terms, [c for c in self._modelled if mask[c] == 1.0])
+            self._x[:] = x
+        first = True
+        for c in contact:
+            if mask[c] != start[c]:
+                self._note(t, c, "taut" if mask[c] == 1.0 else "slack", delta if first else 0.0)
+                first = False
+        self._point_step(t, h, address)
+        self._step.call()
+
+    def _project_rates(self, x: np.ndarray, terms: dict, taut: list[int]) -> float:
+        """q̇ ← q̇ − M⁻¹φ_Aᵀ(φ_A M⁻¹φ_Aᵀ)⁻¹ φ̇_A over the rigid rows and the `taut` cables (x in
+        place): φ̇_A = 0 afterwards. Returns (and books in impact_energy) the kinetic energy change."""
+        n = self.n
+        q, qd = x[:n], x[n : 2 * n].copy()
+        minv = self._inverse_mass()
+        rows = self._body_rows + [self._cable_row[c] for c in sorted(taut)]
+        jac = terms["phi_q"][rows]
+        lam = np.linalg.solve(jac @ minv @ jac.T, terms["phi_dot"][rows])
+        qd_after = qd - minv @ (jac.T @ lam)
+        delta = self._kinetic(q, qd_after) - self._kinetic(q, qd)
+        x[n : 2 * n] = qd_after
+        self.impact_energy += delta
+        return delta
+
+    def _row_accelerations(self, x: np.ndarray, terms: dict, taut: list[int]):
+        """With the rigid rows and the `taut` cables enforced (the plant's multiplier system, in
+        numpy): every cable's tension 2Lλ (N; 0 for the others) and its row's stabilised
+        acceleration (φ_q q̈ + γ + 2ζωφ̇ + ω²φ)/2L (m/s²; ≈ 0 for the taut ones). None if singular."""
+        q = x[: self.n]
+        minv = self._inverse_mass()
+        force = terms["input_matrix"].reshape(self.n, -1, order="F") @ self._u - terms["bias_forces"]
+        minv_force = minv @ force
+        baumgarte = terms["gamma"] + 2 * self.zeta * self.omega * terms["phi_dot"] + self.omega**2 * terms["phi"]
+        taut = sorted(taut)
+        rows = self._body_rows + [self._cable_row[c] for c in taut]
+        jac = terms["phi_q"][rows]
+        try:
+            lam = np.linalg.solve(jac @ minv @ jac.T, jac @ minv_force + baumgarte[rows])
+        except np.linalg.LinAlgError:
+            return None, None
+        qdd = minv_force - minv @ (jac.T @ lam)
+        lengths = np.array([self._length(c, q) for c in range(len(self._cable_row))])
+        tension = np.zeros(len(self._cable_row))
+        k0 = len(self._body_rows)
+        for j, c in enumerate(taut):
+            tension[c] = 2.0 * lengths[c] * lam[k0 + j]
+        acc = (terms["phi_q"][self._cable_row] @ qdd + baumgarte[self._cable_row]) / (2.0 * lengths)
+        return tension, acc
+
+    def _force_level(self, x: np.ndarray, terms: dict, contact: list[int]) -> np.ndarray:
+        """The mask over `contact` that satisfies the force-level conditions (see _settle)."""
+        start = self._active.copy()
+        fixed_taut = [c for c in self._modelled if start[c] == 1.0 and c not in contact]
+        best, best_violation = start, np.inf
+        for size in range(len(contact) + 1):
+            for flip in combinations(contact, size):
+                mask = start.copy()
+                for c in flip:
+                    mask[c] = 1.0 - start[c]
+                tension, acc = self._row_accelerations(x, terms, fixed_taut + [c for c in contact if mask[c] == 1.0])
+                if tension is None:
+                    continue
+                violation = 0.0
+                for c in contact:
+                    if mask[c] == 1.0:  # pulls
+                        violation = max(violation, (-tension[c] - self.tension_tol) / self.tension_tol)
+                    else:  # is not accelerated into stretch
+                        violation = max(violation, (acc[c] - GAP_ACC_TOL) / GAP_ACC_TOL)
+                if violation <= 0.0:
+                    return mask
+                if violation < best_violation:
+                    best, best_violation = mask, violation
+        return best  # none within the tolerances (round-off): the least violating
+
+    def _gaps_after(self, x_start: np.ndarray, t: float, h: float, address: int | None = None) -> np.ndarray:
         """The cable gaps after an RK4 step of length h from x_start at t (x buffer: x_start)."""
         self._x[:] = x_start
-        self._set_stage(t, h)
+        self._point_step(t, h, address)
         self._step.call()
         return self._gap
 
-    def _locate(self, x_start, t: float, h: float, candidates: list[int]):
-        """First θ in [0, 1] where a candidate's gap reaches 0 (to GAP_TOL), the state there and
-        every cable's gap there."""
+    def _first_crossing(self, x_start, t: float, h: float, cable: int, address: int | None) -> float | None:
+        """The θ in (0, 1] where the slack `cable`'s gap comes up through 0 (to GAP_TOL) in the step of
+        length h from x_start, None if it never is below −GAP_TOL before it is stretched (it is at
+        contact all along: that is the next step's force-level decision, see _settle). A cable at
+        contact at θ = 0 that separates and comes back is found by scanning the step in eighths, and
+        the part before the first stretched point again, for a point below −GAP_TOL."""
         gap_tol = self.gap_tol
 
         def g(theta: float) -> float:
-            return float(self._gaps_after(x_start, t, theta * h)[candidates].max())
+            return float(self._gaps_after(x_start, t, theta * h, address if theta == 1.0 else None)[cable])
 
-        g_lo = g(0.0)
-        if g_lo >= -gap_tol:  # already at contact when the (partial) step starts
-            return 0.0, x_start.copy(), self._gap.copy()
-        lo, hi = 0.0, 1.0
-        g_hi = g(1.0)
+        lo, g_lo = 0.0, g(0.0)
+        hi, g_hi = 1.0, g(1.0)
+        for _ in range(12):  # a bracket with g(lo) < −GAP_TOL < GAP_TOL < g(hi)
+            if g_lo < -gap_tol:
+                break
+            for j in range(1, 9):
+                theta = lo + (hi - lo) * j / 8.0
+                value = g(theta)
+                if value < -gap_tol:  # a dip: the crossing is after it
+                    lo, g_lo = theta, value
+                    break
+                if value > gap_tol:  # stretched already: any dip is before, look closer there
+                    hi, g_hi = theta, value
+                    break
+        else:
+            return None
         side = 0
-        theta = 1.0
-        for _ in range(200):
+        theta = hi
+        for _ in range(200):  # Illinois regula falsi
             theta = (lo * g_hi - hi * g_lo) / (g_hi - g_lo)
             if not lo < theta < hi:
                 theta = 0.5 * (lo + hi)
@@ -321,6 +495,17 @@ class Plant:
                 if side == 1:
                     g_lo *= 0.5
                 side = 1
+        return theta
+
+    def _locate(self, x_start, t: float, h: float, candidates: list[int], address: int | None):
+        """The earliest crossing among the candidates: (θ, the state there, every cable's gap there),
+        or None when none crosses inside the step."""
+        thetas = [th for c in candidates if (th := self._first_crossing(x_start, t, h, c, address)) is not None]
+        if not thetas:
+            self._gaps_after(x_start, t, h, address)  # leave the whole step's result in the outputs
+            return None
+        theta = min(thetas)
+        self._gaps_after(x_start, t, theta * h, address if theta == 1.0 else None)
         return theta, self._x_next.copy(), self._gap.copy()
 
     def _inverse_mass(self) -> np.ndarray:
@@ -331,40 +516,53 @@ class Plant:
 
     def _impact(self, x: np.ndarray, t: float, contact: list[int], gap: np.ndarray, h: float) -> set[int]:
         """Inelastic impact at state x (q̇ updated in place) when the `contact` cables come taut.
-        Returns the contact cables left slack because their impulse would push."""
+
+        The taut set after it is the one nearest (fewest switches) the taut cables plus `contact`
+        under which every taut cable's impulse pulls and no slack cable at contact is left being
+        stretched (complementarity at velocity level, searched over all sets of the cables at
+        contact: at most 2^cables small solves, rare). Returns the contact cables left slack.
+        """
         n = self.n
         q, qd = x[:n], x[n : 2 * n].copy()
-        s = self.path.table(np.array([t]))[0]
-        ns = self.ns
-        sig = dict(s=s[:ns], sd=s[ns : 2 * ns], sdd=s[2 * ns :])
+        terms = self._terms_at(x, t)
+        phi_q, phi_dot = terms["phi_q"], terms["phi_dot"]
         minv = self._inverse_mass()
-        phi_q = self.model.evaluate("phi_q", q=q, qd=qd, **sig)["phi_q"]
-        phi_dot = self.model.evaluate("phi_dot", q=q, qd=qd, **sig)["phi_dot"]
         before = {c for c in self._modelled if self._active[c] == 1.0}
-        at_contact = {c for c in self._modelled if gap[c] >= -self.gap_tol} | set(contact)
-        taut = before | set(contact)
+        wanted = before | set(contact)
+        at_contact = sorted({c for c in self._modelled if gap[c] >= -self.gap_tol} | wanted)
         impulse_tol = self.tension_tol * h
-        for _ in range(4 * len(self._modelled) + 4):
-            rows = self._body_rows + [self._cable_row[c] for c in sorted(taut)]
-            jac = phi_q[rows]
-            lam = np.linalg.solve(jac @ minv @ jac.T, phi_dot[rows])
-            k0 = len(self._body_rows)
-            impulse = {c: 2.0 * self._length(c, q) * lam[k0 + j] for j, c in enumerate(sorted(taut))}
-            pushing = min(impulse, key=impulse.get, default=None)
-            if pushing is not None and impulse[pushing] < -impulse_tol:
-                taut.discard(pushing)
-                continue
-            dqd = minv @ (jac.T @ lam)
-            rates = phi_dot - phi_q @ dqd  # φ̇ after the impulse, every row
-            stretching = {c: rates[self._cable_row[c]] / (2.0 * self._length(c, q))
-                          for c in at_contact - taut}
-            worst = max(stretching, key=stretching.get, default=None)
-            if worst is not None and stretching[worst] > GAP_RATE_TOL:
-                taut.add(worst)
-                continue
-            break
-        else:
-            raise SimulationError(f"no consistent set of taut cables for the impact at t = {t:.6f} s")
+        lengths = {c: self._length(c, q) for c in at_contact}
+        best, best_violation, chosen = None, np.inf, None
+        for size in range(len(at_contact) + 1):
+            for flip in combinations(at_contact, size):
+                taut = wanted ^ set(flip)
+                order = sorted(taut)
+                rows = self._body_rows + [self._cable_row[c] for c in order]
+                jac = phi_q[rows]
+                try:
+                    lam = np.linalg.solve(jac @ minv @ jac.T, phi_dot[rows])
+                except np.linalg.LinAlgError:  # a degenerate set (e.g. a state gone wild): not this one
+                    continue
+                dqd = minv @ (jac.T @ lam)
+                rates = phi_dot - phi_q @ dqd  # φ̇ after the impulse, every row
+                k0 = len(self._body_rows)
+                violation = 0.0
+                for j, c in enumerate(order):  # impulses pull: 2 L Λ ≥ 0
+                    violation = max(violation, (-2.0 * lengths[c] * lam[k0 + j] - impulse_tol) / impulse_tol)
+                for c in at_contact:  # slack ones are not stretched afterwards
+                    if c not in taut:
+                        rate = rates[self._cable_row[c]] / (2.0 * lengths[c])
+                        violation = max(violation, (rate - GAP_RATE_TOL) / GAP_RATE_TOL)
+                if violation <= 0.0:
+                    chosen = (taut, dqd)
+                    break
+                if violation < best_violation:
+                    best, best_violation = (taut, dqd), violation
+            if chosen is not None:
+                break
+        if chosen is None and best is None:
+            raise SimulationError(f"no taut set of the cables solves the impact at t = {t:.6f} s")
+        taut, dqd = chosen if chosen is not None else best  # none within the tolerances: the least violating
         if taut != before:
             kinetic_before = self._kinetic(q, qd)
             qd_after = qd - dqd

@@ -107,7 +107,8 @@ def simulate(
     Every instant also records the cables' tensions and activity and the controller's limit_state.
 
     A run diverges when the state or input stops being finite, the controller's system turns
-    singular, or the tracked point strays more than DIVERGENCE_LIMIT_M from the path. That raises
+    singular, the plant's cables find no consistent taut/slack state (chattering), or the tracked
+    point strays more than DIVERGENCE_LIMIT_M from the path. That raises
     SimulationError, or with allow_divergence returns the run up to that instant with
     `diverged_at` and `divergence` set.
     """
@@ -187,7 +188,14 @@ def simulate(
             break
         if k == steps:
             break
-        plant.advance(x, rec_u[k], h, table, k * substeps, substeps)
+        try:
+            plant.advance(x, rec_u[k], h, table, k * substeps, substeps)
+        except SimulationError as err:  # the plant found no consistent cable state (x is left at instant k)
+            plant.probe(x, rec_u[k], t)
+            rec_tension[k], rec_active[k] = plant.start_tension, plant.start_active
+            diverged_at, divergence = t, str(err)
+            k += 1
+            break
         rec_tension[k], rec_active[k] = plant.start_tension, plant.start_active
         if progress is not None:
             progress(1)
