@@ -7,8 +7,11 @@ The step u = step(q, qd, s, sd, sdd) is one CasADi MX graph: the spec's SX model
 assembled from them (one casadi.Function with shared subexpressions, called on the MX symbols), the
 linear solves as casadi.solve(..., linsol) with linear solvers CasADi generates C for ('ldl', sparse
 LDLᵀ, for the symmetric positive definite matrices; 'qr', sparse Householder QR, for MLM's nonsymmetric
-indefinite system), and the input recovery. CasADi's CodeGenerator writes <name>.c and <name>.h:
-plain C with libm only: no Python, no LAPACK, no heap.
+indefinite system), the input recovery and the bounded input distribution (below). CasADi's
+CodeGenerator writes <name>.c and <name>.h: plain C linked against libm only (sqrt, sincos, fmin, fmax;
+plus the compiler's memset): no Python, no LAPACK, no heap. The QP solver's inlined runtime includes
+<stdio.h> and <stdarg.h> for iteration printing that is compiled out (CASADI_SNPRINTF is not defined),
+so no stdio function is referenced; a target without those headers needs empty stand-ins.
 
 Formulations (the same control law; the options only choose which linear systems are solved):
 - penalty / iterative-N, --penalty-system multipliers (what 'auto', the default, picks unless the spec
@@ -33,6 +36,27 @@ mismatched or unvalidated gain set. Changing a gain means re-exporting; the head
 
 The mass matrix of natural coordinates is constant, so its Cholesky factor's inverse L⁻¹ (used by the
 'projected' recovery, a least squares in the M⁻¹ metric) is a numeric constant in the C as well.
+
+Input limits (the spec's actuator `limits` and `preferred`, baked in as constants like the gains) are
+honoured as the Python controllers do (acroboter.distribution.BoundedInputs), branch for branch, so the
+C gives their u also where a limit binds:
+- no more inputs than servo-constraints: the unbounded u above if it is within the limits (bit for bit
+  the unbounded export); otherwise, in a CasADi Switch that the C evaluates only then, the recovery's
+  least squares ½uᵀGu + gᵀu (projected: G = HᵀPH, g = HᵀPσ_qᵀλ̂, codegen.structured.penalty_bounded_terms;
+  MLM: ½|E u − e|², mlm_bounded_terms; eq12/eq13: G = HᵀH), its unbounded minimiser if within, else a
+  box QP; eq15/kappa (explicit maps, G = I): the clip onto the limits.
+- more inputs than servo-constraints (internal forces, e.g. the four-cable crane): always distributed.
+  Penalty methods (projected recovery): weighted, (G + μI)u = −g + μ u_pref by SX Cholesky, with
+  μ = PENALTY_SECONDARY_WEIGHT·tr(G)/l; MLM: lexicographic, u = u_pref + Eᵀ(EEᵀ)⁻¹(e − E u_pref) (Python's
+  eigen split of EᵀE in closed form) and, bounded, the QP with Hessian EᵀE + μZZᵀ, ZZᵀ = I − Eᵀ(EEᵀ)⁻¹E,
+  μ = SECONDARY_WEIGHT·tr(EᵀE)/l.
+- G's scale is its mean eigenvalue tr(G)/l, as in BoundedInputs: a sum of the diagonal, no eigenvalue
+  solver in the C.
+- the QP is CasADi's own active-set solver 'qrqp', generated inline (no external library, no heap),
+  with the step-2 Hessian and gradient divided by that scale (unit mean eigenvalue).
+Recoveries the export cannot bound are refused (ExportError, exit 2): those whose distribution Hessian
+is singular at the nominal configuration although there are no more inputs than servo-constraints
+(Python's eigen split would find internal forces there), and MLM where E is rank deficient.
 """
 
 from __future__ import annotations
@@ -49,9 +73,11 @@ import numpy as np
 from scipy.linalg import cholesky, solve_triangular
 
 from acroboter.controllers import MLM_RCOND_LIMIT, Gains
+from acroboter.distribution import PENALTY_SECONDARY_WEIGHT, RANK_TOLERANCE, SECONDARY_WEIGHT
 from acroboter.layout import Layout, nominal_coordinates
 from acroboter.spec import RECOVERIES, Spec, SpecError, load_spec
 from codegen.generate import INPUT_NAMES, REPO
+from codegen.structured import cholesky_solve, mlm_bounded_terms, penalty_bounded_terms
 from codegen.symbolic import SymbolicModel, build_symbolic_model
 
 DEFAULT_SPEC = REPO / "model_spec" / "acroboter.toml"
@@ -78,6 +104,8 @@ SYSTEM_TEXT = {
     "by Woodbury's identity the same iterates as A qdd_{i+1} = M qdd_i + f with A = M + J^T D J",
     "matrix": "each iteration solves A qdd_{i+1} = M qdd_i + f, A = M + alpha_geometric phi_q^T phi_q "
     "+ alpha_servo sigma_q^T sigma_q",
+    "servo_least_squares": "more inputs than servo-constraints: no Schur system; the servo-constraints' "
+    "accelerations E u = e on the constraint manifold (codegen.structured.mlm_bounded_terms), as controllers.MLM",
 }
 
 
@@ -100,6 +128,8 @@ class StepExport:
     system: str  # MLM: reduced | full; penalty methods: multipliers | matrix
     linear_solvers: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    distribution: list[str] = field(default_factory=list)  # how the input limits are honoured (header)
+    qp_used: bool = False
 
 
 def parse_method(method: str) -> int | None:
@@ -175,6 +205,8 @@ class _Graph:
         # ρ = γ + 2Ωμ φ̇ + Ω² φ (geometric penalty); ρ_s = γ_s + 2 k_D σ̇ + k_P² σ (servo error dynamics)
         self.rho = T["gamma"] + 2.0 * g.omega * g.mu * T["phi_dot"] + g.omega**2 * T["phi"]
         self.rho_s = T["gamma_s"] + 2.0 * g.kd * T["sigma_dot"] + g.kp**2 * T["sigma"]
+        self.params = ca.DM(g.parameter_vector())  # codegen.structured's p, as constants
+        self.bounds = _Bounds(self)
 
     def prelude(self, outputs: dict[str, ca.SX]) -> dict[str, ca.MX]:
         names = list(outputs)
@@ -233,6 +265,7 @@ def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = N
     else:
         u = _penalty(graph, iterations, penalty_system)
     export.function = ca.Function(name, graph.inputs, [ca.densify(u)], list(INPUT_NAMES), ["u"])
+    export.qp_used = graph.bounds.used_qp
     return export
 
 
@@ -245,11 +278,13 @@ def _mlm(graph: _Graph, system: str) -> ca.MX:
     """
     export, T = graph.export, graph.sx
     n, m, k, l = graph.n, graph.m, graph.k, graph.l
-    if k != l:
+    if k > l:
         raise ExportError(
-            f"MLM needs as many servo-constraints as inputs, found {k} servo-constraints for {l} inputs "
+            f"MLM needs at least as many inputs as servo-constraints, found {k} servo-constraints for {l} inputs "
             "(redundant task): its matrix is not square. Export the penalty or iterative penalty method."
         )
+    if l > k:
+        return _mlm_internal_forces(graph)
     phi_q, sigma_q, H, c = T["phi_q"], T["sigma_q"], T["input_matrix"], T["bias_forces"]
     if system == "full":
         matrix = ca.vertcat(
@@ -286,7 +321,62 @@ def _mlm(graph: _Graph, system: str) -> ca.MX:
         "MLM's matrix becomes singular only if the constraints turn redundant or the task unreachable; the "
         "C has no condition estimate, so a non-finite u signals that case: the caller must test isfinite(u)."
     )
-    return x[offset : offset + l]
+    u0 = x[offset : offset + l]
+    bounds = graph.bounds
+    if not bounds.bounded:
+        return u0
+    terms = mlm_bounded_terms(graph.model, graph.params)
+    bounds.check_nonsingular(terms["hessian"], "MLM's servo-constraint least squares E^T E")
+    export.distribution.append(
+        "u = MLM's solution if within the limits; otherwise (a Switch, evaluated only then) the bounded least "
+        "squares of the servo-constraints, 1/2 |E u - e|^2 (codegen.structured.mlm_bounded_terms, "
+        "E = sigma_q P H), over lower <= u <= upper: its unbounded minimiser -(E^T E)^-1 E^T e (SX Cholesky) if "
+        "within, else the QP"
+    )
+
+    def branch(inputs, _extra):
+        hessian, gradient = graph.bounds.sx_call("mlm_terms", graph.model.inputs,
+                                                 [_symmetric(terms["hessian"]), terms["gradient"]], inputs)
+        return graph.bounds.full_rank(hessian, gradient)
+
+    return bounds.after_unbounded(u0, [], branch)
+
+
+def _mlm_internal_forces(graph: _Graph) -> ca.MX:
+    """MLM with more inputs than servo-constraints: E u = e has a family of solutions (internal forces).
+
+    As controllers.MLM: always the distribution of codegen.structured.mlm_bounded_terms, lexicographic
+    (the servo-constraints exactly, then the internal forces at the preferred values), within the limits.
+    """
+    export, bounds, k, l = graph.export, graph.bounds, graph.k, graph.l
+    terms = mlm_bounded_terms(graph.model, graph.params)
+    e_map = terms["servo_map"]
+    singular = np.linalg.svd(graph.nominal(e_map), compute_uv=False)
+    ratio = (singular[-1] / singular[0]) ** 2 if singular[0] > 0 else 0.0
+    if not ratio > SINGULAR_MARGIN * RANK_TOLERANCE:
+        raise ExportError(
+            f"MLM with {l} inputs for {k} servo-constraints: E = sigma_q P H ({k}x{l}) is rank deficient at the "
+            f"nominal configuration (smallest/largest eigenvalue of E E^T {ratio:.1e}): the task is not reachable "
+            "by the inputs. Export the penalty or iterative penalty method."
+        )
+    P = graph.prelude({"servo_map": e_map, "servo_target": terms["servo_target"]})
+    export.system = "servo_least_squares"
+    export.linear_solvers.append(
+        f"SX Cholesky of the {k}x{k} matrix E E^T of MLM's servo-constraints E u = e (E = sigma_q P H, "
+        f"codegen.structured.mlm_bounded_terms; smallest/largest eigenvalue {ratio:.1e} at the nominal "
+        "configuration): no Schur system, as the Python controller with more inputs than servo-constraints"
+    )
+    export.distribution.append(
+        f"{l} inputs for {k} servo-constraints: u = u_pref + E^T (E E^T)^-1 (e - E u_pref), the solution of E u = e "
+        "closest to the preferred values (acroboter.distribution's lexicographic eigen split of E^T E, in closed "
+        "form)" + (", if within the limits; otherwise the QP with Hessian E^T E + mu Z Z^T, Z Z^T = "
+        "I - E^T (E E^T)^-1 E, mu = SECONDARY_WEIGHT * tr(E^T E)/l" if bounds.bounded else "")
+    )
+    export.notes.append(
+        "E E^T becomes singular only where the task is unreachable by the inputs; the C has no condition "
+        "estimate there, so a non-finite u signals that case: the caller must test isfinite(u)."
+    )
+    return bounds.internal(P["servo_map"], P["servo_target"])
 
 
 def _penalty(graph: _Graph, iterations: int, system: str) -> ca.MX:
@@ -358,28 +448,112 @@ def _penalty(graph: _Graph, iterations: int, system: str) -> ca.MX:
             f"{iterations} solve(s)"
         )
         lam, lam_hat = multipliers[:m], multipliers[m:]
+    bounds = graph.bounds
+    if kind == "projected" and l > k:
+        # More inputs than servo-constraints: as controllers.Penalty, always the weighted distribution of the
+        # fit ½uᵀGu + gᵀu, G = HᵀPH, g = servo_map λ̂ (codegen.structured.penalty_bounded_terms).
+        return bounds.weighted(P["bounded_hessian"], ca.mtimes(P["bounded_servo_map"], lam_hat),
+                               PENALTY_SECONDARY_WEIGHT)
     if kind == "projected":
         size = P["normal"].shape[0]
         rhs = -ca.mtimes(P["normal_map"], lam_hat)
         export.linear_solvers.append(f"'{LINSOL_SPD}' on the {size}x{size} normal equations of the projected recovery")
-        return ca.solve(P["normal"], rhs, LINSOL_SPD)[:l]
+        u0 = ca.solve(P["normal"], rhs, LINSOL_SPD)[:l]
+        return _bounded_projected(graph, u0, lam_hat)
     if kind == "eq15":
-        return lam_hat
+        return _box_projection(graph, lam_hat)
     export.linear_solvers.append(f"'{LINSOL_SPD}' on the {l}x{l} matrix H^T H")
-    if kind == "eq12":  # u = −(HᵀH)⁻¹Hᵀ σ_qᵀλ̂
-        return ca.solve(P["hth"], -ca.mtimes(P["h_servo"], lam_hat), LINSOL_SPD)
-    if kind == "eq13":  # u = (HᵀH)⁻¹Hᵀ (M q̈ + c + φ_qᵀλ)
+    if kind == "eq12":  # u = −(HᵀH)⁻¹Hᵀ σ_qᵀλ̂: min ½|H u + σ_qᵀλ̂|², gradient Hᵀσ_qᵀλ̂
+        gradient = ca.mtimes(P["h_servo"], lam_hat)
+        return _bounded_fit(graph, ca.solve(P["hth"], -gradient, LINSOL_SPD), gradient)
+    if kind == "eq13":  # u = (HᵀH)⁻¹Hᵀ (M q̈ + c + φ_qᵀλ): min ½|H u − (M q̈ + c + φ_qᵀλ)|²
         generalized = ca.mtimes(mass_mx, x) + P["bias_forces"] + ca.mtimes(P["phi_q"].T, lam)
-        return ca.solve(P["hth"], ca.mtimes(P["h_t"], generalized), LINSOL_SPD)
+        gradient = -ca.mtimes(P["h_t"], generalized)
+        return _bounded_fit(graph, ca.solve(P["hth"], -gradient, LINSOL_SPD), gradient)
     # kappa: u = −(κ(HᵀH)⁻¹Hᵀ − (1 − κ)σ_q) σ_qᵀλ̂ (sign of the σ_q term: see acroboter/recovery.py)
     pseudo = ca.solve(P["hth"], ca.mtimes(P["h_servo"], lam_hat), LINSOL_SPD)
-    return -(g.kappa * pseudo - (1.0 - g.kappa) * ca.mtimes(P["servo_servo"], lam_hat))
+    return _box_projection(graph, -(g.kappa * pseudo - (1.0 - g.kappa) * ca.mtimes(P["servo_servo"], lam_hat)))
+
+
+def _bounded_projected(graph: _Graph, u0: ca.MX, lam_hat: ca.MX) -> ca.MX:
+    """Projected recovery, no more inputs than servo-constraints: u0 if within the limits, else the same fit
+    ½uᵀGu + gᵀu (G = HᵀPH, g = servo_map λ̂, codegen.structured.penalty_bounded_terms) bounded, lexicographic."""
+    bounds, model = graph.bounds, graph.model
+    if not bounds.bounded:
+        return u0
+    terms = penalty_bounded_terms(model, graph.params)
+    bounds.check_nonsingular(terms["hessian"], "the projected recovery's fit H^T P H")
+    lam_sx = ca.SX.sym("lam_hat", graph.k)
+    outputs = [_symmetric(terms["hessian"]), ca.mtimes(terms["servo_map"], lam_sx)]
+    graph.export.distribution.append(
+        "u = the projected recovery if within the limits; otherwise (a Switch, evaluated only then) the same fit "
+        "1/2 u^T G u + g^T u, G = H^T P H, g = H^T P sigma_q^T lambda_hat (codegen.structured.penalty_bounded_terms) "
+        "over lower <= u <= upper: its unbounded minimiser -G^-1 g (SX Cholesky) if within, else the QP"
+    )
+
+    def branch(inputs, extra):
+        hessian, gradient = bounds.sx_call("projected_terms", [*model.inputs, lam_sx], outputs, [*inputs, *extra])
+        return bounds.full_rank(hessian, gradient)
+
+    return bounds.after_unbounded(u0, [lam_hat], branch)
+
+
+def _bounded_fit(graph: _Graph, u0: ca.MX, gradient: ca.MX) -> ca.MX:
+    """eq12/eq13: u0 if within the limits, else their least squares in H u bounded (G = HᵀH): lexicographic,
+    or weighted (PENALTY_SECONDARY_WEIGHT) with more inputs than servo-constraints, as controllers.Penalty."""
+    bounds, model, l = graph.bounds, graph.model, graph.l
+    if not bounds.bounded:
+        return u0
+    H = graph.sx["input_matrix"]
+    hth = ca.mtimes(H.T, H)
+    weighted = l > graph.k
+    if not weighted:
+        bounds.check_nonsingular(hth, "H^T H")
+    graph.export.distribution.append(
+        f"u = the {graph.gains.recovery} recovery if within the limits; otherwise (a Switch, evaluated only then) its "
+        "least squares 1/2 u^T H^T H u + g^T u over lower <= u <= upper: "
+        + ("weighted toward the preferred values, (H^T H + mu I) u = -g + mu u_pref, mu = PENALTY_SECONDARY_WEIGHT * "
+           "tr(H^T H)/l (Cholesky), if within, else the QP with that Hessian" if weighted else
+           "its unbounded minimiser (SX Cholesky) if within, else the QP")
+    )
+
+    def branch(inputs, extra):
+        (hessian,) = bounds.sx_call("fit_terms", list(model.inputs), [_symmetric(hth)], inputs)
+        if weighted:
+            return bounds.weighted(hessian, extra[0], PENALTY_SECONDARY_WEIGHT)
+        return bounds.full_rank(hessian, extra[0])
+
+    return bounds.after_unbounded(u0, [gradient], branch)
+
+
+def _box_projection(graph: _Graph, u: ca.MX) -> ca.MX:
+    """eq15/kappa: explicit maps; bounded, the input within the limits closest to theirs (G = I): a clip."""
+    if not graph.bounds.bounded:
+        return u
+    graph.export.distribution.append(
+        f"u = the {graph.gains.recovery} recovery clipped onto the limits (its bounded form min 1/2 |u - u_rec|^2, "
+        "G = I, as acroboter.recovery.InputRecovery.least_squares: the box projection, fmin/fmax)"
+    )
+    return graph.bounds.clip(u)
 
 
 def _recovery_prelude(graph: _Graph) -> dict[str, ca.SX]:
     """The state-dependent matrices of the input recovery (everything but λ̂), as SX."""
     T, kind, l = graph.sx, graph.gains.recovery, graph.l
     H, sigma_q = T["input_matrix"], T["sigma_q"]
+    if kind == "projected" and graph.l > graph.k:
+        terms = penalty_bounded_terms(graph.model, graph.params)
+        graph.export.linear_solvers.append(
+            f"SX Cholesky of the {graph.l}x{graph.l} matrix G + mu I of the weighted input distribution "
+            "(G = H^T P H, codegen.structured.penalty_bounded_terms, P through an SX Cholesky of phi_q M^-1 phi_q^T)"
+        )
+        graph.export.distribution.append(
+            f"{graph.l} inputs for {graph.k} servo-constraints: as controllers.Penalty, always the weighted "
+            "distribution of the projected recovery's fit 1/2 u^T G u + g^T u, G = H^T P H, g = H^T P sigma_q^T "
+            "lambda_hat: (G + mu I) u = -g + mu u_pref (Cholesky), mu = PENALTY_SECONDARY_WEIGHT * tr(G)/l"
+            + (", if within the limits; otherwise the QP with Hessian G + mu I" if graph.bounds.bounded else "")
+        )
+        return {"bounded_hessian": _symmetric(terms["hessian"]), "bounded_servo_map": terms["servo_map"]}
     if kind == "projected":
         return _projected_prelude(graph)
     if kind == "eq15":
@@ -430,6 +604,239 @@ def _projected_prelude(graph: _Graph) -> dict[str, ca.SX]:
     return {"normal": normal, "normal_map": normal_map}
 
 
+# --- Input limits: acroboter.distribution's bounded distribution, in the graph ----------------------------
+#
+# Every branch mirrors BoundedInputs (acroboter/distribution.py) step by step:
+#   1. non-redundant inputs: the unbounded u (computed as before) if it is within the limits;
+#   2. the unbounded minimiser of the distribution's objective (lexicographic or weighted), if within;
+#   3. otherwise the strictly convex box QP with the Hessian of step 2.
+# The later steps sit in CasADi Switch nodes (Function.if_else): the C evaluates only the branch taken,
+# so a step whose limits are not reached costs a few comparisons more than an unbounded one.
+
+QP_PLUGIN = "qrqp"  # CasADi's own active-set QP: generates plain C (its runtime is inlined), no heap
+QP_OPTIONS = {
+    "print_header": False, "print_iter": False, "print_info": False,
+    # A failed QP: the C step returns nonzero (the generated code is the same either way); evaluating
+    # StepExport.function from Python raises, as the controllers raise DistributionError.
+    "error_on_fail": True,
+    # The QP is divided by G's scale tr(G)/l (unit mean eigenvalue), so these are relative to the inputs' size.
+    "constr_viol_tol": 1e-12, "dual_inf_tol": 1e-12,
+}
+# Non-redundant inputs: the distribution's Hessian must be nonsingular at the nominal configuration, its
+# smallest/largest eigenvalue this far above acroboter.distribution.RANK_TOLERANCE (which is relative to
+# the mean eigenvalue, never above the largest: the check is the stricter one).
+SINGULAR_MARGIN = 1e3
+
+
+def _symmetric(matrix: ca.SX) -> ca.SX:
+    return 0.5 * (matrix + matrix.T)
+
+
+def _scale_and_weight(hessian: ca.SX, weight: float) -> tuple[ca.SX, ca.SX]:
+    """(scale, μ) = (tr(G)/l, weight·tr(G)/l), or (1, 1) if tr(G) <= 0 (G = 0), as BoundedInputs; NaN stays NaN."""
+    mean = ca.trace(hessian) / hessian.shape[0]
+    positive, zero = mean > 0, mean <= 0
+    return (ca.if_else(positive, mean, ca.if_else(zero, 1.0, np.nan)),
+            ca.if_else(positive, weight * mean, ca.if_else(zero, 1.0, np.nan)))
+
+
+class _Bounds:
+    """The bounded distribution's pieces of one step's graph (limits and preferred values baked in)."""
+
+    def __init__(self, graph: _Graph):
+        self.graph = graph
+        self.lower, self.upper, self.preferred = graph.export.spec.input_limits()
+        self.l = graph.l
+        self.bounded = bool(np.isfinite(self.lower).any() or np.isfinite(self.upper).any())
+        self._count = 0
+        self._qp_solver = None
+        self.used_qp = False
+
+    def name(self, what: str) -> str:
+        self._count += 1
+        return f"{self.graph.export.name}_{what}_{self._count}"
+
+    def sx_call(self, what: str, sx_inputs: list[ca.SX], sx_outputs: list[ca.SX], args: list[ca.MX]) -> list[ca.MX]:
+        fn = ca.Function(self.name(what), sx_inputs, [ca.densify(o) for o in sx_outputs], {"cse": True})
+        out = fn(*[ca.densify(a) for a in args])
+        return list(out) if isinstance(out, tuple) else [out]
+
+    def switch(self, what: str, condition: ca.MX, args: list[ca.MX], when_true, when_false) -> ca.MX:
+        """when_true(args) if condition else when_false(args), only the selected branch evaluated."""
+        symbols = [ca.MX.sym(f"a{i}", a.sparsity()) for i, a in enumerate(args)]
+        name = self.name(what)
+        f_true = ca.Function(f"{name}_true", symbols, [ca.densify(when_true(symbols))])
+        f_false = ca.Function(f"{name}_false", symbols, [ca.densify(when_false(symbols))])
+        return ca.Function.if_else(name, f_true, f_false)(condition, *args)
+
+    # -- elementwise limits --
+
+    def within(self, u):
+        """1 if every finite limit holds (NaN fails, as in BoundedInputs.within_limits), else 0."""
+        x = ca.SX.sym("u", self.l)
+        checks = [x[i] >= self.lower[i] for i in range(self.l) if np.isfinite(self.lower[i])]
+        checks += [x[i] <= self.upper[i] for i in range(self.l) if np.isfinite(self.upper[i])]
+        cond = checks[0]
+        for check in checks[1:]:
+            cond = ca.logic_and(cond, check)
+        return self.sx_call("within", [x], [cond], [u])[0]
+
+    def clip(self, u):
+        x = ca.SX.sym("u", self.l)
+        entries = []
+        for i in range(self.l):
+            e = x[i]
+            if np.isfinite(self.lower[i]):
+                e = ca.fmax(e, self.lower[i])
+            if np.isfinite(self.upper[i]):
+                e = ca.fmin(e, self.upper[i])
+            entries.append(e)
+        return self.sx_call("clip", [x], [ca.vertcat(*entries)], [u])[0]
+
+    # -- the QP --
+
+    def qp(self, hessian: ca.MX, gradient: ca.MX, start: ca.MX) -> ca.MX:
+        """min ½xᵀHx + gᵀx, lower <= x <= upper (CasADi's qrqp), clipped onto the limits as Python does.
+
+        Started at `start` (step 2's u2) clipped, with the bounds it violates as the initial active set
+        (multiplier guesses ±1): the minimiser is unique, the start only saves iterations."""
+        if self._qp_solver is None:
+            l = self.l
+            self._qp_solver = ca.conic(f"{self.graph.export.name}_qp", QP_PLUGIN,
+                                       {"h": ca.Sparsity.dense(l, l), "a": ca.Sparsity(0, l)}, QP_OPTIONS)
+        self.used_qp = True
+        x = ca.SX.sym("u", self.l)
+        signs = []
+        for i in range(self.l):
+            sign = ca.SX(0)
+            if np.isfinite(self.lower[i]):
+                sign = ca.if_else(x[i] < self.lower[i], -1.0, sign)
+            if np.isfinite(self.upper[i]):
+                sign = ca.if_else(x[i] > self.upper[i], 1.0, sign)
+            signs.append(sign)
+        (lam0,) = self.sx_call("active_guess", [x], [ca.vertcat(*signs)], [start])
+        result = self._qp_solver(h=hessian, g=gradient, lbx=ca.DM(self.lower), ubx=ca.DM(self.upper),
+                                 x0=self.clip(start), lam_x0=lam0)["x"]
+        return self.clip(result)
+
+    def finish(self, u2: ca.MX, qp_args: list[ca.MX], qp_terms) -> ca.MX:
+        """Step 2's u2 if within the limits, else the QP; qp_terms(qp_args) -> (H, g), in the QP branch."""
+        if not self.bounded:
+            return u2
+        return self.switch("bounded", self.within(u2), [u2, *qp_args], lambda a: a[0],
+                           lambda a: self.qp(*qp_terms(a[1:]), a[0]))
+
+    # -- the three forms of step 2 --
+
+    def full_rank(self, hessian: ca.MX, gradient: ca.MX) -> ca.MX:
+        """Lexicographic, G nonsingular (no internal forces): u2 = −G⁻¹g, QP Hessian G (divided by tr(G)/l)."""
+        l = self.l
+        g, f = ca.SX.sym("G", l, l), ca.SX.sym("g", l)
+        u2 = self.sx_call("unbounded", [g, f], [-cholesky_solve(_symmetric(g), f)], [hessian, gradient])[0]
+
+        def terms(a):
+            scale, _ = _scale_and_weight(g, 0.0)
+            return self.sx_call("qp_terms", [g, f], [_symmetric(g) / scale, f / scale], a)
+
+        return self.finish(u2, [hessian, gradient], terms)
+
+    def weighted(self, hessian: ca.MX, gradient: ca.MX, weight: float) -> ca.MX:
+        """(G + μI) u2 = −g + μ u_pref by Cholesky, μ = weight · tr(G)/l (1 if G = 0); the QP has the same
+        Hessian."""
+        l = self.l
+        g, f = ca.SX.sym("G", l, l), ca.SX.sym("g", l)
+        scale, mu = _scale_and_weight(g, weight)
+        hess = _symmetric(g) + mu * ca.SX.eye(l)
+        grad = f - mu * ca.DM(self.preferred)
+        u2, hq, gq = self.sx_call("weighted", [g, f], [-cholesky_solve(hess, grad), hess / scale, grad / scale],
+                                  [hessian, gradient])
+        return self.finish(u2, [hq, gq], lambda a: a)
+
+    def internal(self, servo_map: ca.MX, target: ca.MX) -> ca.MX:
+        """Lexicographic with internal forces (MLM, more inputs than servo-constraints), E full row rank.
+
+        Python's eigen split of G = EᵀE keeps the range of Eᵀ and sets the null space Z to u_pref:
+        u2 = E⁺e + ZZᵀu_pref = u_pref + Eᵀ(EEᵀ)⁻¹(e − E u_pref), ZZᵀ = I − Eᵀ(EEᵀ)⁻¹E. QP Hessian
+        G + μZZᵀ, gradient −Eᵀe − μZZᵀu_pref, μ = SECONDARY_WEIGHT · tr(G)/l (tr(G) = |E|_F²).
+        """
+        l, k = self.l, self.graph.k
+        e_map, e = ca.SX.sym("E", k, l), ca.SX.sym("e", k)
+        gram = ca.mtimes(e_map, e_map.T)
+        pref = ca.DM(self.preferred)
+        u2 = pref + ca.mtimes(e_map.T, cholesky_solve(gram, e - ca.mtimes(e_map, pref)))
+        u2 = self.sx_call("internal", [e_map, e], [u2], [servo_map, target])[0]
+
+        def terms(a):
+            hess = _symmetric(ca.mtimes(e_map.T, e_map))
+            projector = _symmetric(ca.SX.eye(l) - ca.mtimes(e_map.T, cholesky_solve(gram, e_map)))
+            scale, mu = _scale_and_weight(hess, SECONDARY_WEIGHT)
+            gradient = -ca.mtimes(e_map.T, e) - mu * ca.mtimes(projector, pref)
+            return self.sx_call("internal_qp", [e_map, e], [(hess + mu * projector) / scale, gradient / scale], a)
+
+        return self.finish(u2, [servo_map, target], terms)
+
+    def after_unbounded(self, u0: ca.MX, extra: list[ca.MX], branch) -> ca.MX:
+        """Python's step 1: the unbounded u0 if within the limits, else branch(step inputs, extra)."""
+        if not self.bounded:
+            return u0
+        inputs = self.graph.inputs
+        n_in = len(inputs)
+        return self.switch("limits", self.within(u0), [u0, *inputs, *extra], lambda a: a[0],
+                           lambda a: branch(a[1 : 1 + n_in], a[1 + n_in :]))
+
+    def check_nonsingular(self, hessian: ca.SX, what: str) -> float:
+        """Smallest/largest eigenvalue of the (SX) Hessian at the nominal configuration; refuse if singular."""
+        eigenvalues = np.linalg.eigvalsh(_symmetric_numeric(self.graph.nominal(hessian)))
+        ratio = eigenvalues[0] / eigenvalues[-1] if eigenvalues[-1] > 0 else 0.0
+        if not ratio > SINGULAR_MARGIN * RANK_TOLERANCE:
+            raise ExportError(
+                f"cannot bound the inputs: {what} is singular at the nominal configuration (smallest/largest "
+                f"eigenvalue {ratio:.1e}); the exported distribution expects internal forces only where there are "
+                "more inputs than servo-constraints (the Python controller's eigen split handles this case)"
+            )
+        return ratio
+
+
+def _symmetric_numeric(matrix: np.ndarray) -> np.ndarray:
+    return 0.5 * (matrix + matrix.T)
+
+
+def _fmt_limit(value: float) -> str:
+    return "inf" if value == np.inf else ("-inf" if value == -np.inf else f"{value:g}")
+
+
+def _limits_block(export: StepExport) -> list[str]:
+    """The header's account of the input limits, the distribution and the QP baked into the step."""
+    lower, upper, preferred = export.spec.input_limits()
+    lines = ["  input limits (baked in as constants from the spec's [[actuators]] limits and preferred; change them by "
+             "re-exporting):"]
+    for i, act in enumerate(export.spec.actuators):
+        lines.append(f"    u[{i}] {act.name} ({act.kind}): [{_fmt_limit(lower[i])}, {_fmt_limit(upper[i])}], "
+                     f"preferred {preferred[i]:g}")
+    if not export.distribution:
+        lines.append("  bounded distribution: none (no finite limit, and no more inputs than servo-constraints): u is "
+                     "the unbounded solution")
+        return lines
+    lines.append("  bounded distribution (as acroboter.distribution.BoundedInputs; the Python controller's u, also "
+                 "where a limit binds):")
+    lines += [f"    - {text}" for text in export.distribution]
+    if export.qp_used:
+        lines.append(
+            f"    - QP: CasADi '{QP_PLUGIN}' (primal-dual active set on the KKT system, sparse QR), generated inline "
+            f"with its runtime: min 1/2 x^T H x + g^T x, lower <= x <= upper, H strictly convex, H and g divided by "
+            f"tr(G)/l (unit mean eigenvalue), tolerances {QP_OPTIONS['constr_viol_tol']:g} "
+            f"(bounds) and {QP_OPTIONS['dual_inf_tol']:g} (stationarity), started from step 2's minimiser clipped "
+            "with the bounds it violates as the initial active set, then clipped onto the limits as Python does; "
+            "no heap (work in w/iw, small structs on the stack). Its runtime includes <stdio.h> and <stdarg.h> for "
+            "printing that is compiled out (CASADI_SNPRINTF undefined): no stdio function is referenced"
+        )
+    lines.append(f"    - weights: PENALTY_SECONDARY_WEIGHT = {PENALTY_SECONDARY_WEIGHT:g}, SECONDARY_WEIGHT = "
+                 f"{SECONDARY_WEIGHT:g}, relative to G's scale tr(G)/l (its mean eigenvalue: a sum of the diagonal, no "
+                 "eigenvalue solver), as acroboter.distribution")
+    lines.append("    - the C returns u only: which inputs hold a limit (the controller's limit_state) is not reported")
+    return lines
+
+
 def _comment_block(export: StepExport) -> str:
     spec, lay, g = export.spec, export.layout, export.gains
     n, ns, l = lay.n, lay.n_signals, lay.l
@@ -466,6 +873,7 @@ def _comment_block(export: StepExport) -> str:
     lines += ["  linear solvers (CasADi linsol plugins, generated inline; no LAPACK):"]
     lines += [f"    - {s}" for s in export.linear_solvers]
     lines += [f"  note: {note}" for note in export.notes]
+    lines += _limits_block(export)
     lines += [
         "",
         "Call (casadi_real = double, casadi_int = long long int); all arrays are dense column vectors:",
@@ -481,6 +889,7 @@ def _comment_block(export: StepExport) -> str:
         "  arg and res must have sz_arg and sz_res slots (entries past the inputs/outputs are scratch).",
         "  No heap, no globals written: pass mem = 0; re-entrant if each thread has its own iw and w.",
         "  The linear solvers keep small fixed-size arrays on the stack.",
+        f"  Returns 0 on success, nonzero if the bounded QP ({QP_PLUGIN}) did not converge (then u is not valid).",
         "",
         "Layout:",
     ]

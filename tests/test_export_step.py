@@ -6,6 +6,12 @@ default formulation also against a 40-digit evaluation of the same control law o
 
 The driver also times the exported step (per-call ns over batches of calls: median, mean, best batch);
 the figure is printed (run with -s) and recorded as a test property, never asserted: the goal is <= 5 us.
+
+Input limits (the end of the module): the four-cable crane's compiled C step (seven inputs for six
+servo-constraints, winches at 5..300 N) against the Python controller to 1e-6 for penalty, iterative-3
+and MLM, at closed-loop states and, with the winches' upper limit at 20.08 N, at states where a limit
+binds; every recovery bounded; the default crane's step bit for bit the unbounded one while its limits
+hold; the header; the refusals.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ import pytest
 
 from acroboter.compiled import CompiledModel
 from acroboter.controllers import Gains, make_controller
+from acroboter.distribution import PENALTY_SECONDARY_WEIGHT
 from acroboter.simulation import setup_default, simulate
 from acroboter.spec import load_spec, parse_spec
 from acroboter.statics import desired_path, solve_equilibrium
@@ -308,9 +315,12 @@ def test_tikhonov_fallback_keeps_u(scenario, monkeypatch):
 
 def _reference_inputs(model, desired, gains, method, states) -> np.ndarray:
     """The penalty methods with the projected recovery, in 40-digit arithmetic (mpmath), from the model
-    terms at each state: a reference free of the round-off of either formulation."""
+    terms at each state: a reference free of the round-off of either formulation. With more inputs than
+    servo-constraints, the weighted distribution of the same fit (acroboter.distribution), which must be
+    within the limits at these states (the reference has no QP)."""
     iterations = 1 if method == "penalty" else int(method.removeprefix("iterative-"))
     lay = model.layout
+    lower, upper, preferred = model.spec.input_limits()
     rows = [i for i in range(lay.m) if i not in lay.redundant_rows]
     out = []
     with mpmath.workdps(40):
@@ -338,6 +348,17 @@ def _reference_inputs(model, desired, gains, method, states) -> np.ndarray:
                 for j, row in enumerate(rows):
                     B[r, lay.l + j] = -phi_q[row, r]
             minv = M**-1
+            if lay.l > lay.k:  # G = HᵀPH, g = HᵀPσ_qᵀλ̂, P = M⁻¹ − M⁻¹φ_qᵀ(φ_q M⁻¹φ_qᵀ)⁻¹φ_q M⁻¹ (kept rows)
+                phi = mpmath.matrix([[phi_q[row, c] for c in range(lay.n)] for row in rows])
+                P = minv - minv * phi.T * mpmath.inverse(phi * minv * phi.T) * phi * minv
+                G, g = H.T * P * H, H.T * P * sigma_q.T * lam_hat
+                G = (G + G.T) / 2
+                mu = PENALTY_SECONDARY_WEIGHT * sum(G[j, j] for j in range(lay.l)) / lay.l  # weight · tr(G)/l
+                x = mpmath.lu_solve(G + mu * mpmath.eye(lay.l), -(g - mu * mpmath.matrix(preferred.tolist())))
+                u = np.array([float(x[j]) for j in range(lay.l)])
+                assert np.all(u >= lower) and np.all(u <= upper), "the reference needs u within the limits"
+                out.append(u)
+                continue
             x = mpmath.lu_solve(B.T * minv * B, -(B.T * minv * sigma_q.T) * lam_hat)
             out.append([float(x[j]) for j in range(lay.l)])
     return np.array(out)
@@ -349,7 +370,10 @@ def test_default_formulation_against_high_precision(method, spec_path):
     """The default formulation against the 40-digit reference, on every shipped spec. The multiplier form
     stays far below the Python comparison's tolerance, which the Python controller's own round-off
     limits (it solves the A form: ~1e-9 on the default crane, up to ~4e-8 on lab_crane's light bodies).
-    Specs with redundant constraints get the A form ('auto'), good to ~1e-9."""
+    Specs with redundant constraints get the A form ('auto'), good to ~1e-9. With more inputs than
+    servo-constraints (four-cable crane) the weighted distribution's matrix G + μI (μ = 1e-5 tr(G)/l) has
+    condition λmax/μ ≈ 4e5 at these states, which amplifies the round-off of G and λ̂ along the internal
+    force: 4.0e-10 measured (the Python controller: 2.7e-9..7.4e-9), hence 2e-9 there."""
     spec = load_spec(spec_path)
     model = CompiledModel(spec)
     desired = desired_path(model)
@@ -359,7 +383,10 @@ def test_default_formulation_against_high_precision(method, spec_path):
     export = build_step(spec, method, Gains.from_spec(spec))
     u_c = np.array([np.asarray(export.function(q, qd, *desired.signal_arrays(t))).ravel() for t, q, qd in states])
     err = relative_error(u_c, _reference_inputs(model, desired, Gains.from_spec(spec), method, states))
-    assert err <= (1e-10 if export.system == "multipliers" else RTOL)
+    if model.layout.l > model.layout.k:
+        assert err <= 2e-9
+    else:
+        assert err <= (1e-10 if export.system == "multipliers" else RTOL)
 
 
 def test_perturbed_gain_is_caught(scenario, tmp_path):
@@ -404,3 +431,162 @@ def test_export_is_deterministic(tmp_path):
     first = [p.read_bytes() for p in write_step(export, tmp_path / "a")]
     export = build_step(spec, "mlm", Gains.from_spec(spec), spec_path=SPEC_PATH)
     assert first == [p.read_bytes() for p in write_step(export, tmp_path / "b")]
+
+
+# --- Input limits: the bounded distribution in the exported step --------------------------------------------
+
+FOUR_CABLE_PATH = REPO / "model_spec" / "acroboter_4cable.toml"
+# The issue's figure: |u_C - u_Python| <= 1e-6 * max(|u|, 1) (N below 1 N, relative above).
+BOUNDED_RTOL = 1e-6
+# Upper winch limit just above the ~20.07 N each cable of the four-cable crane carries at rest (preferred
+# 20 N): it binds at closed-loop and noisy states for MLM (tensions 19.7..20.5 N) as for the penalty methods
+# (18..22.3 N).
+TIGHT_UPPER = 20.08
+
+
+def with_winch_limits(spec_path: Path, low: float, high: float):
+    """The spec with every winch held to [low, high] N, a preferred value moved into them: limits are not part
+    of the model hash, so the compiled model of the unmodified spec serves (its limits are only read at run time)."""
+    data = tomllib.loads(spec_path.read_text())
+    for actuator in data["actuators"]:
+        if actuator["kind"] == "winch_tension":
+            actuator["limits"] = [low, high]
+            if "preferred" in actuator:
+                actuator["preferred"] = min(max(actuator["preferred"], low), high)
+    return parse_spec(data)
+
+
+def python_bounded(model, desired, gains, method, states, spec) -> tuple[np.ndarray, np.ndarray]:
+    """The Python controller's u with `spec`'s limits, and its limit_state per state."""
+    controller = make_controller(method, model, desired, gains, limits=spec.input_limits())
+    u, active = [], []
+    for t, q, qd in states:
+        u.append(controller.compute(q, qd, t).copy())
+        active.append(controller.limit_state.copy())
+    return np.array(u), np.array(active)
+
+
+def function_inputs(export, desired, states) -> np.ndarray:
+    """u from the export's casadi.Function: the graph the C is generated from."""
+    return np.array([np.asarray(export.function(q, qd, *desired.signal_arrays(t))).ravel() for t, q, qd in states])
+
+
+@pytest.fixture(scope="module")
+def four_cable():
+    """The four-cable crane (seven inputs for six servo-constraints, winches held to [5, 300] N): 8 states
+    of a penalty closed-loop run, and noisy copies of them (1e-3 in q, 1e-2 in q̇), where tensions
+    spread over ~18..22.3 N for the penalty methods (20.05..20.08 N on the run)."""
+    spec = load_spec(FOUR_CABLE_PATH)
+    model = CompiledModel(spec)
+    path = desired_path(model)
+    start = solve_equilibrium(model, path)
+    gains = Gains.from_spec(spec)
+    run = simulate(model, path, make_controller("penalty", model, path, gains), setup_default(model, path), start.q,
+                   RUN_SECONDS, spec.controller.rate_hz, spec.simulation.step)
+    picks = np.linspace(len(run.t) // 10, len(run.t) - 1, 8).round().astype(int)
+    states = [(float(run.t[i]), run.q[i].copy(), run.qd[i].copy()) for i in picks]
+    rng = np.random.default_rng(7)
+    noisy = [(t, q + 1e-3 * rng.standard_normal(q.size), qd + 1e-2 * rng.standard_normal(qd.size))
+             for t, q, qd in states]
+    return spec, model, path, gains, states, noisy
+
+
+@pytest.mark.parametrize("method", ["penalty", "iterative-3", "mlm"])
+def test_four_cable_bounded_step_matches_python(method, four_cable, tmp_path, record_property):
+    """The compiled C step of the four-cable crane against the Python controller, with the spec's limits at
+    the closed-loop states, and with the winches' upper limit at TIGHT_UPPER where it binds (asserted from
+    the controller's limit_state): the weighted (penalty) or lexicographic (MLM) distribution, and its QP."""
+    spec, model, desired, gains, states, noisy = four_cable
+    tight = with_winch_limits(FOUR_CABLE_PATH, 5.0, TIGHT_UPPER)
+    for label, limits_spec, case_states in (("spec limits", spec, states), ("tight", tight, states + noisy)):
+        export = build_step(limits_spec, method, gains, spec_path=FOUR_CABLE_PATH)
+        assert export.qp_used and export.distribution
+        out = tmp_path / label.replace(" ", "_")
+        write_step(export, out)
+        exe = compile_driver(out, export.name)
+        write_states(out / "states.txt", model, desired, case_states)
+        u_c, (median_ns, _, _) = run_driver(exe, out / "states.txt", model.layout.l)
+        u_py, active = python_bounded(model, desired, gains, method, case_states, limits_spec)
+        err = relative_error(u_c, u_py)
+        bound_states = int(active.any(axis=1).sum())
+        record_property(f"{label} max_relative_error", err)
+        record_property(f"{label} step_ns_median", median_ns)
+        print(f"\nfour-cable {method}, {label}: exported C step {median_ns / 1e3:.2f} us median; limits bind at "
+              f"{bound_states}/{len(case_states)} states; max |u_C - u_Python| {np.abs(u_c - u_py).max():.1e} N")
+        assert err <= BOUNDED_RTOL, f"{method}, {label}: the exported step differs by {err:.2e}"
+        if label == "tight":
+            assert bound_states > 0 and (active == 1).any(), f"{method}: no limit binds in the tight case"
+            assert np.all(u_c[:, :4] <= TIGHT_UPPER) and np.all(u_c[:, :4] >= 5.0)
+
+
+@pytest.mark.parametrize(("spec_path", "limits", "method", "recovery"), [
+    (SPEC_PATH, (28.0, 40.0), "penalty", "projected"),  # no more inputs than servo-constraints: lexicographic
+    (SPEC_PATH, (28.0, 40.0), "mlm", None),
+    (SPEC_PATH, (28.0, 40.0), "iterative-2", "eq12"),
+    (SPEC_PATH, (28.0, 40.0), "penalty", "eq13"),
+    (SPEC_PATH, (28.0, 40.0), "iterative-2", "eq15"),  # the box projection
+    (SPEC_PATH, (28.0, 40.0), "iterative-2", "kappa"),
+    (FOUR_CABLE_PATH, (5.0, TIGHT_UPPER), "iterative-2", "eq12"),  # more inputs: weighted after the unbounded u
+    (FOUR_CABLE_PATH, (20.06, 300.0), "mlm", None),  # the lower limits bind
+])
+def test_bounded_recoveries_match_python(spec_path, limits, method, recovery, scenario, four_cable):
+    """Every recovery bounded, through the export's casadi.Function, where limits bind."""
+    if spec_path == SPEC_PATH:
+        _, model, desired, _, base = scenario
+        rng = np.random.default_rng(3)
+        states = base + [(t, q + 1e-3 * rng.standard_normal(q.size), qd) for t, q, qd in base[:4]]
+    else:
+        _, model, desired, _, base, noisy = four_cable
+        states = base + noisy
+    spec = with_winch_limits(spec_path, *limits)
+    gains = Gains.from_spec(spec, recovery=recovery, kappa=0.3) if recovery else Gains.from_spec(spec)
+    u_c = function_inputs(build_step(spec, method, gains), desired, states)
+    u_py, active = python_bounded(model, desired, gains, method, states, spec)
+    assert active.any()
+    assert relative_error(u_c, u_py) <= BOUNDED_RTOL
+
+
+def test_default_crane_step_unchanged_while_limits_hold(scenario, monkeypatch):
+    """The default crane's winches have min 0: the bounded step gives the unbounded u bit for bit where the
+    limits hold (all of the closed-loop states), and is then the export without limits."""
+    spec, model, desired, gains, states = scenario
+    _, active = python_bounded(model, desired, gains, "penalty", states, spec)
+    assert not active.any()
+    l = model.layout.l
+    no_limits = (np.full(l, -np.inf), np.full(l, np.inf), np.zeros(l))
+    for method in ("penalty", "mlm", "iterative-3"):
+        bounded = build_step(spec, method, gains)
+        assert bounded.qp_used
+        with monkeypatch.context() as patch:  # the same spec without limits (validation forbids it for winches)
+            patch.setattr(type(spec), "input_limits", lambda self: no_limits)
+            free = build_step(spec, method, gains)
+        assert not free.qp_used and not free.distribution
+        assert np.array_equal(function_inputs(bounded, desired, states), function_inputs(free, desired, states))
+
+
+def test_header_lists_limits_and_qp(tmp_path):
+    spec = load_spec(FOUR_CABLE_PATH)
+    export = build_step(spec, "penalty", Gains.from_spec(spec), spec_path=FOUR_CABLE_PATH)
+    source, header = (path.read_text() for path in write_step(export, tmp_path))
+    for text in (source, header):
+        assert "u[0] tension_1 (winch_tension): [5, 300], preferred 20" in text
+        assert "u[4] yaw_torque (body_torque): [-inf, inf], preferred 0" in text
+        assert "CasADi 'qrqp'" in text and "PENALTY_SECONDARY_WEIGHT * tr(G)/l" in text
+        assert "lambda_max" not in text and "Jacobi" not in text
+
+
+def test_refuses_distributions_it_cannot_bound(scenario, four_cable, monkeypatch, capsys, tmp_path):
+    """Where the exported distribution would need Python's eigen split at run time (a singular Hessian
+    without more inputs than servo-constraints, or MLM's E rank deficient), the export refuses: clear
+    ExportError, exit 2 from the CLI, no traceback. Forced here: every Hessian counts as singular."""
+    monkeypatch.setattr(export_step, "SINGULAR_MARGIN", 1e30)
+    spec = scenario[0]
+    with pytest.raises(ExportError, match="cannot bound the inputs: the projected recovery's fit H\\^T P H is "
+                       "singular at the nominal configuration"):
+        build_step(spec, "penalty", Gains.from_spec(spec))
+    with pytest.raises(ExportError, match="E = sigma_q P H .* is rank deficient"):
+        build_step(four_cable[0], "mlm", Gains.from_spec(four_cable[0]))
+    assert main(["--spec", str(SPEC_PATH), "--method", "mlm", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: cannot bound the inputs: MLM's servo-constraint least squares")
+    assert "Traceback" not in err
