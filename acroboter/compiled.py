@@ -10,6 +10,7 @@ stores them).
 from __future__ import annotations
 
 import ctypes
+import hashlib
 import json
 from pathlib import Path
 
@@ -25,6 +26,10 @@ _INT = ctypes.c_longlong
 
 class StaleModelError(RuntimeError):
     """Generated code or library does not match the spec or the code generator."""
+
+
+_REGENERATE = ("regenerate it with `python -m codegen generate SPEC_FILE` (`make generate` for the specs in "
+               "model_spec/)")
 
 
 class BoundFunction:
@@ -43,6 +48,7 @@ class BoundFunction:
         n_arg, n_res, n_iw, n_w = (int(v.value) for v in sz)
         if n_arg < len(inputs):
             raise StaleModelError(f"{symbol} takes {n_arg} inputs, expected {len(inputs)}: run `make generate`")
+        _check_shapes(lib, symbol, [a.size for a in inputs], outputs)
         self.inputs = inputs
         # casadi may need more argument slots than inputs (scratch); keep ours, pad with NULL.
         ptrs_in = [a.ctypes.data for a in inputs]
@@ -73,6 +79,43 @@ class BoundFunction:
         self._args[index] = address
 
 
+def _sparsity(lib: ctypes.CDLL, symbol: str, which: str, index: int) -> tuple[int, int, int]:
+    """(rows, columns, nonzeros) of input or output `index` from the library's own sparsity pattern."""
+    fn = getattr(lib, f"{symbol}_sparsity_{which}")
+    fn.argtypes = [_INT]
+    fn.restype = ctypes.POINTER(_INT)
+    pattern = fn(index)
+    rows, cols = int(pattern[0]), int(pattern[1])
+    # CasADi's compact form: [rows, cols, 1] is dense (a CCS colind starts at 0); otherwise
+    # [rows, cols, colind (cols + 1)..., row...] with colind[cols] = the number of nonzeros.
+    return rows, cols, rows * cols if int(pattern[2]) == 1 else int(pattern[2 + cols])
+
+
+def _check_shapes(lib: ctypes.CDLL, symbol: str, input_sizes: list[int], outputs: list) -> None:
+    """Buffers are sized from the manifest: the compiled function must agree, or a call would write
+    out of bounds. Inputs: as many numbers as the buffer; outputs: the manifest's dense shape."""
+    counts = {}
+    for which in ("in", "out"):
+        fn = getattr(lib, f"{symbol}_n_{which}")
+        fn.restype = _INT
+        counts[which] = int(fn())
+    if counts["in"] != len(input_sizes) or counts["out"] != len(outputs):
+        raise StaleModelError(
+            f"{symbol} in the library has {counts['in']} inputs and {counts['out']} outputs, the manifest "
+            f"{len(input_sizes)} and {len(outputs)}: the manifest does not describe this library; regenerate"
+        )
+    for i, size in enumerate(input_sizes):
+        rows, cols, _ = _sparsity(lib, symbol, "in", i)
+        if rows * cols != size:
+            raise StaleModelError(f"{symbol} input {i} is {rows}x{cols} in the library but {size} numbers in the "
+                                  "manifest: regenerate")
+    for i, (name, (rows, cols)) in enumerate(outputs):
+        shape = _sparsity(lib, symbol, "out", i)
+        if shape != (rows, cols, rows * cols):
+            raise StaleModelError(f"{symbol} output '{name}' is {shape[0]}x{shape[1]} with {shape[2]} nonzeros in "
+                                  f"the library but a dense {rows}x{cols} in the manifest: regenerate")
+
+
 class CompiledModel:
     """All generated functions of one spec, bound to shared input buffers q, qd, s, sd, sdd."""
 
@@ -85,8 +128,12 @@ class CompiledModel:
             raise StaleModelError(
                 f"no generated code for spec '{spec.name}' in {source_dir}: run `make generate`"
             )
-        self.manifest = json.loads(manifest_path.read_text())
+        try:
+            self.manifest = json.loads(manifest_path.read_text())
+        except (OSError, ValueError) as err:
+            raise StaleModelError(f"{manifest_path} cannot be read ({err}): {_REGENERATE}") from None
         self._check_fresh(generated_dir)
+        self._check_contents(source_dir)
         try:
             lib_path = ensure_built(spec.name, generated_dir, build_dir)
         except BuildError as err:
@@ -139,6 +186,25 @@ class CompiledModel:
                 f"generated code in {generated_dir / self.spec.name} was made by a different version of the "
                 "code generator: run `make generate`"
             )
+
+    def _check_contents(self, source_dir: Path) -> None:
+        """Every generated file is the one the generator wrote: its SHA-256 is the manifest's, and no
+        other C file sits beside them (the build compiles every *.c of the folder)."""
+        files = self.manifest.get("files")
+        if not isinstance(files, dict) or not files:
+            raise StaleModelError(f"{source_dir / 'manifest.json'} lists no content hashes (older code generator): "
+                                  f"{_REGENERATE}")
+        for name, digest in sorted(files.items()):
+            path = source_dir / name
+            if not path.is_file():
+                raise StaleModelError(f"{path} is missing: {_REGENERATE}")
+            if hashlib.sha256(path.read_bytes()).hexdigest() != digest:
+                raise StaleModelError(f"{path} is not what the code generator wrote (its content hash differs "
+                                      f"from manifest.json: edited by hand or half-written): {_REGENERATE}")
+        extra = sorted(p.name for p in source_dir.glob("*.c") if p.name not in files)
+        if extra:
+            raise StaleModelError(f"{source_dir} holds C files the code generator did not write ({', '.join(extra)}): "
+                                  f"remove them or {_REGENERATE}")
 
     def set_inputs(self, q=None, qd=None, s=None, sd=None, sdd=None) -> None:
         """Copy the given inputs into the shared buffers (others keep their values)."""

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import ctypes
 import filecmp
+import json
+import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -32,10 +35,56 @@ def load_all(spec_paths: list[Path]) -> list[tuple[Path, Spec]]:
     return specs
 
 
-def cmd_generate(spec_paths: list[Path], out_root: Path) -> int:
-    specs = load_all(spec_paths)  # all valid before anything is written
+def refuse_collisions(specs: list[tuple[Path, Spec]], out_root: Path) -> None:
+    """A spec from elsewhere must not overwrite the generated code of a checked-in spec of the same name."""
+    if out_root.resolve() != GENERATED_DIR.resolve():
+        return
+    checked_in = {}
+    for path in sorted(SPEC_DIR.glob("*.toml")):
+        try:
+            checked_in[load_spec(path).name] = path.resolve()
+        except SpecError:
+            continue  # a broken checked-in spec is reported when it is generated itself
     for path, spec in specs:
-        out_dir = generate(spec, out_root)
+        owner = checked_in.get(spec.name)
+        if owner is not None and owner != path.resolve():
+            raise SpecError(str(path), [("name", f"expected a name of its own, found '{spec.name}', the name of the "
+                                                 f"checked-in {owner.relative_to(REPO)}: generating it would overwrite "
+                                                 f"generated/{spec.name}/. Rename the crane, or generate it elsewhere "
+                                                 "with --out DIR")])
+
+
+def compile_check(folder: Path) -> None:
+    """The generated C compiles and links into a library whose hashes are the manifest's."""
+    from acroboter.build import BuildError, build  # the CLI composes both; codegen itself stays below the runtime
+
+    manifest = json.loads((folder / "manifest.json").read_text())
+    with tempfile.TemporaryDirectory(prefix="acroboter-compile-check-") as tmp:
+        tmp_root = Path(tmp)
+        (tmp_root / "generated").mkdir()
+        sources = tmp_root / "generated" / manifest["spec"]
+        shutil.copytree(folder, sources)
+        try:
+            lib = build(manifest["spec"], tmp_root / "generated", tmp_root / "build")
+        except BuildError as err:
+            raise GenerationError(f"the generated C for '{manifest['spec']}' does not compile: {err}") from None
+        library = ctypes.CDLL(str(lib))
+        for what in ("spec_model_hash", "codegen_hash"):
+            fn = getattr(library, f"{manifest['spec']}_{what}")
+            fn.restype = ctypes.c_char_p
+            if fn().decode() != manifest[what]:
+                raise GenerationError(f"the compiled library's {what} is not the manifest's")
+
+
+class GenerationError(RuntimeError):
+    pass
+
+
+def cmd_generate(spec_paths: list[Path], out_root: Path, check_compiles: bool = True) -> int:
+    specs = load_all(spec_paths)  # all valid before anything is written
+    refuse_collisions(specs, out_root)
+    for path, spec in specs:
+        out_dir = generate(spec, out_root, verify=compile_check if check_compiles else None)
         print(f"generated {out_dir.relative_to(REPO) if out_dir.is_relative_to(REPO) else out_dir} from {path.name}")
     return 0
 
@@ -83,14 +132,25 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("command", choices=["generate", "check"])
     parser.add_argument("specs", nargs="*", help="spec files (default: every model_spec/*.toml)")
     parser.add_argument("--out", type=Path, default=GENERATED_DIR, help="generated/ folder (default: %(default)s)")
+    parser.add_argument("--no-compile-check", action="store_true",
+                        help="generate: skip compiling each spec's C before it replaces the previous files")
     args = parser.parse_args(argv)
     try:
         if args.command == "generate":
-            return cmd_generate(_specs(args.specs), args.out)
+            return cmd_generate(_specs(args.specs), args.out, check_compiles=not args.no_compile_check)
         return cmd_check(_specs(args.specs), args.out, whole_tree=not args.specs)
     except SpecError as err:
         print(err, file=sys.stderr)
         return 2
+    except GenerationError as err:
+        print(f"error: {err} (the previous generated files are unchanged)", file=sys.stderr)
+        return 3
+    except KeyboardInterrupt:
+        print("interrupted: the previous generated files are unchanged", file=sys.stderr)
+        return 130
+    except OSError as err:
+        print(f"error: cannot write the generated files: {err}", file=sys.stderr)
+        return 3
 
 
 if __name__ == "__main__":

@@ -9,6 +9,10 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import shutil
+import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 import casadi as ca
@@ -147,7 +151,11 @@ class GenerationContext:
         }
 
     def write(self, out_dir: Path) -> list[Path]:
-        """Write one C file per function, the metadata C file and manifest.json into out_dir."""
+        """Write one C file per function, the metadata C file and manifest.json into out_dir.
+
+        The manifest lists every other file with its SHA-256: the numeric side refuses a folder whose
+        files do not match (acroboter.compiled), so a hand edit or a half-written file is never used.
+        """
         out_dir.mkdir(parents=True, exist_ok=True)
         written = []
         header = self.header()
@@ -166,17 +174,50 @@ class GenerationContext:
         )
         written.append(meta)
         manifest = out_dir / "manifest.json"
-        manifest.write_text(json.dumps(self.manifest(), indent=2, sort_keys=True) + "\n")
+        doc = self.manifest()
+        doc["files"] = {path.name: file_digest(path) for path in written}
+        manifest.write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
         written.append(manifest)
         return written
 
 
-def generate(spec: Spec, out_root: Path) -> Path:
-    """Generate the C for one spec into out_root/<spec name>/, replacing what was there."""
+def file_digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def generate(spec: Spec, out_root: Path, verify: Callable[[Path], None] | None = None) -> Path:
+    """Generate the C for one spec into out_root/<spec name>/, replacing what was there, atomically.
+
+    Everything is written into a temporary folder beside the target, `verify(folder)` (e.g. a
+    compile check) runs on it, and only then does it take the target's place (two renames). A
+    failure or an interrupt at any point before leaves the previous folder byte-identical and no
+    temporary folder behind.
+    """
+    out_root.mkdir(parents=True, exist_ok=True)
     out_dir = out_root / spec.name
-    if out_dir.exists():
-        for old in out_dir.iterdir():
-            if old.is_file():
-                old.unlink()
-    GenerationContext(spec).register_all().write(out_dir)
+    staging = Path(tempfile.mkdtemp(prefix=f".{spec.name}.new-", dir=out_root))
+    staging.chmod(0o755)  # mkdtemp's 0700 would end up on the checked-in folder
+    try:
+        GenerationContext(spec).register_all().write(staging)
+        if verify is not None:
+            verify(staging)
+        _swap_in(staging, out_dir)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)  # gone already after a successful swap
     return out_dir
+
+
+def _swap_in(staging: Path, out_dir: Path) -> None:
+    """Put the folder `staging` in the place of `out_dir` (which may not exist yet)."""
+    if not out_dir.exists():
+        staging.rename(out_dir)
+        return
+    retired = out_dir.with_name(f".{out_dir.name}.old-{os.getpid()}")
+    shutil.rmtree(retired, ignore_errors=True)
+    out_dir.rename(retired)
+    try:
+        staging.rename(out_dir)
+    except BaseException:
+        retired.rename(out_dir)  # put the previous files back
+        raise
+    shutil.rmtree(retired, ignore_errors=True)
