@@ -22,6 +22,10 @@ from .spec import Spec
 
 # MLM: a reciprocal condition number below this means a singular system (redundant constraints).
 MLM_RCOND_LIMIT = 1e-13
+# A step saturates when no input within the limits causes the servo-constraint accelerations the
+# unbounded input would, to this fraction of max(1, their size): a limit that only moves internal
+# forces (redundant inputs) is not saturation, whatever distribution the method then applies.
+SATURATION_TOLERANCE = 1e-6
 
 
 class SingularSystemError(RuntimeError):
@@ -90,6 +94,8 @@ class Controller:
                                     weight=self.secondary_weight if self.l > self.k else 0.0)
         # Per input after each compute(): -1 held at its lower limit, +1 at its upper limit, 0 free.
         self.limit_state = self.limits.limit_state
+        self._servo_fn = model.functions["mlm_bounded_terms"]  # E = σ_q P H, to judge saturation
+        self._judge = BoundedInputs(self.limits.lower, self.limits.upper, self.limits.preferred)
         # More inputs than servo-constraints: the task leaves internal forces free, always distribute.
         self.redundant_inputs = self.l > self.k
 
@@ -100,6 +106,28 @@ class Controller:
         except DistributionError as err:
             raise SingularSystemError(f"{self.name}: {err}") from None
         return self.u
+
+    def saturation(self) -> bool:
+        """Did the limits keep the last compute() from what it asked of the task?
+
+        A report, not part of the control step (call it right after compute(), at the same state):
+        the servo-constraint accelerations a = E u* of the unbounded input u* (E = σ_q P H) are asked
+        of the limits in a second bounded least squares, min |E u − a|²; saturated if even its best
+        input misses a by more than SATURATION_TOLERANCE.
+        """
+        limits = self.limits
+        if not limits.bounded_step:
+            return False
+        if self._servo_fn is not self._bounded_fn:
+            self._servo_fn.call()  # at the state and gains still in the input buffers
+        servo_map = self._servo_fn.outputs["servo_map"]
+        asked = servo_map @ limits.unbounded
+        try:
+            best = self._judge.solve(servo_map.T @ servo_map, -(servo_map.T @ asked))
+        except DistributionError:
+            return True
+        miss = np.abs(servo_map @ best - asked).max()
+        return bool(miss > SATURATION_TOLERANCE * max(1.0, float(np.abs(asked).max())))
 
     def _load(self, q: np.ndarray, qd: np.ndarray, t: float, signals, function=None) -> None:
         """State, signals and gains into the input buffers, then one call of `function` (default: the terms)."""

@@ -23,8 +23,8 @@ How it is solved:
    solution is the minimum-norm least squares plus Z Zᵀ u_pref. Weighted (the penalty methods' fit,
    weight = PENALTY_SECONDARY_WEIGHT): ½ μ|u − u_pref|² with μ = weight × scale is added
    throughout, and (G + μI) u = μ u_pref − g is solved by Cholesky. The projected fit is never exact on a
-   non-collocated crane, and there the cables' internal force moves its residual by 1e-10..2e-9 of
-   G's largest eigenvalue, depending on the configuration: taken literally it would drive the cables
+   non-collocated crane, and there the cables' internal force moves its residual by 4e-10..8e-9 of
+   G's mean eigenvalue, depending on the configuration: taken literally it would drive the cables
    to their limits for next to nothing (seen on the four-cable crane); the weighted form keeps them
    near the preferred level wherever the fit cares less than μ, and changes the rest by
    ~μ / (eigenvalue) relative (see PENALTY_SECONDARY_WEIGHT for the trade).
@@ -48,12 +48,12 @@ RANK_TOLERANCE = 1e-9
 # Weight of the secondary objective on the internal forces in the bounded QP (lexicographic case),
 # relative to G's mean eigenvalue.
 SECONDARY_WEIGHT = 1e-9
-# The penalty methods' weighted secondary objective (redundant inputs), relative likewise. A trade:
-# the internal force does lower the fit's residual a little, so a larger weight balances the cables
-# better and tracks worse. On the four-cable crane's 55 s path (tension range, max position error):
-# 4e-6: 17.1..23.3 N, 0.075 mm; 1e-5: 19.0..21.5 N, 0.098 mm; 1e-4: 20.0..20.4 N, 0.45 mm. The
-# internal force's share of the fit there is 4e-10..8e-9 of G's mean eigenvalue, its other
-# directions' share at least 0.16.
+# The penalty methods' weighted secondary objective (redundant inputs), relative likewise: it sets
+# how tightly the internal force stays at u_pref. On the four-cable crane's 55 s path with u_pref =
+# 20 N (tension range; max position error 0.062 mm in all three): 4e-6: 17.1..23.3 N; 1e-5:
+# 19.0..21.5 N; 1e-4: 20.0..20.4 N. A u_pref far from the need (152.5 N) also pulls real directions:
+# 0.07, 0.09, 0.41 mm. The internal force's share of the fit there is 4e-10..8e-9 of G's mean
+# eigenvalue, its other directions' share at least 0.16.
 PENALTY_SECONDARY_WEIGHT = 1e-5
 # DAQP's feasibility tolerance on the bounds it leaves inactive (its default, 1e-6, is loose for N).
 PRIMAL_TOLERANCE = 1e-9
@@ -78,6 +78,8 @@ class BoundedInputs:
         self.l = l
         self.bounded = bool(np.isfinite(self.lower).any() or np.isfinite(self.upper).any())
         self.u = np.zeros(l)
+        self.unbounded = np.zeros(l)  # the last solve's solution without limits (what the controller asked)
+        self.bounded_step = False  # True when the last solve had to bound the input (the QP ran)
         self.limit_state = np.zeros(l, dtype=np.int8)
         self._syevd, self._potrf, self._potrs = lapack.get_lapack_funcs(("syevd", "potrf", "potrs"),
                                                                         (np.zeros((1, 1)),))
@@ -97,6 +99,7 @@ class BoundedInputs:
         if not self.bounded or self.within_limits(u):
             self.u[:] = u
             self.limit_state[:] = 0
+            self.bounded_step = False
             return True
         return False
 
@@ -133,11 +136,14 @@ class BoundedInputs:
                 mu = SECONDARY_WEIGHT * scale if scale > 0 else 1.0
                 self._hessian += mu * (z @ z.T)
                 self._gradient -= mu * (z @ (z.T @ self.preferred))
+        self.unbounded[:] = u
         if self.within_limits(u):
             self.u[:] = u
             self.limit_state[:] = 0
+            self.bounded_step = False
             return self.u
         # Bounded: the strictly convex QP with simple bounds.
+        self.bounded_step = True
         self._hessian += self._hessian.T  # exactly symmetric: the mean of G and Gᵀ
         self._hessian *= 0.5
         self._qp.update(H=self._hessian, f=self._gradient)

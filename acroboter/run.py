@@ -146,9 +146,10 @@ def main(argv: list[str] | None = None) -> int:
                     summaries[method]["diverged_at_s"] = r.diverged_at
                     warnings.append(f"{method} diverged at t = {r.diverged_at:.2f} s: {r.divergence}")
                     bar.update(steps - len(r.t) + 1)
-                low = summaries[method]["min_winch_tension_N"]
-                if low is not None and low <= 0:
-                    warnings.append(f"{method}: slack cable, the winch tension reached {low:.3g} N")
+                for cable, c in summaries[method]["cables"].items():  # the plant's cables, not the inputs
+                    if c["time_slack_s"] > 0 or c["transitions"] > 0:
+                        warnings.append(f"{method}: cable {cable} was slack for {c['time_slack_s']:.3g} s "
+                                        f"({c['transitions']} slack/taut transitions)")
     except (SpecError, StaleModelError, EquilibriumError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
@@ -179,9 +180,13 @@ def main(argv: list[str] | None = None) -> int:
         return 3
     saturated = [m for m, s in summaries.items() if s.get("saturated")]
     if feasibility.feasible is False or saturated:
-        reason = (feasibility.message.removeprefix("not feasible with these limits: ") if feasibility.feasible is False
-                  else "the check before the run passed, but the closed loop needed more")
-        held = f"; inputs held at a limit by {', '.join(saturated)}" if saturated else ""
+        if feasibility.feasible is False:
+            reason = feasibility.message.removeprefix("not feasible with these limits: ")
+        elif feasibility.feasible is None:
+            reason = f"the check before the run could not decide ({feasibility.message})"
+        else:
+            reason = "the check before the run found the ideal motion feasible, but the closed loop needed more"
+        held = f"; saturated: {', '.join(saturated)}" if saturated else ""
         print(f"the path was not feasible with these limits: {reason}{held}")
     return 0
 

@@ -47,6 +47,8 @@ class RunResult:
     impact_energy: np.ndarray = field(default_factory=lambda: np.zeros(0))
     # Per instant and input: the controller's limit_state (−1 at the lower limit, +1 at the upper, 0 free).
     limit_state: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int8))
+    # Per instant: whether a limit kept the input from what the controller asked of the task.
+    saturated: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     control_period: float = 0.0  # s
 
 
@@ -64,6 +66,7 @@ class Scenario:
     yaw_body_offset: int | None
     tilt_body_offset: int
     winch_inputs: list[int]
+    winch_gains: list[float]  # the cable tension is gain · u
 
     @classmethod
     def from_model(cls, model: CompiledModel) -> Scenario:
@@ -81,6 +84,7 @@ class Scenario:
             yaw_body_offset=lay.body_offset[yaw.body] if yaw else None,
             tilt_body_offset=lay.body_offset[position.body],
             winch_inputs=winches,
+            winch_gains=[spec.actuators[i].gain for i in winches],
         )
 
 
@@ -141,6 +145,7 @@ def simulate(
     n_cables = len(plant.cable_names)
     rec_tension, rec_active = np.zeros((samples, n_cables)), np.ones((samples, n_cables), dtype=np.int8)
     rec_limit = np.zeros((samples, lay.l), dtype=np.int8)
+    rec_saturated = np.zeros(samples, dtype=bool)
     rec_impact = np.zeros(samples)
     step_s = np.zeros(samples)
     sigma_fn, phi_fn = model.functions["sigma"], model.functions["phi"]
@@ -170,6 +175,7 @@ def simulate(
             break
         rec_q[k], rec_qd[k], rec_u[k] = q, qd, u
         rec_limit[k] = controller.limit_state
+        rec_saturated[k] = controller.saturation()  # a report on the step, after its timing
         rec_impact[k] = plant.impact_energy
         sigma_fn.call()  # at the state and signals the controller just loaded
         phi_fn.call()
@@ -207,14 +213,14 @@ def simulate(
         rec_t, rec_q, rec_qd, rec_u = rec_t[kept], rec_q[kept], rec_qd[kept], rec_u[kept]
         rec_sigma, rec_phi, rec_des, step_s = rec_sigma[kept], rec_phi[kept], rec_des[kept], step_s[kept]
         rec_tension, rec_active = rec_tension[kept], rec_active[kept]
-        rec_limit, rec_impact = rec_limit[kept], rec_impact[kept]
+        rec_limit, rec_impact, rec_saturated = rec_limit[kept], rec_impact[kept], rec_saturated[kept]
         if energy:
             rec_energy = rec_energy[kept]
     result = RunResult(controller.name, rec_t, rec_q, rec_qd, rec_u, rec_sigma, rec_phi, rec_des, step_s, wall,
                        diverged_at=diverged_at, divergence=divergence, cable_names=list(plant.cable_names),
                        cable_tension=rec_tension, cable_active=rec_active,
                        cable_transitions=plant.transitions.copy(), impact_energy=rec_impact,
-                       limit_state=rec_limit, control_period=period)
+                       limit_state=rec_limit, saturated=rec_saturated, control_period=period)
     if energy:
         names = ("mechanical", "work_inputs", "work_anchors", "dissipated")
         result.energy = {name: rec_energy[:, i].copy() for i, name in enumerate(names)}
@@ -239,8 +245,8 @@ def summarize(result: RunResult, scenario: Scenario, layout) -> dict:
     w_axis = result.q[:, scenario.tilt_body_offset + 9 : scenario.tilt_body_offset + 12]
     tilt = np.arccos(np.clip(w_axis[:, 2] / np.linalg.norm(w_axis, axis=1), -1.0, 1.0))
     summary["max_tilt_deg"] = float(np.degrees(tilt.max()))
-    summary["max_constraint_violation"] = float(np.abs(result.phi).max())
-    winch = result.u[:, scenario.winch_inputs]
+    summary["max_constraint_violation"] = constraint_violation(result, layout)
+    winch = result.u[:, scenario.winch_inputs] * np.array(scenario.winch_gains)  # tension = gain · u
     summary["min_winch_tension_N"] = float(winch.min()) if winch.size else None
     summary["max_winch_tension_N"] = float(winch.max()) if winch.size else None
     summary["max_abs_input"] = {
@@ -265,21 +271,37 @@ def summarize(result: RunResult, scenario: Scenario, layout) -> dict:
         }
         for c, name in enumerate(result.cable_names)
     }
-    limits = result.limit_state[held]
+    limits = result.limit_state
+
+    def worst_error(mask: np.ndarray) -> float | None:
+        return 1e3 * float(pos_err[mask].max()) if mask.any() else None
+
     summary["inputs"] = {
         name: {
-            "time_at_lower_limit_s": float(np.count_nonzero(limits[:, i] == -1) * period),
-            "time_at_upper_limit_s": float(np.count_nonzero(limits[:, i] == 1) * period),
+            "time_at_lower_limit_s": float(np.count_nonzero(limits[held, i] == -1) * period),
+            "time_at_upper_limit_s": float(np.count_nonzero(limits[held, i] == 1) * period),
+            "max_position_error_while_at_limit_mm": worst_error(limits[:, i] != 0),
         }
         for i, name in enumerate(layout.inputs)
     }
-    # Saturation: the instants at which some input was held by a limit, and what tracking cost then.
-    saturated = result.limit_state.any(axis=1) if result.limit_state.size else np.zeros(len(result.t), dtype=bool)
+    # Saturation: the instants at which a limit kept the input from what the controller asked of the
+    # task (an input on a limit that only moved internal forces does not count), and what it cost.
+    saturated = result.saturated
     summary["saturated"] = bool(saturated.any())
     summary["time_saturated_s"] = float(np.count_nonzero(saturated[held]) * period)
-    summary["max_position_error_while_saturated_mm"] = (
-        1e3 * float(pos_err[saturated].max()) if saturated.any() else None)
+    summary["max_position_error_while_saturated_mm"] = worst_error(saturated)
     return summary
+
+
+def constraint_violation(result: RunResult, layout) -> float:
+    """max |φ| over the rigid rows, and over the cables only where stretched (φ > 0): a slack cable
+    (φ < 0, its ends closer than its length) is allowed, not a violation."""
+    cable = np.array([name.startswith("cable ") for name in layout.constraints])
+    if not result.phi.size:
+        return 0.0
+    rigid = np.abs(result.phi[:, ~cable]).max() if (~cable).any() else 0.0
+    stretched = np.maximum(result.phi[:, cable], 0.0).max() if cable.any() else 0.0
+    return float(max(rigid, stretched))
 
 
 def setup_default(model: CompiledModel, path: DesiredPath):

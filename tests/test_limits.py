@@ -193,3 +193,59 @@ def test_redundancy_absorbs_one_weak_winch(tmp_path, four_cable):
     assert result.u[:, 0].max() <= 15.0 and (result.limit_state[:, 0] == 1).mean() > 0.9
     assert result.u[:, 1:4].max() > 22.0  # the others pull harder
     assert s["max_position_error_mm"] < 1.0  # and the task is still met
+    # on a limit, but not saturated: the servo-constraint accelerations are realised as asked
+    assert s["inputs"]["tension_1"]["time_at_upper_limit_s"] > 9.0
+    assert not result.saturated.any() and s["saturated"] is False
+
+
+def test_a_weak_winch_is_neither_infeasible_nor_saturated_in_the_run(tmp_path, capsys):
+    """Redundancy absorbs it for every method; the run's last line does not call the path infeasible."""
+    text = FOUR_CABLE.read_text().replace('cable = "L1"\nlimits = [5.0, 300.0]', 'cable = "L1"\nlimits = [5.0, 15.0]')
+    text = text.replace("preferred = 20.0              #", "preferred = 10.0              #", 1)
+    spec_path = tmp_path / "four_cable_weak.toml"
+    spec_path.write_text(text)
+    assert "limits = [5.0, 15.0]" in text
+    code, stdout, summary = run_cli(capsys, "--spec", str(spec_path), "--method", "mlm,penalty", "--duration", "10",
+                                    "--out", str(tmp_path / "results"))
+    assert code == 0
+    assert summary["path_feasibility"]["feasible"] is True
+    for s in summary["methods"].values():
+        assert s["saturated"] is False and s["max_position_error_mm"] < 1.0
+        assert s["inputs"]["tension_1"]["time_at_upper_limit_s"] > 5.0
+    assert "not feasible" not in stdout
+
+
+def test_an_undecided_check_is_not_called_passed(tmp_path, capsys):
+    """More servo-constraints than inputs: the check cannot decide, and the last line says so."""
+    spec_path = spec_with_winch_limits(tmp_path, REPO / "model_spec" / "acroboter_redundant_task.toml", 0.0, 26.0)
+    code, stdout, summary = run_cli(capsys, "--spec", str(spec_path), "--method", "penalty", "--duration", "1.0",
+                                    "--out", str(tmp_path / "results"))
+    assert code == 0 and summary["path_feasibility"]["feasible"] is None
+    last = stdout.strip().splitlines()[-1]
+    assert last.startswith("the path was not feasible with these limits") and "could not decide" in last
+
+
+def test_a_reversed_winch_reports_its_tension_as_gain_times_u(tmp_path):
+    """gain = −1 (reversed mounting): u ≈ −26.75, the cable pulls with +26.75 N and never goes slack."""
+    from conftest import raw_spec
+
+    from acroboter.spec import parse_spec
+    from codegen.generate import generate
+
+    data = raw_spec("acroboter")
+    data["name"] = "acroboter_reversed_winch"
+    data["actuators"][0]["gain"] = -1.0
+    spec = parse_spec(data)
+    assert spec.input_limits()[0][0] == -math.inf and spec.input_limits()[1][0] == 0.0  # pulling is u <= 0
+    generate(spec, tmp_path / "generated")
+    model = CompiledModel(spec, generated_dir=tmp_path / "generated", build_dir=tmp_path / "build")
+    path = desired_path(model)
+    start = solve_equilibrium(model, path)
+    controller = make_controller("mlm", model, path, Gains.from_spec(spec))
+    result = simulate(model, path, controller, setup_default(model, path), start.q, 2.0, spec.controller.rate_hz,
+                      spec.simulation.step)
+    s = summarize(result, Scenario.from_model(model), model.layout)
+    assert result.u[:, 0].max() < -26.0  # the input itself is negative
+    assert 26.0 < s["min_winch_tension_N"] <= s["max_winch_tension_N"] < 28.0
+    assert s["cables"]["L1"]["time_slack_s"] == 0.0 and s["cables"]["L1"]["min_tension_N"] > 26.0
+    assert not result.limit_state.any()

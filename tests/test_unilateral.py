@@ -60,6 +60,9 @@ class OpenLoop:
         self.model.signals[:] = self.path.flat(t)
         return self.u_of_t(t)
 
+    def saturation(self) -> bool:
+        return False  # no limits: an open-loop input is applied as given
+
 
 def winch_geometry(spec):
     """Drop and length of the (symmetric) winch cables at the start, from the spec's numbers."""
@@ -128,10 +131,13 @@ def test_slack_winch_cables_let_the_su_fall_freely(crane, tmp_path):
     assert s["cables"]["main"]["time_slack_s"] == 0.0 and s["cables"]["main"]["transitions"] == 0
     assert s["cables"]["main"]["min_tension_N"] > 0
     assert s["inputs"]["tension_1"] == {"time_at_lower_limit_s": pytest.approx(held * period),
-                                        "time_at_upper_limit_s": 0.0}
+                                        "time_at_upper_limit_s": 0.0,
+                                        "max_position_error_while_at_limit_mm": s["max_position_error_mm"]}
     assert s["inputs"]["thrust_u"] == {"time_at_lower_limit_s": 0.0,
-                                       "time_at_upper_limit_s": pytest.approx(held * period)}
-    assert s["inputs"]["yaw_torque"] == {"time_at_lower_limit_s": 0.0, "time_at_upper_limit_s": 0.0}
+                                       "time_at_upper_limit_s": pytest.approx(held * period),
+                                       "max_position_error_while_at_limit_mm": s["max_position_error_mm"]}
+    assert s["inputs"]["yaw_torque"] == {"time_at_lower_limit_s": 0.0, "time_at_upper_limit_s": 0.0,
+                                         "max_position_error_while_at_limit_mm": None}
     assert result.limit_state.shape == (len(t), lay.l) and (result.limit_state == limit).all()
     assert "max_position_error_mm" in s and "control_step_us" in s  # the existing keys stay
     np.testing.assert_array_equal(result.energy["impacts"], 0.0)
