@@ -105,3 +105,23 @@ def crane(request, compiled_cranes) -> Crane:
             path, spec, model, nominal_coordinates(spec, model.layout), start_signals(spec, model.layout)
         )
     return compiled_cranes[name]
+
+
+def rigid_plant_rhs(model, path, u, zeta: float, omega: float):
+    """An independent right-hand side of the bilateral Baumgarte DAE for scipy (a dense numpy KKT
+    solve; every cable a rigid rod): x = [q, q̇] -> ẋ, with the input u held."""
+    n = model.layout.n
+
+    def rhs(t, x):
+        q, qd = x[:n], x[n:]
+        s, sd, sdd = path.signal_arrays(t)
+        terms = model.evaluate("model_terms", q, qd, s, sd, sdd)
+        m = terms["phi_q"].shape[0]
+        kkt = np.block([[terms["mass_matrix"], terms["phi_q"].T], [terms["phi_q"], np.zeros((m, m))]])
+        b = np.concatenate([
+            terms["input_matrix"] @ u - terms["bias_forces"],
+            -terms["gamma"] - 2 * zeta * omega * terms["phi_dot"] - omega**2 * terms["phi"],
+        ])
+        return np.concatenate([qd, np.linalg.solve(kkt, b)[:n]])
+
+    return rhs

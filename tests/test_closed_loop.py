@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import rigid_plant_rhs
 from scipy.integrate import solve_ivp
 
 from acroboter.compiled import CompiledModel
@@ -122,25 +123,6 @@ def test_penalty_input_differs_slightly_from_mlm_by_design(crane, full_runs):
     assert 0 < rel.max() < 0.02
 
 
-def _kkt_rhs(model, path, u, zeta, omega):
-    """An independent right-hand side of the Baumgarte DAE for scipy (dense numpy solve)."""
-    n = model.layout.n
-
-    def rhs(t, x):
-        q, qd = x[:n], x[n:]
-        s, sd, sdd = path.signal_arrays(t)
-        terms = model.evaluate("model_terms", q, qd, s, sd, sdd)
-        m = terms["phi_q"].shape[0]
-        kkt = np.block([[terms["mass_matrix"], terms["phi_q"].T], [terms["phi_q"], np.zeros((m, m))]])
-        b = np.concatenate([
-            terms["input_matrix"] @ u - terms["bias_forces"],
-            -terms["gamma"] - 2 * zeta * omega * terms["phi_dot"] - omega**2 * terms["phi"],
-        ])
-        return np.concatenate([qd, np.linalg.solve(kkt, b)[:n]])
-
-    return rhs
-
-
 def test_fixed_step_plant_agrees_with_solve_ivp(crane):
     spec, model, path, start = crane
     n = model.layout.n
@@ -153,7 +135,7 @@ def test_fixed_step_plant_agrees_with_solve_ivp(crane):
     for i in range(steps):
         plant.step(x, i * h, u, h)
     sim = spec.simulation
-    ref = solve_ivp(_kkt_rhs(model, path, u, sim.baumgarte_zeta, sim.baumgarte_omega), (0.0, 1.0),
+    ref = solve_ivp(rigid_plant_rhs(model, path, u, sim.baumgarte_zeta, sim.baumgarte_omega), (0.0, 1.0),
                     np.concatenate([start.q, np.zeros(n)]), method="DOP853", rtol=1e-11, atol=1e-12)
     assert ref.success
     moved = np.abs(ref.y[:n, -1] - start.q).max()

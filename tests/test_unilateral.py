@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import rigid_plant_rhs
 from scipy.integrate import quad, solve_ivp
 from scipy.optimize import brentq
 
@@ -351,25 +352,6 @@ def test_a_radial_throw_loses_all_its_radial_velocity(ball):
 # --- (c) the taut crane under MLM is the rigid plant ---------------------------------------------------
 
 
-def _rigid_rhs(model, path, u, zeta, omega):
-    """The bilateral Baumgarte DAE as a dense numpy KKT solve (every cable a rigid rod)."""
-    n = model.layout.n
-
-    def rhs(t, x):
-        q, qd = x[:n], x[n:]
-        s, sd, sdd = path.signal_arrays(t)
-        terms = model.evaluate("model_terms", q, qd, s, sd, sdd)
-        m = terms["phi_q"].shape[0]
-        kkt = np.block([[terms["mass_matrix"], terms["phi_q"].T], [terms["phi_q"], np.zeros((m, m))]])
-        b = np.concatenate([
-            terms["input_matrix"] @ u - terms["bias_forces"],
-            -terms["gamma"] - 2 * zeta * omega * terms["phi_dot"] - omega**2 * terms["phi"],
-        ])
-        return np.concatenate([qd, np.linalg.solve(kkt, b)[:n]])
-
-    return rhs
-
-
 def test_the_taut_crane_under_mlm_is_the_rigid_plant(crane):
     spec, model, path, start = crane
     n = model.layout.n
@@ -393,7 +375,7 @@ def test_the_taut_crane_under_mlm_is_the_rigid_plant(crane):
     x = np.concatenate([start.q, np.zeros(n)])
     worst = 0.0
     for k in range(50):
-        ref = solve_ivp(_rigid_rhs(model, path, result.u[k], sim.baumgarte_zeta, sim.baumgarte_omega),
+        ref = solve_ivp(rigid_plant_rhs(model, path, result.u[k], sim.baumgarte_zeta, sim.baumgarte_omega),
                         (k * period, (k + 1) * period), x, method="DOP853", rtol=1e-11, atol=1e-12)
         assert ref.success
         x = ref.y[:, -1]
