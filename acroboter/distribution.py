@@ -38,6 +38,8 @@ How it is solved:
 
 from __future__ import annotations
 
+import math
+
 import daqp
 import numpy as np
 from scipy.linalg import lapack
@@ -84,6 +86,8 @@ class BoundedInputs:
         self._syevd, self._potrf, self._potrs = lapack.get_lapack_funcs(("syevd", "potrf", "potrs"),
                                                                         (np.zeros((1, 1)),))
         self._hessian = np.zeros((l, l))
+        self._diagonal = self._hessian.reshape(-1)[:: l + 1]  # a view: the diagonal of _hessian
+        self._sign = np.zeros(l)
         self._gradient = np.zeros(l)
         self._none = np.zeros((0, l))
         self._qp = daqp.Model()
@@ -92,7 +96,7 @@ class BoundedInputs:
         self.qp_solves = 0  # how many steps needed the QP (diagnostics)
 
     def within_limits(self, u: np.ndarray) -> bool:
-        return bool((u >= self.lower).all() and (u <= self.upper).all())
+        return not (np.less(u, self.lower).any() or np.greater(u, self.upper).any())
 
     def accept(self, u: np.ndarray) -> bool:
         """Take a trusted unbounded solution if it is within the limits (step 1)."""
@@ -107,15 +111,15 @@ class BoundedInputs:
         """The bounded, prioritised minimiser (steps 2 and 3); writes self.u and self.limit_state."""
         # G's scale: its mean eigenvalue. Exact and cheap (also in the exported C, which needs no
         # eigenvalue solver for it); between 1/l of the largest eigenvalue and the largest.
-        scale = float(np.trace(hessian)) / self.l
-        if not np.isfinite(scale) or not np.isfinite(gradient).all():
+        scale = float(hessian.trace()) / self.l
+        if not math.isfinite(scale + float(gradient @ gradient)):
             raise DistributionError("the input distribution's terms are not finite")
         np.copyto(self._hessian, hessian)
         self._gradient[:] = gradient
         if self.weight > 0:
             # Weighted: (G + μI) u = μ u_pref − g, μ = weight · scale (positive definite: Cholesky).
             mu = self.weight * scale if scale > 0 else 1.0
-            self._hessian[np.diag_indices(self.l)] += mu
+            self._diagonal += mu
             self._gradient -= mu * self.preferred
             chol, info = self._potrf(self._hessian, lower=False, overwrite_a=False, clean=False)
             if info != 0:
@@ -149,16 +153,15 @@ class BoundedInputs:
         self._qp.update(H=self._hessian, f=self._gradient)
         x, _, exitflag, info = self._qp.solve()
         self.qp_solves += 1
-        if exitflag < 1 or not np.isfinite(x).all():
+        if exitflag < 1 or not math.isfinite(float(x @ x)):
             raise DistributionError(
                 f"the bounded input distribution failed (DAQP exit flag {exitflag}): the limits or the "
                 "controller's terms are inconsistent"
             )
         # The active set is DAQP's: a bound with a nonzero multiplier holds its input (exactly on it;
         # negative multipliers are lower bounds). Inactive bounds hold to PRIMAL_TOLERANCE: snap those too.
-        lam = info["lam"]
-        self.limit_state[:] = 0
-        self.limit_state[lam < 0] = -1
-        self.limit_state[lam > 0] = 1
-        np.clip(x, self.lower, self.upper, out=self.u)
+        np.sign(info["lam"], out=self._sign)
+        self.limit_state[:] = self._sign
+        np.maximum(x, self.lower, out=self.u)
+        np.minimum(self.u, self.upper, out=self.u)
         return self.u
