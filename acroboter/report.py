@@ -69,8 +69,10 @@ def format_table(summaries: dict) -> str:
         paper = PAPER_MATLAB_US.get(method)
         paper_s = f"{paper:7.1f}" if paper else f"{'-':>7}"
         step = s["control_step_us"]
+        pos = (f"{s['max_position_error_mm']:8.4f} {s['rms_position_error_mm']:8.4f}"
+               if s["max_position_error_mm"] is not None else f"{'unbounded':>17}")
         lines.append(
-            f"{method:<13} {s['max_position_error_mm']:8.4f} {s['rms_position_error_mm']:8.4f} {yaw} "
+            f"{method:<13} {pos} {yaw} "
             f"{s['max_tilt_deg']:8.4f} {s['max_constraint_violation']:9.1e} {tension:>15} "
             f"{step['median']:11.1f} {step['mean']:9.1f} {step['p99']:7.1f} {paper_s}"
         )

@@ -9,10 +9,14 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
+import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 from .build import REPO
+from .spec import MAX_CONTROL_STEPS, MAX_ITERATIONS
 
 DEFAULT_SPEC = REPO / "model_spec" / "acroboter.toml"
 WARM_UP_STEPS = 200  # untimed control steps at the start state before each method's run
@@ -62,8 +66,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
             args.iterations = [int(v) for v in args.iterations.split(",")]
         except ValueError:
             p.error(f"--iterations takes comma-separated whole numbers, found '{args.iterations}'")
-        if any(i < 1 for i in args.iterations):
-            p.error("--iterations must be at least 1")
+        if any(not 1 <= i <= MAX_ITERATIONS for i in args.iterations):
+            p.error(f"--iterations must be between 1 and {MAX_ITERATIONS}, found {args.iterations}")
     try:
         expand_methods(args.method, args.iterations or [1])
     except ValueError as err:
@@ -80,15 +84,58 @@ def expand_methods(requested: list[str] | None, iterations: list[int]) -> list[s
         if name == "iterative":
             methods += [f"iterative-{i}" for i in iterations]
         elif name in ("mlm", "penalty") or (name.startswith("iterative-") and name[10:].isdigit()
-                                             and int(name[10:]) >= 1):
+                                             and 1 <= int(name[10:]) <= MAX_ITERATIONS):
             methods.append(name)
         else:
-            raise ValueError(f"unknown method '{name}': use mlm, penalty, iterative or iterative-N")
+            raise ValueError(f"unknown method '{name}': use mlm, penalty, iterative or iterative-N "
+                             f"(1 <= N <= {MAX_ITERATIONS})")
     return list(dict.fromkeys(methods))
+
+
+# The files a run writes into --out: a new run replaces these (and only these) from an earlier one.
+FIGURES = ("path_3d.png", "servo_errors.png", "inputs.png", "control_step_time.png")
+
+
+def _is_run_file(path: Path) -> bool:
+    stem = path.stem
+    method = stem in ("mlm", "penalty") or (stem.startswith("iterative-") and stem[10:].isdigit())
+    return path.name == "summary.json" or path.name in FIGURES or (path.suffix == ".csv" and method)
+
+
+def _staging_folder(out: Path) -> Path:
+    """A temporary folder inside --out for this run's files (proves --out writable before any work)."""
+    out.mkdir(parents=True, exist_ok=True)
+    return Path(tempfile.mkdtemp(prefix=".run-", dir=out))
+
+
+def _publish(staging: Path, out: Path) -> None:
+    """Replace the earlier run's files in --out with this run's: figures and CSVs first, summary last."""
+    for old in out.iterdir():
+        if old.is_file() and _is_run_file(old):
+            old.unlink()
+    new = sorted(staging.iterdir(), key=lambda p: p.name == "summary.json")
+    for path in new:
+        os.replace(path, out / path.name)
+    staging.rmdir()
 
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    try:
+        staging = _staging_folder(args.out)
+    except OSError as err:
+        print(f"error: cannot write results into --out {args.out}: {err.strerror or err}", file=sys.stderr)
+        return 2
+    try:
+        return _run(args, staging)
+    except KeyboardInterrupt:
+        print(f"interrupted: no results written (the earlier ones in {args.out} are as they were)", file=sys.stderr)
+        return 130
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)  # gone already when the results were published
+
+
+def _run(args: argparse.Namespace, staging: Path) -> int:
     # Imports after parsing: --help stays instant.
     import numpy as np
     from tqdm import tqdm
@@ -117,6 +164,10 @@ def main(argv: list[str] | None = None) -> int:
         duration = args.duration if args.duration is not None else path.duration
         rate, step = spec.controller.rate_hz, spec.simulation.step
         steps = int(round(duration * rate))
+        if not 1 <= steps <= MAX_CONTROL_STEPS:
+            print(f"error: --duration {duration:g} s is {steps} control steps at {rate:g} Hz: give between one "
+                  f"({1 / rate:g} s) and {MAX_CONTROL_STEPS} ({MAX_CONTROL_STEPS / rate:g} s)", file=sys.stderr)
+            return 2
         start_rates = np.zeros(model.layout.n)
         results, summaries, warnings = {}, {}, []
         # Before the run: can the path be followed within the limits at all?
@@ -157,8 +208,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 3
 
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    out: Path = staging  # published into args.out at the end, in one go
     for name, r in results.items():
         write_csv(out / f"{name}.csv", r, scenario)
     limits = input_limits_summary(spec, model.layout)
@@ -174,7 +224,8 @@ def main(argv: list[str] | None = None) -> int:
         input_labels = [f"{name} [{unit}]" for name, unit in zip(lay.inputs, lay.input_units, strict=True)]
         write_figures(out, results, scenario, {m: s for m, s in summaries.items() if m in results},
                       input_labels, lay.servo_constraints, input_limits=spec.input_limits()[:2])
-    print(f"results in {out}/")
+    _publish(staging, args.out)
+    print(f"results in {args.out}/")
     if not results:
         print("error: no method could run on this spec (see the warnings above)", file=sys.stderr)
         return 3

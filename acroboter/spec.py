@@ -29,6 +29,17 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 AXES = ("u", "v", "w")
+# Caps that keep every command's work and memory bounded (checked here, once, before any work).
+MAX_NAME_LENGTH = 64  # a name is a folder, a file name prefix and a C symbol prefix
+MAX_ITERATIONS = 1000  # iterative penalty: far beyond where it stops improving (~10)
+MAX_CONTROL_STEPS = 360_000  # 2 hours at 50 Hz: about 200 MB of records for the default crane
+MAX_PLANT_SUBSTEPS = 10_000  # plant steps per control period
+# A wide SI window for physical magnitudes: outside it a number is a unit mistake, not a crane.
+MASS_RANGE = (1e-6, 1e6)  # kg
+LENGTH_LIMIT = 1e4  # m, for positions, points and cable lengths
+# J = ½ tr(I) E − I must stay well conditioned (it is the axes' part of M): I1 + I2 − I3 at least
+# this fraction of I3 (a flat lamina, I1 + I2 = I3, makes M singular).
+INERTIA_MARGIN = 1e-6
 PATH_SIGNALS = ("x", "y", "z", "yaw")
 RECOVERIES = ("projected", "eq12", "eq13", "eq15", "kappa")
 NAME_PATTERN = r"^[A-Za-z_][A-Za-z0-9_]*$"
@@ -62,17 +73,21 @@ def _exactly(count: int, what: str):
 
 
 Vec3 = Annotated[list[float], _exactly(3, "3 numbers [x, y, z]")]
+Coordinate = Annotated[float, Field(ge=-LENGTH_LIMIT, le=LENGTH_LIMIT)]
+Position = Annotated[list[Coordinate], _exactly(3, "3 numbers [x, y, z]")]  # m
 Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
-Name = Annotated[str, Field(pattern=NAME_PATTERN)]
+Mass = Annotated[float, Field(ge=MASS_RANGE[0], le=MASS_RANGE[1])]
+Length = Annotated[float, Field(gt=0, le=LENGTH_LIMIT)]
+Name = Annotated[str, Field(pattern=NAME_PATTERN, max_length=MAX_NAME_LENGTH)]
 
 
 class PolarPoint(_Strict):
     """A point in the body's xy-plane given by radius and angle, lifted by `height` along w."""
 
-    radius: NonNegative
+    radius: Annotated[float, Field(ge=0, le=LENGTH_LIMIT)]
     angle_deg: float
-    height: float = 0.0
+    height: Coordinate = 0.0
 
     def xyz(self) -> list[float]:
         a = math.radians(self.angle_deg)
@@ -89,7 +104,7 @@ def _point_form(value: Any) -> str | None:
 
 POINT_FORMS = "[x, y, z] in body axes or a table {radius, angle_deg, height}"
 BodyPoint = Annotated[
-    Annotated[Vec3, Tag("xyz")] | Annotated[PolarPoint, Tag("polar")],
+    Annotated[Position, Tag("xyz")] | Annotated[PolarPoint, Tag("polar")],
     Discriminator(_point_form, custom_error_type="point_form", custom_error_message=f"expected {POINT_FORMS}"),
 ]
 
@@ -101,9 +116,9 @@ class Damping(_Strict):
 
 class Body(_Strict):
     name: Name
-    mass: Positive
+    mass: Mass
     inertia: Annotated[list[Vec3], _exactly(3, "a 3x3 matrix (3 rows of 3 numbers)")]
-    initial_position: Vec3
+    initial_position: Position
     initial_yaw_deg: float = 0.0
     damping: Damping = Damping()
     points: dict[Name, BodyPoint] = {}
@@ -126,6 +141,15 @@ class Body(_Strict):
                 "expected principal moments that satisfy the triangle inequality I1 + I2 >= I3, "
                 f"found principal moments {shown} ({moments[0]:.6g} + {moments[1]:.6g} < {moments[2]:.6g})"
             )
+        if moments[0] + moments[1] - moments[2] < INERTIA_MARGIN * moments[2]:
+            j = 0.5 * np.array([moments[1] + moments[2] - moments[0], moments[0] + moments[2] - moments[1],
+                                moments[0] + moments[1] - moments[2]])
+            condition = j.max() / j.min() if j.min() > 0 else float("inf")
+            raise ValueError(
+                "expected principal moments that satisfy the triangle inequality strictly (I1 + I2 − I3 at "
+                f"least {INERTIA_MARGIN:g} × I3; a flat lamina makes the mass matrix singular), found principal "
+                f"moments {shown} (the axes' inertia J = ½ tr(I) E − I has condition number {condition:.3g})"
+            )
         return value
 
     def point(self, name: str) -> list[float]:
@@ -135,7 +159,7 @@ class Body(_Strict):
 
 class Anchor(_Strict):
     name: Name
-    position: Vec3
+    position: Position
     follows_path: list[Literal["x", "y", "z"]] = []  # axes along which it moves with the path
 
 
@@ -146,7 +170,7 @@ class Winch(_Strict):
 class Cable(_Strict):
     name: Name
     ends: Annotated[list[str], _exactly(2, "2 ends ['anchor' or 'body.point', 'body.point']")]
-    length: Positive | None = None
+    length: Length | None = None
     winch: Winch | None = None
 
 
@@ -267,7 +291,7 @@ class Penalty(_Strict):
     alpha_servo: Positive
     omega: Positive
     mu: Positive
-    iterations: Annotated[list[Annotated[int, Field(ge=1)]], Field(min_length=1)] = [3, 4, 5]
+    iterations: Annotated[list[Annotated[int, Field(ge=1, le=MAX_ITERATIONS)]], Field(min_length=1)] = [3, 4, 5]
     recovery: Literal[RECOVERIES] = "projected"
     kappa: Annotated[float, Field(ge=0, le=1)] = 0.5
 
@@ -476,6 +500,23 @@ def _check_references(spec: Spec) -> list[tuple[str, str]]:
             ("path.waypoints", "expected at least two distinct waypoints (the path moves the tracked point; a "
              f"yaw-only path is not supported), found {len(waypoints)} equal ones")
         )
+    period = 1.0 / spec.controller.rate_hz
+    substeps = round(period / spec.simulation.step)
+    if substeps < 1 or not math.isclose(substeps * spec.simulation.step, period, rel_tol=1e-9):
+        problems.append(("simulation.step", f"expected a plant step that divides the control period 1/rate_hz = "
+                                            f"{period:g} s, found {spec.simulation.step:g} s"))
+    elif substeps > MAX_PLANT_SUBSTEPS:
+        problems.append(("simulation.step", f"expected at most {MAX_PLANT_SUBSTEPS} plant steps per control period, "
+                                            f"found {substeps} ({spec.simulation.step:g} s in {period:g} s)"))
+    lengths = np.linalg.norm(np.diff(waypoints, axis=0), axis=1)
+    steps = lengths.sum() / spec.path.mean_speed * spec.controller.rate_hz
+    if steps > MAX_CONTROL_STEPS:
+        problems.append(("path", f"expected a path of at most {MAX_CONTROL_STEPS} control steps, found "
+                                 f"{lengths.sum():g} m at {spec.path.mean_speed:g} m/s and "
+                                 f"{spec.controller.rate_hz:g} Hz = {steps:.3g} steps: raise mean_speed or lower "
+                                 "rate_hz"))
+    if np.linalg.norm(spec.gravity) > 1e3:
+        problems.append(("gravity", f"expected a gravity of at most 1000 m/s², found {np.linalg.norm(spec.gravity):g}"))
     for i, anchor in enumerate(spec.anchors):
         if len(set(anchor.follows_path)) != len(anchor.follows_path):
             problems.append((f"anchors[{i}].follows_path", f"expected each axis once, found {anchor.follows_path}"))
@@ -596,6 +637,8 @@ def _describe(e: dict, parts: list, data: Any) -> tuple[list, str]:
     if kind == "string_pattern_mismatch" and ctx.get("pattern") == NAME_PATTERN:
         return parts, ("expected a name of letters, digits and '_' that does not start with a digit, "
                        f"found {_found(value)}")
+    if kind == "string_too_long":
+        return parts, f"expected at most {ctx['max_length']} characters, found {len(value)}: {_found(value)}"
     if kind in ("too_short", "too_long"):
         limit = f"at least {ctx['min_length']}" if kind == "too_short" else f"at most {ctx['max_length']}"
         return parts, f"expected {limit} item(s), found {ctx.get('actual_length', len(value))}: {_found(value)}"

@@ -104,7 +104,10 @@ def markdown_table(cases: list[dict], with_spec: bool) -> str:
         s = c["summary"]
         outcome = c["outcome"] if c["diverged_at_s"] is None else f"diverged at {c['diverged_at_s']:.2f} s"
         yaw = f"{s['max_yaw_error_deg']:.4f}" if s["max_yaw_error_deg"] is not None else "–"
-        lines.append(first + f"{outcome} | {s['max_position_error_mm']:.4g} | {s['rms_position_error_mm']:.4g} | "
+        # None: the state blew up between two records, the error at divergence is unbounded
+        pos, rms = ((f"{s['max_position_error_mm']:.4g}", f"{s['rms_position_error_mm']:.4g}")
+                    if s["max_position_error_mm"] is not None else ("unbounded", "–"))
+        lines.append(first + f"{outcome} | {pos} | {rms} | "
                      f"{yaw} | {s['max_tilt_deg']:.3g} | {s['max_constraint_violation']:.1e} | "
                      f"{s['min_winch_tension_N']:.4g} |")
     return "\n".join(lines)

@@ -1,0 +1,86 @@
+"""`run` never reports a failure as success and never leaves a half-written or mixed results folder
+(bad-input safety, issue 10 item 5): zero control steps, iteration caps, reruns into a used --out,
+an unwritable --out, Ctrl-C, and a run that blows up between two records."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def run_cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "acroboter.run", *args, "--quiet"], capture_output=True, text=True,
+                          cwd=REPO, timeout=timeout)
+
+
+@pytest.mark.parametrize("duration", ["0.001", "0.009"])
+def test_zero_control_steps_is_an_input_error(tmp_path, duration):
+    proc = run_cli("--duration", duration, "--out", str(tmp_path / "out"))
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert "0 control steps" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "out" / "summary.json").exists()
+    assert list((tmp_path / "out").iterdir()) == []  # nothing left behind, not even the staging folder
+
+
+@pytest.mark.parametrize("args", [["--method", "iterative-100000000"], ["--iterations", "3,100000000"]])
+def test_iteration_counts_are_capped_before_any_work(tmp_path, args):
+    started = time.perf_counter()
+    proc = run_cli(*args, "--out", str(tmp_path / "out"))
+    assert proc.returncode == 2 and "1000" in proc.stderr and "Traceback" not in proc.stderr
+    assert time.perf_counter() - started < 30
+
+
+def test_an_unwritable_out_is_refused_before_any_work(tmp_path):
+    proc = run_cli("--out", "/proc/acroboter-results")
+    assert proc.returncode == 2 and "cannot write results into --out" in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_a_rerun_replaces_the_earlier_runs_files_and_nothing_else(tmp_path):
+    out = tmp_path / "out"
+    first = run_cli("--duration", "0.5", "--method", "mlm,penalty", "--out", str(out))
+    assert first.returncode == 0, first.stderr
+    (out / "my_notes.txt").write_text("mine")
+    second = run_cli("--duration", "0.5", "--method", "iterative-3", "--no-plots", "--out", str(out))
+    assert second.returncode == 0, second.stderr
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["iterative-3.csv", "my_notes.txt", "summary.json"]  # no CSV or figure of the first run
+    assert list(json.loads((out / "summary.json").read_text())["methods"]) == ["iterative-3"]
+
+
+def test_ctrl_c_leaves_the_earlier_results_as_they_were(tmp_path):
+    out = tmp_path / "out"
+    assert run_cli("--duration", "0.5", "--method", "mlm", "--no-plots", "--out", str(out)).returncode == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    # A long run: three 55 s runs of 900..1000 iterations a step (about 3 s each here)
+    proc = subprocess.Popen([sys.executable, "-m", "acroboter.run", "--method", "iterative", "--iterations",
+                             "900,950,1000", "--out", str(out), "--quiet"], cwd=REPO,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(3.0)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "interrupted" in err and "Traceback" not in err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_a_run_that_blows_up_between_records_reports_no_tiny_error(tmp_path):
+    """The four-input crane under MLM turns non-finite at 28.9 s: its error there is unbounded, not the
+    millimetres recorded before."""
+    out = tmp_path / "out"
+    proc = run_cli("--spec", str(REPO / "model_spec" / "acroboter_4input.toml"), "--method", "mlm", "--duration", "30",
+                   "--no-plots", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    s = json.loads((out / "summary.json").read_text())["methods"]["mlm"]
+    assert s["diverged_at_s"] == pytest.approx(28.9, abs=0.5)
+    assert s["max_position_error_mm"] is None and s["rms_position_error_mm"] is None
+    assert s["max_position_error_before_divergence_mm"] > 1.0
+    assert "unbounded" in proc.stdout
