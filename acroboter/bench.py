@@ -27,9 +27,12 @@ from pathlib import Path
 import numpy as np
 
 from .build import REPO
+from .entry import check_out_folder, guarded, whole
 from .report import PAPER_MATLAB_US
+from .spec import MAX_ITERATIONS
 
 GOALS_US = {"mlm": 20.0, "penalty": 15.0, "iterative-5": 20.0}
+MIN_INSTANTS = 101  # the allocation check steps from instant 100 of the scenario
 
 
 def time_steps(controller, states, repeats: int) -> np.ndarray:
@@ -70,26 +73,30 @@ def stats(seconds: np.ndarray) -> dict:
             "passes": int(us.shape[0]), "median_all_passes": float(np.median(us))}
 
 
+@guarded
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m acroboter.bench", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--spec", type=Path, default=REPO / "model_spec" / "acroboter.toml")
-    parser.add_argument("--methods", default="mlm,penalty,iterative-3,iterative-4,iterative-5")
-    parser.add_argument("--repeats", type=int, default=5, help="passes over the scenario's states")
-    parser.add_argument("--casadi-states", type=int, default=500,
+    parser.add_argument("--spec", type=Path, default=REPO / "model_spec" / "acroboter.toml",
+                        help="model spec (TOML) whose scenario is timed (default: %(default)s)")
+    parser.add_argument("--method", "--methods", dest="methods",
+                        default="mlm,penalty,iterative-3,iterative-4,iterative-5",
+                        help="comma-separated methods: mlm, penalty, iterative-N (default: %(default)s)")
+    parser.add_argument("--repeats", type=whole(1, 100), default=5, help="passes over the scenario's states (1..100)")
+    parser.add_argument("--casadi-states", type=whole(1, 100_000), default=500,
                         help="states timed on the casadi.Function path (b) (it is slow)")
     parser.add_argument("--limits-spec", type=Path, default=REPO / "model_spec" / "acroboter_4cable.toml",
                         help="crane on which the cost of input limits is timed (default: %(default)s)")
     parser.add_argument("--out", type=Path, default=Path("results"), help="folder for bench.json")
     args = parser.parse_args(argv)
-    if args.repeats < 1 or args.casadi_states < 1:
-        parser.error("--repeats and --casadi-states must be at least 1")
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     for m in methods:
-        if m not in ("mlm", "penalty") and not (m.startswith("iterative-") and m[10:].isdigit() and int(m[10:]) >= 1):
-            parser.error(f"unknown method '{m}': use mlm, penalty or iterative-N")
+        if m not in ("mlm", "penalty") and not (m.startswith("iterative-") and m[10:].isdigit()
+                                                and 1 <= int(m[10:]) <= MAX_ITERATIONS):
+            parser.error(f"unknown method '{m}': use mlm, penalty or iterative-N (1 <= N <= {MAX_ITERATIONS})")
     if not methods:
         parser.error("--methods names no method")
+    check_out_folder(parser, args.out)
 
     from .casadi_backend import CasadiModel
     from .compiled import CompiledModel, StaleModelError
@@ -108,9 +115,13 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     gains = Gains.from_spec(spec)
     path = desired_path(model)
+    rate, h = spec.controller.rate_hz, spec.simulation.step
+    if path.duration * rate < MIN_INSTANTS:
+        print(f"error: the scenario of {spec.name} has {path.duration * rate:.0f} control instants, the benchmark "
+              f"needs at least {MIN_INSTANTS}: lengthen the path (or lower path.mean_speed)", file=sys.stderr)
+        return 2
     start = solve_equilibrium(model, path)
     plant = setup_default(model, path)
-    rate, h = spec.controller.rate_hz, spec.simulation.step
     results = {}
     # Every model term (M, c, φ, φ_q, φ̇, γ, σ, σ_q, σ̇, γ_s, H) at one state: one pre-bound C call.
     terms = model.functions["model_terms"]

@@ -16,6 +16,7 @@ import tempfile
 from pathlib import Path
 
 from .build import REPO
+from .entry import guarded, number, positive
 from .spec import MAX_CONTROL_STEPS, MAX_ITERATIONS
 
 DEFAULT_SPEC = REPO / "model_spec" / "acroboter.toml"
@@ -35,32 +36,21 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="iteration counts for 'iterative', comma-separated (default: from the spec)")
     p.add_argument("--recovery", choices=["projected", "eq12", "eq13", "eq15", "kappa"], default=None,
                    help="input recovery of the penalty methods (default: from the spec)")
-    p.add_argument("--kappa", type=float, default=None, help="κ of the 'kappa' recovery (default: from the spec)")
-    p.add_argument("--alpha-geometric", type=float, default=None, help="α̃ (default: from the spec)")
-    p.add_argument("--alpha-servo", type=float, default=None, help="α̂ (default: from the spec)")
-    p.add_argument("--omega", type=float, default=None, help="Ω of the constraint penalty, 1/s (default: spec)")
-    p.add_argument("--mu", type=float, default=None, help="μ of the constraint penalty (default: spec)")
-    p.add_argument("--kp", type=float, default=None, help="servo gain k_P, 1/s (default: spec)")
-    p.add_argument("--kd", type=float, default=None, help="servo gain k_D, 1/s (default: spec)")
-    p.add_argument("--duration", type=float, default=None, help="simulated seconds (default: the whole path)")
+    p.add_argument("--kappa", type=number(0.0, 1.0), default=None,
+                   help="κ of the 'kappa' recovery, 0..1 (default: from the spec)")
+    p.add_argument("--alpha-geometric", type=positive(), default=None, help="α̃ (default: from the spec)")
+    p.add_argument("--alpha-servo", type=positive(), default=None, help="α̂ (default: from the spec)")
+    p.add_argument("--omega", type=positive(), default=None, help="Ω of the constraint penalty, 1/s (default: spec)")
+    p.add_argument("--mu", type=positive(), default=None, help="μ of the constraint penalty (default: spec)")
+    p.add_argument("--kp", type=positive(), default=None, help="servo gain k_P, 1/s (default: spec)")
+    p.add_argument("--kd", type=positive(), default=None, help="servo gain k_D, 1/s (default: spec)")
+    p.add_argument("--duration", type=positive(), default=None, help="simulated seconds (default: the whole path)")
     p.add_argument("--out", type=Path, default=Path("results"), help="output folder (default: %(default)s)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
-    for name in ("duration", "kappa", "alpha_geometric", "alpha_servo", "omega", "mu", "kp", "kd"):
-        value = getattr(args, name)
-        if value is not None and not math.isfinite(value):
-            p.error(f"--{name.replace('_', '-')} must be a finite number, found {value}")
-    if args.duration is not None and args.duration <= 0:
-        p.error("--duration must be positive")
     if args.out.exists() and not args.out.is_dir():
         p.error(f"--out {args.out} is a file, not a folder")
-    if args.kappa is not None and not 0.0 <= args.kappa <= 1.0:
-        p.error("--kappa must be in [0, 1]")
-    for name in ("alpha_geometric", "alpha_servo", "omega", "mu", "kp", "kd"):
-        value = getattr(args, name)
-        if value is not None and value <= 0:
-            p.error(f"--{name.replace('_', '-')} must be positive")
     if args.iterations is not None:
         try:
             args.iterations = [int(v) for v in args.iterations.split(",")]
@@ -119,6 +109,7 @@ def _publish(staging: Path, out: Path) -> None:
     staging.rmdir()
 
 
+@guarded
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:

@@ -19,6 +19,11 @@ from pathlib import Path
 import numpy as np
 
 from .build import REPO
+from .entry import check_out_folder, guarded, positive
+from .spec import MAX_CONTROL_STEPS
+
+# The study's cranes run at 50 Hz: the record cap in seconds.
+STUDY_MAX_DURATION_S = MAX_CONTROL_STEPS / 50.0
 
 SPECS = REPO / "model_spec"
 REDUNDANT_SPECS = ("acroboter", "acroboter_redundant", "acroboter_redundant_task")
@@ -164,15 +169,17 @@ def _write(out: Path, name: str, cases: list[dict], title: str, with_spec: bool)
     return table
 
 
+@guarded
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m acroboter.study", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("which", nargs="?", choices=["redundant", "noncollocated", "all"], default="all")
-    parser.add_argument("--duration", type=float, default=None, help="simulated seconds (default: the whole path)")
-    parser.add_argument("--out", type=Path, default=Path("results/study"))
+    parser.add_argument("which", nargs="?", choices=["redundant", "noncollocated", "all"], default="all",
+                        help="which study to run (default: %(default)s)")
+    parser.add_argument("--duration", type=positive(STUDY_MAX_DURATION_S), default=None,
+                        help=f"simulated seconds, at most {STUDY_MAX_DURATION_S:g} (default: the whole path)")
+    parser.add_argument("--out", type=Path, default=Path("results/study"), help="output folder (default: %(default)s)")
     args = parser.parse_args(argv)
-    if args.duration is not None and not (args.duration > 0 and args.duration < 1e5):
-        parser.error("--duration must be a positive number of seconds (below 1e5)")
+    check_out_folder(parser, args.out)
     from tqdm import tqdm
 
     from .compiled import StaleModelError

@@ -35,6 +35,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from .build import REPO
+from .entry import check_out_folder, guarded, number, positive, whole
+from .spec import MAX_ITERATIONS
 
 DEFAULT_SPEC = REPO / "model_spec" / "acroboter.toml"
 DEFAULT_ALPHAS = "1e1:1e16"
@@ -112,8 +114,9 @@ def parse_iterations(text: str) -> list[int]:
         values = [int(v) for v in text.split(",") if v.strip()]
     except ValueError:
         raise ValueError(f"--iterations takes comma-separated whole numbers, found '{text}'") from None
-    if not values or any(v < 1 for v in values):
-        raise ValueError(f"--iterations: every count must be at least 1 (1 = the plain penalty method), found '{text}'")
+    if not values or any(not 1 <= v <= MAX_ITERATIONS for v in values):
+        raise ValueError(f"--iterations: every count must be between 1 (the plain penalty method) and "
+                         f"{MAX_ITERATIONS}, found '{text}'")
     return list(dict.fromkeys(values))
 
 
@@ -807,26 +810,19 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--omegas", default=DEFAULT_OMEGAS, help="Ω values of the constraint penalty, 1/s")
     p.add_argument("--iterations", default=DEFAULT_ITERATIONS,
                    help="iteration counts N of the iterative penalty method (1 = the plain penalty method)")
-    p.add_argument("--duration", type=float, default=None, help="simulated seconds (default: the whole path)")
-    p.add_argument("--tolerance", type=float, default=2.0,
+    p.add_argument("--duration", type=positive(), default=None, help="simulated seconds (default: the whole path)")
+    p.add_argument("--tolerance", type=number(1.0, low_open=True), default=2.0,
                    help="a run is 'good' when its max position error is within this factor of MLM's")
     p.add_argument("--out", type=Path, default=Path("results/sweep"), help="output folder")
     p.add_argument("--scheduler", metavar="ADDRESS", default=None,
                    help="use the running Dask scheduler at ADDRESS (e.g. tcp://10.0.0.5:8786) instead of a local "
                         "cluster; its workers need this checkout with the model library built")
-    p.add_argument("--workers", type=int, default=2, help="worker processes of the local cluster")
-    p.add_argument("--connect-timeout", type=float, default=10.0, help="seconds to wait for --scheduler")
+    p.add_argument("--workers", type=whole(1, 64), default=2, help="worker processes of the local cluster")
+    p.add_argument("--connect-timeout", type=positive(3600.0), default=10.0, help="seconds to wait for --scheduler")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
-    if args.duration is not None and args.duration <= 0:
-        p.error("--duration must be positive")
-    if args.workers < 1:
-        p.error("--workers must be at least 1")
-    if args.tolerance <= 1:
-        p.error("--tolerance must be greater than 1")
-    if args.connect_timeout <= 0:
-        p.error("--connect-timeout must be positive")
+    check_out_folder(p, args.out)
     try:
         args.alphas = parse_values(args.alphas, "--alphas")
         args.omegas = parse_values(args.omegas, "--omegas")
@@ -836,6 +832,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
+@guarded
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     n_runs = len(make_grid(args.alphas, args.omegas, args.iterations, args.alpha_mode))

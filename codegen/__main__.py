@@ -11,6 +11,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from acroboter.entry import check_out_folder, guarded
 from acroboter.spec import Spec, SpecError, load_spec
 from codegen.generate import REPO, generate
 
@@ -127,6 +128,7 @@ def cmd_check(spec_paths: list[Path], committed: Path, whole_tree: bool) -> int:
     return 0
 
 
+@guarded
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m codegen", description=__doc__)
     parser.add_argument("command", choices=["generate", "check"])
@@ -135,6 +137,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-compile-check", action="store_true",
                         help="generate: skip compiling each spec's C before it replaces the previous files")
     args = parser.parse_args(argv)
+    if args.command == "generate":
+        check_out_folder(parser, args.out)
     try:
         if args.command == "generate":
             return cmd_generate(_specs(args.specs), args.out, check_compiles=not args.no_compile_check)

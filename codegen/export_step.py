@@ -74,6 +74,7 @@ from scipy.linalg import cholesky, solve_triangular
 
 from acroboter.controllers import MLM_RCOND_LIMIT, Gains
 from acroboter.distribution import PENALTY_SECONDARY_WEIGHT, RANK_TOLERANCE, SECONDARY_WEIGHT
+from acroboter.entry import check_out_folder, guarded
 from acroboter.layout import Layout, nominal_coordinates
 from acroboter.spec import RECOVERIES, Spec, SpecError, load_spec
 from codegen.generate import INPUT_NAMES, REPO
@@ -933,6 +934,7 @@ def export_step(spec_path: Path, method: str, out_dir: Path | None = None, mlm_s
     return write_step(export, out_dir)
 
 
+@guarded
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m codegen.export_step",
@@ -955,6 +957,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=None,
                         help="output folder (default: build/embedded/<spec>_<method>/)")
     args = parser.parse_args(argv)
+    if args.out is not None:
+        check_out_folder(parser, args.out)
     overrides = {name: getattr(args, name) for name in (*GAIN_OPTIONS, "recovery")}
     for name, value in overrides.items():
         if isinstance(value, float) and (not np.isfinite(value) or value < 0 or (name != "kappa" and value == 0)):

@@ -82,17 +82,19 @@ def test_help_lists_the_options():
 
 @pytest.mark.parametrize("args, words", [
     (["--method", "newton", "--duration", "0.1"], "unknown method"),
-    (["--duration", "-1"], "--duration must be positive"),
+    (["--duration", "-1"], "argument --duration: expected a number above 0, found -1"),
     (["--recovery", "magic"], "invalid choice"),
     (["--iterations", "two"], "whole numbers"),
     (["--spec", "no/such/spec.toml"], "no/such/spec.toml"),
-    (["--kp", "nan"], "--kp must be a finite number"),
-    (["--alpha-servo", "inf"], "--alpha-servo must be a finite number"),
+    (["--kp", "nan"], "argument --kp: expected a finite number, found nan"),
+    (["--alpha-servo", "inf"], "argument --alpha-servo: expected a finite number, found inf"),
+    (["--kappa", "2"], "argument --kappa: expected a number at most 1, found 2"),
+    (["--duration", "0.001"], "--duration 0.001 s is 0 control steps"),
     (["--out", "README.md"], "is a file, not a folder"),
 ])
 def test_bad_input_is_a_clear_error(args, words, tmp_path):
     proc = run_cli("--out", str(tmp_path), *args, "--quiet")
-    assert proc.returncode != 0
+    assert proc.returncode == 2
     assert words in proc.stderr
     assert "Traceback" not in proc.stderr
 
@@ -109,8 +111,8 @@ def test_bad_spec_is_a_clear_error(tmp_path):
 
 @pytest.mark.parametrize("module, args, words", [
     ("acroboter.bench", ["--methods", "foo"], "unknown method 'foo'"),
-    ("acroboter.bench", ["--repeats", "0"], "at least 1"),
-    ("acroboter.study", ["--duration", "-1"], "positive number of seconds"),
+    ("acroboter.bench", ["--repeats", "0"], "expected a whole number between 1 and 100, found 0"),
+    ("acroboter.study", ["--duration", "-1"], "expected a number above 0, found -1"),
     ("acroboter.sweep", ["--alphas", "abc"], "alphas"),
 ])
 def test_other_clis_reject_bad_options_cleanly(module, args, words, tmp_path):

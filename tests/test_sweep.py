@@ -116,7 +116,8 @@ def test_help_and_bad_options():
     for option in ("--spec", "--alphas", "--alpha-mode", "--omegas", "--iterations", "--duration", "--out",
                    "--scheduler", "--workers", "--no-plots"):
         assert option in proc.stdout
-    for args, words in ((["--alphas", "1e3:abc"], "--alphas"), (["--iterations", "0"], "at least 1"),
+    for args, words in ((["--alphas", "1e3:abc"], "--alphas"),
+                        (["--iterations", "0"], "between 1 (the plain penalty method) and 1000"),
                         (["--workers", "0"], "--workers"), (["--duration", "-1"], "--duration")):
         proc = run_cli(*args, timeout=30)
         assert proc.returncode == 2 and words in proc.stderr and "Traceback" not in proc.stderr

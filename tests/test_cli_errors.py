@@ -1,0 +1,61 @@
+"""Every command line behind the one error boundary (acroboter.entry): bad options and an unwritable
+--out exit 2 with one message and no traceback, before any work."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+UNWRITABLE = "/proc/acroboter-out"
+
+CASES = [
+    ("acroboter.run", ["--kp", "nan"], "expected a finite number"),
+    ("acroboter.run", ["--mu", "-1"], "expected a number above 0"),
+    ("acroboter.run", ["--iterations", "0"], "between 1 and 1000"),
+    ("acroboter.bench", ["--repeats", "0"], "expected a whole number between 1 and 100"),
+    ("acroboter.bench", ["--casadi-states", "nan"], "expected a whole number"),
+    ("acroboter.bench", ["--method", "iterative-100000000"], "1 <= N <= 1000"),
+    ("acroboter.bench", ["--out", UNWRITABLE], "cannot write into --out"),
+    ("acroboter.study", ["--duration", "9000"], "expected a number at most 7200"),
+    ("acroboter.study", ["--duration", "nan"], "expected a finite number"),
+    ("acroboter.study", ["--out", UNWRITABLE], "cannot write into --out"),
+    ("acroboter.sweep", ["--tolerance", "nan"], "expected a finite number"),
+    ("acroboter.sweep", ["--duration", "nan"], "expected a finite number"),
+    ("acroboter.sweep", ["--connect-timeout", "nan"], "expected a finite number"),
+    ("acroboter.sweep", ["--workers", "0"], "expected a whole number between 1 and 64"),
+    ("acroboter.sweep", ["--iterations", "100000000"], "between 1 (the plain penalty method) and 1000"),
+    ("acroboter.sweep", ["--out", UNWRITABLE], "cannot write into --out"),
+    ("codegen", ["generate", "--out", UNWRITABLE], "cannot write into --out"),
+    ("codegen.export_step", ["--out", UNWRITABLE], "cannot write into --out"),
+    ("codegen.export_step", ["--kp", "nan"], "finite positive number"),
+]
+
+
+@pytest.mark.parametrize("module, args, words", CASES, ids=[f"{m} {' '.join(a)}" for m, a, _ in CASES])
+def test_bad_options_exit_2_before_any_work(module, args, words):
+    started = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", module, *args], capture_output=True, text=True, cwd=REPO,
+                          timeout=120)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert words in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert time.perf_counter() - started < 30  # refused before any computation
+
+
+def test_an_unexpected_error_is_one_line_and_exit_3(monkeypatch, capsys):
+    """A bug no error class names still meets the boundary: a message, exit 3, no traceback."""
+    from acroboter.entry import guarded
+
+    @guarded
+    def broken(argv=None) -> int:
+        raise ZeroDivisionError("a bug")
+
+    monkeypatch.delenv("ACROBOTER_TRACEBACK", raising=False)
+    assert broken() == 3
+    err = capsys.readouterr().err
+    assert "internal error (ZeroDivisionError: a bug)" in err and "Traceback" not in err
