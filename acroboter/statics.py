@@ -9,6 +9,7 @@ solve moves the connector and the cable lengths until the held unit is in balanc
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,6 +22,14 @@ from .spec import PositionTask, YawTask
 
 
 class EquilibriumError(RuntimeError):
+    pass
+
+
+# The solve gives up after this long (a spec whose start has no equilibrium must say so quickly).
+EQUILIBRIUM_TIME_LIMIT_S = 5.0
+
+
+class _OutOfTime(Exception):
     pass
 
 
@@ -56,7 +65,11 @@ def solve_equilibrium(model: CompiledModel, path: DesiredPath, tol: float = 1e-1
     terms = model.functions["model_terms"]
     out = terms.outputs
 
+    deadline = time.perf_counter() + EQUILIBRIUM_TIME_LIMIT_S
+
     def residual(z: np.ndarray) -> np.ndarray:
+        if time.perf_counter() > deadline:
+            raise _OutOfTime
         q, lam, u = z[:n], z[n : n + m], z[n + m :]
         model.set_inputs(q, zero, s0, sd0, sdd0)
         terms.call()
@@ -71,8 +84,14 @@ def solve_equilibrium(model: CompiledModel, path: DesiredPath, tol: float = 1e-1
     guess = np.linalg.lstsq(reactions, -out["bias_forces"], rcond=None)[0]
     z0 = np.concatenate([q0, guess])
     if np.abs(residual(z0)).max() > tol:
-        sol = least_squares(residual, z0, method="lm" if n + m + lay.k >= n + m + l else "trf",
-                            xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=2000 * z0.size)
+        try:
+            sol = least_squares(residual, z0, method="lm" if n + m + lay.k >= n + m + l else "trf",
+                                xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200 * z0.size)
+        except _OutOfTime:
+            raise EquilibriumError(
+                f"no static equilibrium found at the start of the path for spec '{model.spec.name}' within "
+                f"{EQUILIBRIUM_TIME_LIMIT_S:g} s: check the initial positions, cable lengths and the task"
+            ) from None
         z0 = sol.x
     r = np.abs(residual(z0)).max()
     if not np.isfinite(r) or r > 1e-8:

@@ -84,3 +84,19 @@ def test_a_run_that_blows_up_between_records_reports_no_tiny_error(tmp_path):
     assert s["max_position_error_mm"] is None and s["rms_position_error_mm"] is None
     assert s["max_position_error_before_divergence_mm"] > 1.0
     assert "unbounded" in proc.stdout
+
+
+def test_an_equilibrium_solve_gives_up_within_its_time_limit(monkeypatch):
+    """The lab crane's start needs the solve; with no time allowed it says so at once, as it would after
+    EQUILIBRIUM_TIME_LIMIT_S (5 s) on a spec that has no equilibrium."""
+    from acroboter import statics
+    from acroboter.compiled import CompiledModel
+    from acroboter.spec import load_spec
+
+    model = CompiledModel(load_spec(REPO / "model_spec" / "lab_crane.toml"))
+    path = statics.desired_path(model)
+    monkeypatch.setattr(statics, "EQUILIBRIUM_TIME_LIMIT_S", 0.0)
+    started = time.perf_counter()
+    with pytest.raises(statics.EquilibriumError, match="within 0 s"):
+        statics.solve_equilibrium(model, path)
+    assert time.perf_counter() - started < 1.0
