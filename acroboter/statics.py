@@ -65,10 +65,10 @@ def solve_equilibrium(model: CompiledModel, path: DesiredPath, tol: float = 1e-1
     terms = model.functions["model_terms"]
     out = terms.outputs
 
-    deadline = time.perf_counter() + EQUILIBRIUM_TIME_LIMIT_S
+    deadline = [math.inf]  # set when the iterative solve starts
 
     def residual(z: np.ndarray) -> np.ndarray:
-        if time.perf_counter() > deadline:
+        if time.perf_counter() > deadline[0]:
             raise _OutOfTime
         q, lam, u = z[:n], z[n : n + m], z[n + m :]
         model.set_inputs(q, zero, s0, sd0, sdd0)
@@ -84,6 +84,7 @@ def solve_equilibrium(model: CompiledModel, path: DesiredPath, tol: float = 1e-1
     guess = np.linalg.lstsq(reactions, -out["bias_forces"], rcond=None)[0]
     z0 = np.concatenate([q0, guess])
     if np.abs(residual(z0)).max() > tol:
+        deadline[0] = time.perf_counter() + EQUILIBRIUM_TIME_LIMIT_S
         try:
             sol = least_squares(residual, z0, method="lm" if n + m + lay.k >= n + m + l else "trf",
                                 xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200 * z0.size)
@@ -93,6 +94,7 @@ def solve_equilibrium(model: CompiledModel, path: DesiredPath, tol: float = 1e-1
                 f"{EQUILIBRIUM_TIME_LIMIT_S:g} s: check the initial positions, cable lengths and the task"
             ) from None
         z0 = sol.x
+        deadline[0] = math.inf
     r = np.abs(residual(z0)).max()
     if not np.isfinite(r) or r > 1e-8:
         raise EquilibriumError(
