@@ -28,6 +28,12 @@ class StaleModelError(RuntimeError):
     """Generated code or library does not match the spec or the code generator."""
 
 
+# Outputs that are matrices whatever their shape (the others with one column are vectors).
+MATRIX_OUTPUTS = frozenset({
+    "mass_matrix", "phi_q", "sigma_q", "input_matrix", "schur", "minv_w", "penalty_matrix", "recovery_gain",
+    "hessian", "servo_map",
+})
+
 _REGENERATE = ("regenerate it with `python -m codegen generate SPEC_FILE` (`make generate` for the specs in "
                "model_spec/)")
 
@@ -53,9 +59,11 @@ class BoundFunction:
         # casadi may need more argument slots than inputs (scratch); keep ours, pad with NULL.
         ptrs_in = [a.ctypes.data for a in inputs]
         self._args = (ctypes.c_void_p * n_arg)(*ptrs_in, *([None] * (n_arg - len(ptrs_in))))
-        # Column vectors come back 1-D; matrices column-major (CasADi's dense layout).
+        # Column vectors come back 1-D; matrices column-major (CasADi's dense layout), also when they
+        # have one column (one input: H is n x 1).
         self.outputs = {
-            name: np.zeros(rows if cols == 1 else (rows, cols), order="F") for name, (rows, cols) in outputs
+            name: np.zeros(rows if cols == 1 and name not in MATRIX_OUTPUTS else (rows, cols), order="F")
+            for name, (rows, cols) in outputs
         }
         ptrs = [o.ctypes.data for o in self.outputs.values()]
         self._res = (ctypes.c_void_p * n_res)(*ptrs, *([None] * (n_res - len(ptrs))))
