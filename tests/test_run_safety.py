@@ -128,3 +128,30 @@ def test_a_one_input_crane_runs(tmp_path):
         s = summarize(result, Scenario.from_model(model), model.layout)
         assert result.t[-1] == pytest.approx(path.duration)
         assert s["max_position_error_mm"] < 5.0 and s["min_winch_tension_N"] > 0
+
+
+def test_a_long_run_needs_memory_for_its_records_only():
+    """600 s at 50 Hz: the stage signals are evaluated in chunks, so the peak stays near the records
+    (~24 MB here); a table of every RK4 stage of the run would add 100 MB."""
+    import tracemalloc
+
+    from acroboter.compiled import CompiledModel
+    from acroboter.controllers import Gains, make_controller
+    from acroboter.simulation import setup_default, simulate
+    from acroboter.spec import load_spec
+    from acroboter.statics import desired_path, solve_equilibrium
+
+    spec = load_spec(REPO / "model_spec" / "acroboter.toml")
+    model = CompiledModel(spec)
+    path = desired_path(model)
+    start = solve_equilibrium(model, path)
+    controller = make_controller("penalty", model, path, Gains.from_spec(spec))
+    plant = setup_default(model, path)
+    tracemalloc.start()
+    result = simulate(model, path, controller, plant, start.q, 600.0, spec.controller.rate_hz, spec.simulation.step)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    records = sum(a.nbytes for a in (result.q, result.qd, result.u, result.sigma, result.phi, result.desired,
+                                     result.cable_tension, result.cable_active, result.limit_state))
+    assert result.t[-1] == pytest.approx(600.0)
+    assert peak < 1.5 * records + 20e6, (peak, records)
