@@ -152,7 +152,9 @@ class CompiledModel:
             fn.restype = ctypes.c_char_p
             if fn().decode() != self.manifest[what]:
                 raise StaleModelError(
-                    f"library {lib_path} was built from other generated code: run `make build`"
+                    f"library {lib_path} does not hold the code of {source_dir} (its embedded {what} differs, "
+                    f"although its name carries the sources' hash: replaced or damaged): run `make build` "
+                    f"(`python -m acroboter.build {spec.name}`), or delete it and the next run builds it again"
                 )
 
         # One buffer per input name, shared by every function that reads that input.
@@ -187,12 +189,14 @@ class CompiledModel:
         if self.manifest["spec_model_hash"] != self.spec.model_hash():
             raise StaleModelError(
                 f"generated code in {generated_dir / self.spec.name} was made from a different version of "
-                f"spec '{self.spec.name}': run `make generate` (then `make build`)"
+                f"spec '{self.spec.name}': run `make generate` (then `make build`), or for a spec outside "
+                "model_spec/ `python -m codegen generate SPEC_FILE --out DIR` and point generated_dir there"
             )
         if self.manifest["codegen_hash"] != codegen_hash():
             raise StaleModelError(
                 f"generated code in {generated_dir / self.spec.name} was made by a different version of the "
-                "code generator: run `make generate`"
+                "code generator: run `make generate` (for a spec outside model_spec/: "
+                "`python -m codegen generate SPEC_FILE --out DIR`)"
             )
 
     def _check_contents(self, source_dir: Path) -> None:

@@ -131,6 +131,9 @@ def simulate(
     if not (math.isfinite(duration) and duration > 0):
         raise SimulationError(f"the duration must be a positive number of seconds, found {duration}")
     steps = int(round(duration * rate_hz))
+    if steps < 1:
+        raise SimulationError(f"{duration:g} s at {rate_hz:g} Hz is no control step: simulate at least one "
+                              f"control period ({1 / rate_hz:g} s)")
     if steps > MAX_CONTROL_STEPS:
         raise SimulationError(
             f"{duration:g} s at {rate_hz:g} Hz is {steps} control steps, more than {MAX_CONTROL_STEPS} (the records "

@@ -63,7 +63,7 @@ def mutated_specs(draw):
         elif kind == "rename" and isinstance(value, str):
             parent[key] = draw(st.sampled_from([value + "_x", "", "9lives", "a" * 80, "CC", "SU.b1", "climbing_unit"]))
         else:
-            parent[key] = draw(st.sampled_from(SWAPS))
+            parent[key] = copy.deepcopy(draw(st.sampled_from(SWAPS)))  # never share (or nest) a mutable
     return data
 
 
