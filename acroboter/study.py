@@ -23,7 +23,8 @@ from .entry import check_out_folder, guarded, positive
 from .spec import MAX_CONTROL_STEPS
 
 # The study's cranes run at 50 Hz: the record cap in seconds.
-STUDY_MAX_DURATION_S = MAX_CONTROL_STEPS / 50.0
+STUDY_RATE_HZ = 50.0
+STUDY_MAX_DURATION_S = MAX_CONTROL_STEPS / STUDY_RATE_HZ
 
 SPECS = REPO / "model_spec"
 REDUNDANT_SPECS = ("acroboter", "acroboter_redundant", "acroboter_redundant_task")
@@ -179,6 +180,9 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"simulated seconds, at most {STUDY_MAX_DURATION_S:g} (default: the whole path)")
     parser.add_argument("--out", type=Path, default=Path("results/study"), help="output folder (default: %(default)s)")
     args = parser.parse_args(argv)
+    if args.duration is not None and round(args.duration * STUDY_RATE_HZ) < 1:
+        parser.error(f"--duration {args.duration:g} s is no control step at {STUDY_RATE_HZ:g} Hz: give at least "
+                     f"{1 / STUDY_RATE_HZ:g} s")
     check_out_folder(parser, args.out)
     from tqdm import tqdm
 

@@ -36,7 +36,7 @@ from pathlib import Path
 
 from .build import REPO
 from .entry import check_out_folder, guarded, number, positive, whole
-from .spec import MAX_ITERATIONS
+from .spec import MAX_CONTROL_STEPS, MAX_ITERATIONS
 
 DEFAULT_SPEC = REPO / "model_spec" / "acroboter.toml"
 DEFAULT_ALPHAS = "1e1:1e16"
@@ -412,6 +412,10 @@ def sweep(spec_path: Path = DEFAULT_SPEC, *, alphas: list[float] | None = None, 
         CompiledModel(spec)  # builds the library here if missing: the tasks only load it
     except (SpecError, StaleModelError) as err:
         raise SweepError(str(err)) from None
+    rate = spec.controller.rate_hz
+    if duration is not None and not 1 <= round(duration * rate) <= MAX_CONTROL_STEPS:
+        raise SweepError(f"--duration {duration:g} s is {round(duration * rate)} control steps at {rate:g} Hz: give "
+                         f"between one ({1 / rate:g} s) and {MAX_CONTROL_STEPS}")
     pen = spec.controller.penalty
     cases = make_grid(alphas, omegas, iterations, alpha_mode, pen.alpha_geometric, pen.alpha_servo)
     t0 = time.perf_counter()

@@ -24,6 +24,8 @@ CASES = [
     ("acroboter.study", ["--duration", "9000"], "expected a number at most 7200"),
     ("acroboter.study", ["--duration", "nan"], "expected a finite number"),
     ("acroboter.study", ["--out", UNWRITABLE], "cannot write into --out"),
+    ("acroboter.study", ["--duration", "0.001"], "is no control step"),
+    ("acroboter.sweep", ["--duration", "0.001", "--out", "/tmp/acroboter-sweep-zero"], "is 0 control steps"),
     ("acroboter.sweep", ["--tolerance", "nan"], "expected a finite number"),
     ("acroboter.sweep", ["--duration", "nan"], "expected a finite number"),
     ("acroboter.sweep", ["--connect-timeout", "nan"], "expected a finite number"),
