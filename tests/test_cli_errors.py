@@ -61,3 +61,30 @@ def test_an_unexpected_error_is_one_line_and_exit_3(monkeypatch, capsys):
     assert broken() == 3
     err = capsys.readouterr().err
     assert "internal error (ZeroDivisionError: a bug)" in err and "Traceback" not in err
+
+
+def test_the_boundary_maps_the_project_errors_to_their_codes(capsys):
+    from acroboter.controllers import SingularSystemError
+    from acroboter.entry import guarded
+    from acroboter.statics import EquilibriumError
+
+    for error, code in ((EquilibriumError("no static equilibrium found"), 2),
+                        (SingularSystemError("MLM's system is singular"), 3), (KeyboardInterrupt(), 130)):
+        @guarded
+        def failing(argv=None, error=error) -> int:
+            raise error
+
+        assert failing() == code
+        assert "Traceback" not in capsys.readouterr().err
+
+
+def test_bench_refuses_a_scenario_too_short_to_time(tmp_path):
+    """The path's numbers are read at run time: the default crane's spec with a fast path needs no
+    regeneration, and bench says why it cannot time 0.3 s of it."""
+    text = (REPO / "model_spec" / "acroboter.toml").read_text()
+    assert "mean_speed = 0.04" in text
+    spec = tmp_path / "acroboter.toml"
+    spec.write_text(text.replace("mean_speed = 0.04", "mean_speed = 8.0"))
+    proc = subprocess.run([sys.executable, "-m", "acroboter.bench", "--spec", str(spec), "--out", str(tmp_path)],
+                          capture_output=True, text=True, cwd=REPO, timeout=120)
+    assert proc.returncode == 2 and "needs at least 101" in proc.stderr and "Traceback" not in proc.stderr

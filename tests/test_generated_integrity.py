@@ -182,3 +182,34 @@ def test_the_manifest_lists_every_generated_file():
         assert set(manifest["files"]) == on_disk, folder.name
         for name, digest in manifest["files"].items():
             assert generation.file_digest(folder / name) == digest, f"{folder.name}/{name}"
+
+
+def _git_status(path: Path) -> str:
+    return subprocess.run(["git", "status", "--porcelain", "--", str(path)], cwd=REPO, capture_output=True,
+                          text=True, check=True).stdout
+
+
+def test_git_status_stays_clean_after_a_failed_generation_of_a_checked_in_spec(monkeypatch):
+    status, before = _git_status(REPO / "generated"), snapshot(REPO / "generated" / "acroboter")
+
+    def fail(self, out_dir):
+        (out_dir / "partial.c").write_text("/* half */")
+        raise RuntimeError("injected failure")
+
+    monkeypatch.setattr(GenerationContext, "write", fail)
+    with pytest.raises(RuntimeError, match="injected failure"):
+        generate(load_spec(SPEC_DIR / "acroboter.toml"), REPO / "generated")
+    assert _git_status(REPO / "generated") == status  # clean on a fresh clone
+    assert snapshot(REPO / "generated" / "acroboter") == before
+
+
+def test_git_status_stays_clean_after_an_interrupted_generation_of_a_checked_in_spec():
+    status, before = _git_status(REPO / "generated"), snapshot(REPO / "generated" / "acroboter")
+    proc = subprocess.Popen([sys.executable, "-m", "codegen", "generate", str(SPEC_DIR / "acroboter.toml")],
+                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(2.0)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode in (0, 130), err  # interrupted, or (on a very fast machine) already done
+    assert _git_status(REPO / "generated") == status  # clean on a fresh clone
+    assert snapshot(REPO / "generated" / "acroboter") == before
