@@ -281,7 +281,7 @@ TASK_KINDS = _kinds(PositionTask, YawTask, LevelTask)
 
 
 class PathSpec(_Strict):
-    waypoints: Annotated[list[Vec3], Field(min_length=2)]
+    waypoints: Annotated[list[Position], Field(min_length=2)]
     mean_speed: Positive
     yaw_deg: float = 0.0
 
@@ -313,7 +313,7 @@ class Simulation(_Strict):
 class Spec(_Strict):
     name: Name
     description: str = ""
-    gravity: Vec3
+    gravity: Annotated[list[Annotated[float, Field(ge=-1e3, le=1e3)]], _exactly(3, "3 numbers [x, y, z]")]
     anchors: list[Anchor] = []
     bodies: Annotated[list[Body], Field(min_length=1)]
     cables: list[Cable] = []

@@ -125,3 +125,13 @@ def rigid_plant_rhs(model, path, u, zeta: float, omega: float):
         return np.concatenate([qd, np.linalg.solve(kkt, b)[:n]])
 
     return rhs
+
+
+def load_with_start(path: Path):
+    """(spec, compiled model, desired path, static equilibrium at the start) of a spec file."""
+    from acroboter.statics import desired_path, solve_equilibrium
+
+    spec = load_spec(path)
+    model = CompiledModel(spec)
+    desired = desired_path(model)
+    return spec, model, desired, solve_equilibrium(model, desired)

@@ -9,14 +9,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import rigid_plant_rhs
+from conftest import load_with_start, rigid_plant_rhs
 from scipy.integrate import solve_ivp
 
-from acroboter.compiled import CompiledModel
 from acroboter.controllers import Gains, make_controller
 from acroboter.simulation import Scenario, setup_default, simulate, summarize
-from acroboter.spec import load_spec
-from acroboter.statics import desired_path, solve_equilibrium
 
 REPO = Path(__file__).resolve().parent.parent
 METHODS = ("mlm", "penalty", "iterative-3", "iterative-4", "iterative-5")
@@ -24,11 +21,7 @@ METHODS = ("mlm", "penalty", "iterative-3", "iterative-4", "iterative-5")
 
 @pytest.fixture(scope="module")
 def crane():
-    spec = load_spec(REPO / "model_spec" / "acroboter.toml")
-    model = CompiledModel(spec)
-    path = desired_path(model)
-    start = solve_equilibrium(model, path)
-    return spec, model, path, start
+    return load_with_start(REPO / "model_spec" / "acroboter.toml")
 
 
 @pytest.fixture(scope="module")

@@ -14,12 +14,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import load_with_start
 
 from acroboter import run
 from acroboter.compiled import CompiledModel
 from acroboter.controllers import Gains, make_controller, unbounded
 from acroboter.simulation import Scenario, setup_default, simulate, summarize
-from acroboter.spec import load_spec
 from acroboter.statics import desired_path, solve_equilibrium
 
 REPO = Path(__file__).resolve().parent.parent
@@ -27,16 +27,9 @@ FOUR_CABLE = REPO / "model_spec" / "acroboter_4cable.toml"
 METHODS = ("mlm", "penalty", "iterative-3", "iterative-5")
 
 
-def load(path: Path):
-    spec = load_spec(path)
-    model = CompiledModel(spec)
-    path_ = desired_path(model)
-    return spec, model, path_, solve_equilibrium(model, path_)
-
-
 @pytest.fixture(scope="module")
 def four_cable():
-    return load(FOUR_CABLE)
+    return load_with_start(FOUR_CABLE)
 
 
 @pytest.fixture(scope="module")
@@ -107,7 +100,7 @@ def test_redundant_mlm_realises_the_servo_constraints_exactly(four_cable, four_c
 
 def test_limits_that_are_never_reached_change_nothing():
     """Default crane: the controllers with the spec's limits give the unbounded inputs bit for bit."""
-    spec, model, path, start = load(REPO / "model_spec" / "acroboter.toml")
+    spec, model, path, start = load_with_start(REPO / "model_spec" / "acroboter.toml")
     gains = Gains.from_spec(spec)
     plant = setup_default(model, path)
     reference = simulate(model, path, make_controller("mlm", model, path, gains), plant, start.q, 10.0,

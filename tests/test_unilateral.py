@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import rigid_plant_rhs
+from conftest import load_with_start, rigid_plant_rhs
 from scipy.integrate import quad, solve_ivp
 from scipy.optimize import brentq
 
@@ -38,11 +38,7 @@ G = 9.81
 
 @pytest.fixture(scope="module")
 def crane():
-    spec = load_spec(REPO / "model_spec" / "acroboter.toml")
-    model = CompiledModel(spec)
-    path = desired_path(model)
-    start = solve_equilibrium(model, path)
-    return spec, model, path, start
+    return load_with_start(REPO / "model_spec" / "acroboter.toml")
 
 
 class OpenLoop:
