@@ -109,6 +109,7 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         spec = load_spec(args.spec)
+        load_spec(args.limits_spec)  # validated before any work too
         model = CompiledModel(spec)
     except (SpecError, StaleModelError) as err:
         print(f"error: {err}", file=sys.stderr)

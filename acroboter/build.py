@@ -42,7 +42,13 @@ def sources_hash(source_dir: Path) -> str:
 
 
 def is_current(spec_name: str, generated_dir: Path = GENERATED_DIR, build_dir: Path = BUILD_DIR) -> bool:
-    return library_path(spec_name, build_dir, generated_dir).is_file()
+    """The library of the current sources exists and is the file the build wrote (its SHA-256 sidecar):
+    a truncated or replaced library is rebuilt instead of loaded (loading one can crash the process)."""
+    lib = library_path(spec_name, build_dir, generated_dir)
+    digest = lib.with_name(lib.name + ".sha256")
+    if not (lib.is_file() and digest.is_file()):
+        return False
+    return hashlib.sha256(lib.read_bytes()).hexdigest() == digest.read_text().strip()
 
 
 def build(spec_name: str, generated_dir: Path = GENERATED_DIR, build_dir: Path = BUILD_DIR) -> Path:
@@ -76,9 +82,12 @@ def build(spec_name: str, generated_dir: Path = GENERATED_DIR, build_dir: Path =
     )
     if result.returncode != 0:
         raise BuildError(f"linking {lib.name} failed:\n{result.stderr}")
+    digest, digest_tmp = lib.with_name(lib.name + ".sha256"), lib.with_name(f"{lib.name}.sha256.{os.getpid()}.tmp")
+    digest_tmp.write_text(hashlib.sha256(tmp.read_bytes()).hexdigest() + "\n")
     tmp.replace(lib)  # atomic: a concurrent loader never sees a half-written library
-    for old in out_dir.glob(f"lib{spec_name}-*.so"):
-        if old != lib:
+    digest_tmp.replace(digest)
+    for old in out_dir.glob(f"lib{spec_name}-*.so*"):
+        if old not in (lib, digest) and not old.name.endswith(".tmp"):
             old.unlink(missing_ok=True)
     return lib
 
@@ -94,7 +103,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m acroboter.build", description=__doc__)
     parser.add_argument("specs", nargs="*", help="spec names (default: every folder in generated/)")
     args = parser.parse_args(argv)
-    names = args.specs or sorted(p.name for p in GENERATED_DIR.iterdir() if p.is_dir())
+    # dot-folders are the code generator's staging and retired folders, never a spec's
+    names = args.specs or sorted(p.name for p in GENERATED_DIR.iterdir() if p.is_dir() and not p.name.startswith("."))
     try:
         for name in names:
             lib = build(name)

@@ -124,6 +124,28 @@ def _check_shapes(lib: ctypes.CDLL, symbol: str, input_sizes: list[int], outputs
                                   f"the library but a dense {rows}x{cols} in the manifest: regenerate")
 
 
+def _check_structure(manifest, path: Path) -> None:
+    """The keys and types the bindings read, so an edited manifest is a message, not a KeyError."""
+    def fail(what: str):
+        raise StaleModelError(f"{path} is not what the code generator writes ({what}): regenerate it with "
+                              "`make generate`")
+
+    if not isinstance(manifest, dict):
+        fail("not a JSON object")
+    for key, kind in (("spec_model_hash", str), ("codegen_hash", str), ("functions", dict), ("files", dict)):
+        if not isinstance(manifest.get(key), kind):
+            fail(f"'{key}' missing or not a {kind.__name__}")
+    for name, info in manifest["functions"].items():
+        ok = (isinstance(info, dict) and isinstance(info.get("symbol"), str)
+              and all(isinstance(e, list) and len(e) == 2 and isinstance(e[0], str) and isinstance(e[1], int)
+                      for e in info.get("inputs", [None]))
+              and all(isinstance(e, list) and len(e) == 2 and isinstance(e[0], str)
+                      and isinstance(e[1], list) and len(e[1]) == 2 and all(isinstance(d, int) for d in e[1])
+                      for e in info.get("outputs", [None])))
+        if not ok:
+            fail(f"function '{name}' malformed")
+
+
 class CompiledModel:
     """All generated functions of one spec, bound to shared input buffers q, qd, s, sd, sdd."""
 
@@ -140,22 +162,39 @@ class CompiledModel:
             self.manifest = json.loads(manifest_path.read_text())
         except (OSError, ValueError) as err:
             raise StaleModelError(f"{manifest_path} cannot be read ({err}): {_REGENERATE}") from None
+        _check_structure(self.manifest, manifest_path)
         self._check_fresh(generated_dir)
         self._check_contents(source_dir)
         try:
             lib_path = ensure_built(spec.name, generated_dir, build_dir)
         except BuildError as err:
             raise StaleModelError(str(err)) from None
-        self.lib = ctypes.CDLL(str(lib_path))
-        for what in ("spec_model_hash", "codegen_hash"):
-            fn = getattr(self.lib, f"{spec.name}_{what}")
+        try:
+            self.lib = ctypes.CDLL(str(lib_path))
+        except OSError as err:
+            raise StaleModelError(f"library {lib_path} cannot be loaded ({err}): run `make build` "
+                                  f"(`python -m acroboter.build {spec.name}`)") from None
+        from codegen.generate import manifest_hash  # the same description the library embeds
+
+        expected = {**{k: self.manifest[k] for k in ("spec_model_hash", "codegen_hash")},
+                    "manifest_hash": manifest_hash(self.manifest)}
+        for what, value in expected.items():
+            try:
+                fn = getattr(self.lib, f"{spec.name}_{what}")
+            except AttributeError:
+                raise StaleModelError(f"library {lib_path} has no {spec.name}_{what}: it was not built from "
+                                      f"{source_dir}; run `make build` (`python -m acroboter.build {spec.name}`)"
+                                      ) from None
             fn.restype = ctypes.c_char_p
-            if fn().decode() != self.manifest[what]:
-                raise StaleModelError(
-                    f"library {lib_path} does not hold the code of {source_dir} (its embedded {what} differs, "
-                    f"although its name carries the sources' hash: replaced or damaged): run `make build` "
-                    f"(`python -m acroboter.build {spec.name}`), or delete it and the next run builds it again"
-                )
+            if fn().decode() != value:
+                what_differs = (f"{manifest_path} does not describe this library (its functions, symbols or "
+                                "shapes were edited): regenerate it with `make generate`"
+                                if what == "manifest_hash" else
+                                f"library {lib_path} does not hold the code of {source_dir} (its embedded {what} "
+                                "differs, although its name carries the sources' hash: replaced or damaged): run "
+                                f"`make build` (`python -m acroboter.build {spec.name}`), or delete it and the next "
+                                "run builds it again")
+                raise StaleModelError(what_differs)
 
         # One buffer per input name, shared by every function that reads that input.
         self.buffers: dict[str, np.ndarray] = {}
@@ -189,14 +228,14 @@ class CompiledModel:
         if self.manifest["spec_model_hash"] != self.spec.model_hash():
             raise StaleModelError(
                 f"generated code in {generated_dir / self.spec.name} was made from a different version of "
-                f"spec '{self.spec.name}': run `make generate` (then `make build`), or for a spec outside "
-                "model_spec/ `python -m codegen generate SPEC_FILE --out DIR` and point generated_dir there"
+                f"spec '{self.spec.name}': run `make generate` (then `make build`); for a spec outside "
+                "model_spec/ with a name of its own, `python -m codegen generate SPEC_FILE`"
             )
         if self.manifest["codegen_hash"] != codegen_hash():
             raise StaleModelError(
                 f"generated code in {generated_dir / self.spec.name} was made by a different version of the "
                 "code generator: run `make generate` (for a spec outside model_spec/: "
-                "`python -m codegen generate SPEC_FILE --out DIR`)"
+                "`python -m codegen generate SPEC_FILE`)"
             )
 
     def _check_contents(self, source_dir: Path) -> None:

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from .build import REPO
 from .entry import guarded, number, positive
+from .interrupts import deferred_interrupt
 from .spec import MAX_CONTROL_STEPS, MAX_ITERATIONS
 
 DEFAULT_SPEC = REPO / "model_spec" / "acroboter.toml"
@@ -44,13 +45,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--mu", type=positive(), default=None, help="μ of the constraint penalty (default: spec)")
     p.add_argument("--kp", type=positive(), default=None, help="servo gain k_P, 1/s (default: spec)")
     p.add_argument("--kd", type=positive(), default=None, help="servo gain k_D, 1/s (default: spec)")
-    p.add_argument("--duration", type=positive(), default=None, help="simulated seconds (default: the whole path)")
+    p.add_argument("--duration", type=positive(1e6), default=None, help="simulated seconds (default: the whole path)")
     p.add_argument("--out", type=Path, default=Path("results"), help="output folder (default: %(default)s)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
-    if args.out.exists() and not args.out.is_dir():
-        p.error(f"--out {args.out} is a file, not a folder")
+    try:
+        if args.out.exists() and not args.out.is_dir():
+            p.error(f"--out {args.out} is a file, not a folder")
+    except OSError as err:
+        p.error(f"cannot use --out {args.out}: {err.strerror or err}")
     if args.iterations is not None:
         try:
             args.iterations = [int(v) for v in args.iterations.split(",")]
@@ -59,7 +63,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         if any(not 1 <= i <= MAX_ITERATIONS for i in args.iterations):
             p.error(f"--iterations must be between 1 and {MAX_ITERATIONS}, found {args.iterations}")
     try:
-        expand_methods(args.method, args.iterations or [1])
+        if args.method is not None and not expand_methods(args.method, args.iterations or [1]):
+            p.error(f"--method names no method, found {args.method}")
     except ValueError as err:
         p.error(str(err))
     return args
@@ -99,14 +104,16 @@ def _staging_folder(out: Path) -> Path:
 
 
 def _publish(staging: Path, out: Path) -> None:
-    """Replace the earlier run's files in --out with this run's: figures and CSVs first, summary last."""
-    for old in out.iterdir():
-        if old.is_file() and _is_run_file(old):
-            old.unlink()
-    new = sorted(staging.iterdir(), key=lambda p: p.name == "summary.json")
-    for path in new:
-        os.replace(path, out / path.name)
-    staging.rmdir()
+    """Replace the earlier run's files in --out with this run's: figures and CSVs first, summary last.
+    Ctrl-C waits for the few renames (deferred_interrupt), so --out is never left half-replaced."""
+    with deferred_interrupt():
+        for old in out.iterdir():
+            if old.is_file() and _is_run_file(old):
+                old.unlink()
+        new = sorted(staging.iterdir(), key=lambda p: p.name == "summary.json")
+        for path in new:
+            os.replace(path, out / path.name)
+        staging.rmdir()
 
 
 @guarded
@@ -199,27 +206,31 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 3
 
+    if not results:  # nothing to show: the earlier results in --out stay as they were
+        for w in warnings:
+            print(f"warning: {w}", file=sys.stderr)
+        print("error: no method could run on this spec (see the warnings above); nothing was written",
+              file=sys.stderr)
+        return 3
     out: Path = staging  # published into args.out at the end, in one go
     for name, r in results.items():
         write_csv(out / f"{name}.csv", r, scenario)
     limits = input_limits_summary(spec, model.layout)
     write_summary(out / "summary.json", spec.name, summaries, duration, warnings,
                   extra={"input_limits": limits, "path_feasibility": feasibility.to_dict()})
-    print(f"spec {spec.name}: {duration:g} s at {rate:g} Hz, plant RK4 h = {step * 1e3:g} ms; "
-          f"start tensions {np.array2string(start.inputs, precision=4)}")
-    print(format_table(summaries))
-    for w in warnings:
-        print(f"warning: {w}")
-    if not args.no_plots and results:
+    if not args.no_plots:
         lay = model.layout
         input_labels = [f"{name} [{unit}]" for name, unit in zip(lay.inputs, lay.input_units, strict=True)]
         write_figures(out, results, scenario, {m: s for m, s in summaries.items() if m in results},
                       input_labels, lay.servo_constraints, input_limits=spec.input_limits()[:2])
     _publish(staging, args.out)
+    # Printed once the results are in place: a table on screen always has its files.
+    print(f"spec {spec.name}: {duration:g} s at {rate:g} Hz, plant RK4 h = {step * 1e3:g} ms; "
+          f"start tensions {np.array2string(start.inputs, precision=4)}")
+    print(format_table(summaries))
+    for w in warnings:
+        print(f"warning: {w}")
     print(f"results in {args.out}/")
-    if not results:
-        print("error: no method could run on this spec (see the warnings above)", file=sys.stderr)
-        return 3
     saturated = [m for m, s in summaries.items() if s.get("saturated")]
     if feasibility.feasible is False or saturated:
         if feasibility.feasible is False:

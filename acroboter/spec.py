@@ -245,7 +245,7 @@ class BodyThrust(_ActuatorBase):
     kind: Literal["body_thrust"]
     body: str
     axis: Literal["u", "v", "w"]
-    point: Vec3 = [0.0, 0.0, 0.0]  # where the force acts, body coordinates
+    point: Position = [0.0, 0.0, 0.0]  # where the force acts, body coordinates
 
 
 Actuator = Annotated[WinchTension | BodyTorque | BodyThrust, Field(discriminator="kind")]
@@ -254,7 +254,7 @@ Actuator = Annotated[WinchTension | BodyTorque | BodyThrust, Field(discriminator
 class PositionTask(_Strict):
     kind: Literal["position"]
     body: str
-    point: Vec3 = [0.0, 0.0, 0.0]
+    point: Position = [0.0, 0.0, 0.0]
 
 
 class YawTask(_Strict):
@@ -282,7 +282,7 @@ TASK_KINDS = _kinds(PositionTask, YawTask, LevelTask)
 
 class PathSpec(_Strict):
     waypoints: Annotated[list[Position], Field(min_length=2)]
-    mean_speed: Positive
+    mean_speed: Annotated[float, Field(gt=0, le=LENGTH_LIMIT)]  # m/s
     yaw_deg: float = 0.0
 
 
@@ -510,6 +510,10 @@ def _check_references(spec: Spec) -> list[tuple[str, str]]:
                                             f"found {substeps} ({spec.simulation.step:g} s in {period:g} s)"))
     lengths = np.linalg.norm(np.diff(waypoints, axis=0), axis=1)
     steps = lengths.sum() / spec.path.mean_speed * spec.controller.rate_hz
+    if lengths.sum() > 0 and not steps >= 1:
+        problems.append(("path.mean_speed", f"expected a path of at least one control step, found "
+                                            f"{lengths.sum():g} m at {spec.path.mean_speed:g} m/s: "
+                                            f"{steps:.3g} steps at {spec.controller.rate_hz:g} Hz; lower mean_speed"))
     if steps > MAX_CONTROL_STEPS:
         problems.append(("path", f"expected a path of at most {MAX_CONTROL_STEPS} control steps, found "
                                  f"{lengths.sum():g} m at {spec.path.mean_speed:g} m/s and "

@@ -57,6 +57,11 @@ COLUMNS = [
 ]
 
 
+# At most this many values per grid axis and runs per sweep (checked while parsing, before any work).
+MAX_GRID_VALUES = 1000
+MAX_RUNS = 20_000
+
+
 class SweepError(RuntimeError):
     """The sweep cannot run at all (bad spec, stale or missing model library, no cluster)."""
 
@@ -101,6 +106,8 @@ def parse_values(text: str, what: str = "values") -> list[float]:
             raise ValueError(f"{what}: points per decade must be a whole number >= 1, found '{item}'")
         lo, hi = math.log10(nums[0]), math.log10(nums[1])
         count = int(round((hi - lo) * per_decade)) + 1
+        if count + len(values) > MAX_GRID_VALUES:
+            raise ValueError(f"{what}: at most {MAX_GRID_VALUES} values, found a range of {count} in '{item}'")
         values += [float(f"{10 ** (lo + i / per_decade):.12g}") for i in range(count)]
     if not values:
         raise ValueError(f"{what}: no values given")
@@ -285,7 +292,8 @@ def run_case(spec_text: str, source: str, case: Case, duration: float | None, co
                                                 "min_winch_tension_N", "max_winch_tension_N")})
             row["median_control_step_us"] = summary["control_step_us"]["median"]
             row["status"] = "ok"
-    except (SingularSystemError, SimulationError, RecoveryError, LinAlgError, ValueError, FloatingPointError) as err:
+    except (SingularSystemError, SimulationError, RecoveryError, LinAlgError, ValueError, FloatingPointError,
+            ArithmeticError) as err:
         row["status"] = _status_of(err)
         result = None
     row["sim_wall_s"] = time.perf_counter() - t0
@@ -814,7 +822,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--omegas", default=DEFAULT_OMEGAS, help="Ω values of the constraint penalty, 1/s")
     p.add_argument("--iterations", default=DEFAULT_ITERATIONS,
                    help="iteration counts N of the iterative penalty method (1 = the plain penalty method)")
-    p.add_argument("--duration", type=positive(), default=None, help="simulated seconds (default: the whole path)")
+    p.add_argument("--duration", type=positive(1e6), default=None, help="simulated seconds (default: the whole path)")
     p.add_argument("--tolerance", type=number(1.0, low_open=True), default=2.0,
                    help="a run is 'good' when its max position error is within this factor of MLM's")
     p.add_argument("--out", type=Path, default=Path("results/sweep"), help="output folder")
@@ -840,6 +848,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     n_runs = len(make_grid(args.alphas, args.omegas, args.iterations, args.alpha_mode))
+    if n_runs > MAX_RUNS:
+        print(f"error: the grid has {n_runs} runs, more than {MAX_RUNS}: give fewer --alphas, --omegas or "
+              "--iterations (or another --alpha-mode)", file=sys.stderr)
+        return 2
     where = args.scheduler or f"a local cluster of {args.workers} worker process(es) on 127.0.0.1"
     print(f"sweep: {n_runs} runs on {where}", file=sys.stderr)
     try:
@@ -854,6 +866,10 @@ def main(argv: list[str] | None = None) -> int:
         print("interrupted", file=sys.stderr)
         return 130
     rows = result.rows
+    if not any(_ok(r) for r in rows):
+        print(f"error: no run of the sweep succeeded ({rows[0]['status'] if rows else 'no runs'}); see "
+              f"{args.out}/sweep.csv", file=sys.stderr)
+        return 3
     duration = rows[0]["duration_s"] if rows and rows[0]["duration_s"] is not None else args.duration
     print(f"{len(rows)} runs of {duration:g} s simulated in {result.wall_s:.1f} s wall on {result.workers} "
           f"worker(s)")

@@ -36,21 +36,31 @@ def load_all(spec_paths: list[Path]) -> list[tuple[Path, Spec]]:
     return specs
 
 
+def _shown(path: Path) -> str:
+    return str(path.relative_to(REPO)) if path.is_relative_to(REPO) else str(path)
+
+
 def refuse_collisions(specs: list[tuple[Path, Spec]], out_root: Path) -> None:
     """A spec from elsewhere must not overwrite the generated code of a checked-in spec of the same name."""
     if out_root.resolve() != GENERATED_DIR.resolve():
         return
-    checked_in = {}
+    checked_in: dict[str, list[Path]] = {}
     for path in sorted(SPEC_DIR.glob("*.toml")):
         try:
-            checked_in[load_spec(path).name] = path.resolve()
+            checked_in.setdefault(load_spec(path).name, []).append(path.resolve())
         except SpecError:
             continue  # a broken checked-in spec is reported when it is generated itself
     for path, spec in specs:
-        owner = checked_in.get(spec.name)
+        owners = checked_in.get(spec.name, [])
+        if len(owners) > 1:
+            listed = ", ".join(_shown(p) for p in owners)
+            raise SpecError(str(path), [("name", f"expected a name of its own, found '{spec.name}' in {len(owners)} "
+                                                 f"specs of model_spec/ ({listed}): each crane needs its own name "
+                                                 f"(its folder generated/<name>/); rename the copy")])
+        owner = owners[0] if owners else None
         if owner is not None and owner != path.resolve():
             raise SpecError(str(path), [("name", f"expected a name of its own, found '{spec.name}', the name of the "
-                                                 f"checked-in {owner.relative_to(REPO)}: generating it would overwrite "
+                                                 f"checked-in {_shown(owner)}: generating it would overwrite "
                                                  f"generated/{spec.name}/. Rename the crane, or generate it elsewhere "
                                                  "with --out DIR")])
 

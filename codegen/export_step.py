@@ -74,9 +74,9 @@ from scipy.linalg import cholesky, solve_triangular
 
 from acroboter.controllers import MLM_RCOND_LIMIT, Gains
 from acroboter.distribution import PENALTY_SECONDARY_WEIGHT, RANK_TOLERANCE, SECONDARY_WEIGHT
-from acroboter.entry import check_out_folder, guarded
+from acroboter.entry import check_out_folder, guarded, number, positive
 from acroboter.layout import Layout, nominal_coordinates
-from acroboter.spec import RECOVERIES, Spec, SpecError, load_spec
+from acroboter.spec import MAX_ITERATIONS, RECOVERIES, Spec, SpecError, load_spec
 from codegen.generate import INPUT_NAMES, REPO
 from codegen.structured import cholesky_solve, mlm_bounded_terms, penalty_bounded_terms
 from codegen.symbolic import SymbolicModel, build_symbolic_model
@@ -141,9 +141,9 @@ def parse_method(method: str) -> int | None:
         return 1
     if method.startswith("iterative-") and method.removeprefix("iterative-").isdigit():
         iterations = int(method.removeprefix("iterative-"))
-        if iterations >= 1:
+        if 1 <= iterations <= MAX_ITERATIONS:
             return iterations
-    raise ExportError(f"unknown method '{method}': use mlm, penalty or iterative-N (N >= 1)")
+    raise ExportError(f"unknown method '{method}': use mlm, penalty or iterative-N (1 <= N <= {MAX_ITERATIONS})")
 
 
 def step_name(spec: Spec, method: str, recovery: str) -> str:
@@ -945,7 +945,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--recovery", choices=RECOVERIES, default=None,
                         help="input recovery of the penalty methods (default: the spec's, normally projected)")
     for option in GAIN_OPTIONS:
-        parser.add_argument(f"--{option.replace('_', '-')}", type=float, default=None, dest=option,
+        parser.add_argument(f"--{option.replace('_', '-')}", default=None, dest=option,
+                            type=number(0.0, 1.0) if option == "kappa" else positive(1e300),
                             help="override the spec's value")
     parser.add_argument("--mlm-system", choices=MLM_SYSTEMS, default="reduced",
                         help="MLM: the (m+l) system reduced by the constant M, or the full (n+m+l) one "

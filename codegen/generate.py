@@ -17,6 +17,7 @@ from pathlib import Path
 
 import casadi as ca
 
+from acroboter.interrupts import deferred_interrupt
 from acroboter.spec import Spec
 from codegen import plant, structured
 from codegen.symbolic import SymbolicModel, build_symbolic_model
@@ -166,19 +167,27 @@ class GenerationContext:
             path.write_text(header + cg.dump())
             written.append(path)
         meta = out_dir / f"{self.spec.name}_meta.c"
+        doc = self.manifest()
         meta.write_text(
             header
-            + "/* Hashes the numeric side compares with the spec before trusting this library. */\n"
+            + "/* Hashes the numeric side compares with the spec and manifest.json before trusting this library. */\n"
             + f'const char* {self.spec.name}_spec_model_hash(void) {{ return "{self.spec.model_hash()}"; }}\n'
             + f'const char* {self.spec.name}_codegen_hash(void) {{ return "{codegen_hash()}"; }}\n'
+            + f'const char* {self.spec.name}_manifest_hash(void) {{ return "{manifest_hash(doc)}"; }}\n'
         )
         written.append(meta)
         manifest = out_dir / "manifest.json"
-        doc = self.manifest()
         doc["files"] = {path.name: file_digest(path) for path in written}
         manifest.write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
         written.append(manifest)
         return written
+
+
+def manifest_hash(manifest: dict) -> str:
+    """SHA-256 of the manifest's description of the library (its file list aside): embedded in the
+    library, so a manifest edited to name other symbols or shapes is found out."""
+    described = {k: v for k, v in manifest.items() if k != "files"}
+    return hashlib.sha256(json.dumps(described, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
 def file_digest(path: Path) -> str:
@@ -214,10 +223,12 @@ def _swap_in(staging: Path, out_dir: Path) -> None:
         return
     retired = out_dir.with_name(f".{out_dir.name}.old-{os.getpid()}")
     shutil.rmtree(retired, ignore_errors=True)
-    out_dir.rename(retired)
-    try:
-        staging.rename(out_dir)
-    except BaseException:
-        retired.rename(out_dir)  # put the previous files back
-        raise
-    shutil.rmtree(retired, ignore_errors=True)
+    with deferred_interrupt():  # the two renames and the clean-up happen together or not at all
+        out_dir.rename(retired)
+        try:
+            staging.rename(out_dir)
+        except BaseException:
+            retired.rename(out_dir)  # put the previous files back
+            raise
+        shutil.rmtree(retired, ignore_errors=True)
+

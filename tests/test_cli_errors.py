@@ -34,7 +34,9 @@ CASES = [
     ("acroboter.sweep", ["--out", UNWRITABLE], "cannot write into --out"),
     ("codegen", ["generate", "--out", UNWRITABLE], "cannot write into --out"),
     ("codegen.export_step", ["--out", UNWRITABLE], "cannot write into --out"),
-    ("codegen.export_step", ["--kp", "nan"], "finite positive number"),
+    ("codegen.export_step", ["--kp", "nan"], "argument --kp: expected a finite number"),
+    ("codegen.export_step", ["--kappa", "-1"], "argument --kappa: expected a number at least 0"),
+    ("codegen.export_step", ["--method", "iterative-1001"], "1 <= N <= 1000"),
 ]
 
 

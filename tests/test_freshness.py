@@ -192,5 +192,22 @@ def test_library_built_from_other_code_is_refused(spec, modified_spec, tmp_path)
     lib_a = build("acroboter", gen_a, tmp_path / "build_a")
     lib_b = build("acroboter", gen_b, tmp_path / "build_b")
     shutil.copy(lib_a, lib_b)  # the name says b's sources, the content is a's
+    # The build's SHA-256 beside the library gives it away: rebuilt, never loaded.
+    model = CompiledModel(spec, generated_dir=gen_b, build_dir=tmp_path / "build_b")
+    assert lib_b.read_bytes() != lib_a.read_bytes()
+    su = model.layout.body_offset["SU"]
+    assert model.term("mass_matrix", q=np.zeros(model.layout.n))[su, su] == 8.0  # b's spec, not a's 8.5
+
+
+def test_library_whose_hashes_disagree_is_refused(spec, tmp_path):
+    """A library that passes the file check but embeds other hashes (its sidecar rewritten too)."""
+    import hashlib
+
+    gen = tmp_path / "gen"
+    generate(spec, gen)
+    lib = build("acroboter", gen, tmp_path / "build")
+    text = lib.read_bytes().replace(spec.model_hash().encode(), b"0" * 64)
+    lib.write_bytes(text)
+    lib.with_name(lib.name + ".sha256").write_text(hashlib.sha256(text).hexdigest() + "\n")
     with pytest.raises(StaleModelError, match="make build"):
-        CompiledModel(spec, generated_dir=gen_b, build_dir=tmp_path / "build_b")
+        CompiledModel(spec, generated_dir=gen, build_dir=tmp_path / "build")

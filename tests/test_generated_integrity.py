@@ -172,7 +172,8 @@ def test_manifest_shapes_are_checked_against_the_library(toy_tree, tmp_path):
     manifest_path.write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
     with pytest.raises(StaleModelError) as info:
         CompiledModel(spec, generated_dir=root, build_dir=build)
-    assert "phi_q" in str(info.value) and "manifest" in str(info.value)
+    # the library's embedded manifest hash finds it first; the sparsity check stands behind it
+    assert "manifest.json does not describe this library" in str(info.value) and "shapes" in str(info.value)
 
 
 def test_the_manifest_lists_every_generated_file():
@@ -213,3 +214,50 @@ def test_git_status_stays_clean_after_an_interrupted_generation_of_a_checked_in_
     assert proc.returncode in (0, 130), err  # interrupted, or (on a very fast machine) already done
     assert _git_status(REPO / "generated") == status  # clean on a fresh clone
     assert snapshot(REPO / "generated" / "acroboter") == before
+
+
+def test_two_checked_in_specs_with_one_name_are_refused(tmp_path, monkeypatch):
+    """A copy in model_spec/ that kept the original's name (step 1 of "Model a new crane", forgotten)."""
+    from acroboter.spec import SpecError
+    from codegen import __main__ as cli
+
+    specs = tmp_path / "model_spec"
+    specs.mkdir()
+    original = specs / "acroboter.toml"
+    original.write_text((SPEC_DIR / "acroboter.toml").read_text())
+    copy = specs / "mycrane.toml"  # sorts after the original
+    copy.write_text(original.read_text().replace("mass = 8.0", "mass = 9.0"))
+    monkeypatch.setattr(cli, "SPEC_DIR", specs)
+    for path in (copy, original):
+        with pytest.raises(SpecError, match="in 2 specs of model_spec/"):
+            cli.refuse_collisions([(path, load_spec(path))], cli.GENERATED_DIR)
+
+
+def test_a_truncated_library_is_rebuilt_not_loaded(toy_tree, tmp_path):
+    from acroboter.build import build as build_library
+
+    spec, root, build = copy_tree(toy_tree, tmp_path)
+    lib = build_library(spec.name, root, build)  # built, not loaded: this process never maps it
+    lib.write_bytes(lib.read_bytes()[:1000])  # loading this would crash the process (SIGBUS)
+    model = CompiledModel(spec, generated_dir=root, build_dir=build)
+    assert lib.stat().st_size > 1000 and model.term("mass_matrix").shape[0] == model.layout.n
+
+
+@pytest.mark.parametrize("edit", ["swap two symbols", "drop the functions", "a list"])
+def test_an_edited_manifest_is_refused_with_a_message(toy_tree, tmp_path, edit):
+    spec, root, build = copy_tree(toy_tree, tmp_path)
+    path = root / spec.name / "manifest.json"
+    manifest = json.loads(path.read_text())
+    if edit == "swap two symbols":  # the same shapes: only the library's embedded manifest hash tells
+        f = manifest["functions"]
+        f["phi_dot"]["symbol"], f["gamma"]["symbol"] = f["gamma"]["symbol"], f["phi_dot"]["symbol"]
+        words = "does not describe this library"
+    elif edit == "drop the functions":
+        del manifest["functions"]
+        words = "'functions' missing"
+    else:
+        manifest = [manifest]
+        words = "not a JSON object"
+    path.write_text(json.dumps(manifest))
+    with pytest.raises(StaleModelError, match=words):
+        CompiledModel(spec, generated_dir=root, build_dir=build)

@@ -155,3 +155,32 @@ def test_a_long_run_needs_memory_for_its_records_only():
                                      result.cable_tension, result.cable_active, result.limit_state))
     assert result.t[-1] == pytest.approx(600.0)
     assert peak < 1.5 * records + 20e6, (peak, records)
+
+
+def test_an_empty_method_list_is_an_option_error(tmp_path):
+    proc = run_cli("--method", ",", "--out", str(tmp_path / "out"))
+    assert proc.returncode == 2 and "names no method" in proc.stderr
+
+
+def test_a_run_where_no_method_runs_keeps_the_earlier_results(tmp_path):
+    out = tmp_path / "out"
+    assert run_cli("--duration", "0.5", "--method", "mlm", "--no-plots", "--out", str(out)).returncode == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    bad = tmp_path / "acroboter.toml"  # limits are read at run time: no regeneration
+    bad.write_text((REPO / "model_spec" / "acroboter.toml").read_text().replace(
+        'cable = "L1"', 'cable = "L1"\nlimits = [1e300, inf]'))
+    proc = run_cli("--spec", str(bad), "--duration", "0.5", "--method", "mlm", "--out", str(out))
+    assert proc.returncode == 3 and "nothing was written" in proc.stderr and "Traceback" not in proc.stderr
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_a_sweep_in_which_no_run_succeeds_is_not_a_success(tmp_path):
+    bad = tmp_path / "acroboter.toml"
+    bad.write_text((REPO / "model_spec" / "acroboter.toml").read_text().replace(
+        'cable = "L1"', 'cable = "L1"\nlimits = [1e300, inf]'))
+    proc = subprocess.run([sys.executable, "-m", "acroboter.sweep", "--spec", str(bad), "--alphas", "1e7",
+                           "--omegas", "10", "--iterations", "1", "--duration", "0.2", "--workers", "1",
+                           "--out", str(tmp_path / "sweep"), "--no-plots", "--quiet"],
+                          capture_output=True, text=True, cwd=REPO, timeout=300)
+    assert proc.returncode == 3, proc.stdout + proc.stderr
+    assert "no run of the sweep succeeded" in proc.stderr and "Traceback" not in proc.stderr
