@@ -102,11 +102,16 @@ def ensure_built(spec_name: str, generated_dir: Path = GENERATED_DIR, build_dir:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m acroboter.build", description=__doc__)
     parser.add_argument("specs", nargs="*", help="spec names (default: every folder in generated/)")
+    parser.add_argument("--force", action="store_true",
+                        help="recompile even the libraries that are current (same sources, flags and checksum)")
     args = parser.parse_args(argv)
     # dot-folders are the code generator's staging and retired folders, never a spec's
     names = args.specs or sorted(p.name for p in GENERATED_DIR.iterdir() if p.is_dir() and not p.name.startswith("."))
     try:
         for name in names:
+            if not args.force and is_current(name):  # incremental: the name carries sources and flags
+                print(f"up to date {library_path(name).relative_to(REPO)}")
+                continue
             lib = build(name)
             print(f"built {lib.relative_to(REPO)}")
     except BuildError as err:

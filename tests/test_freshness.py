@@ -211,3 +211,15 @@ def test_library_whose_hashes_disagree_is_refused(spec, tmp_path):
     lib.with_name(lib.name + ".sha256").write_text(hashlib.sha256(text).hexdigest() + "\n")
     with pytest.raises(StaleModelError, match="make build"):
         CompiledModel(spec, generated_dir=gen, build_dir=tmp_path / "build")
+
+
+def test_build_recompiles_only_what_changed():
+    """`make build` (python -m acroboter.build) on a built checkout compiles nothing."""
+    libs = {name: library_path(name) for name in SHIPPED_NAMES}
+    before = {name: lib.stat().st_mtime_ns for name, lib in libs.items() if lib.is_file()}
+    proc = subprocess.run([sys.executable, "-m", "acroboter.build"], cwd=REPO, capture_output=True, text=True,
+                          timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    after = {name: lib.stat().st_mtime_ns for name, lib in libs.items()}
+    assert all(after[name] == mtime for name, mtime in before.items())  # untouched
+    assert proc.stdout.count("up to date") >= len(before)
