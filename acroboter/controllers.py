@@ -1,4 +1,4 @@
-"""The three inverse-dynamics controllers of the paper (design §8), fed only by the compiled model.
+"""The three inverse-dynamics controllers of the paper (docs/model.md §6), fed only by the compiled model.
 
 Every controller maps (q, q̇, t) to the input u. One call into the compiled library gives what
 the method needs at the state (codegen.structured); the remaining linear algebra is LAPACK through

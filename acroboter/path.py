@@ -1,4 +1,4 @@
-"""Desired motion (design §6): rest-to-rest quintic edges through the spec's waypoints, a quintic yaw
+"""Desired motion (docs/model.md §5): rest-to-rest quintic edges through the spec's waypoints, a quintic yaw
 turn over the whole path, and the signal vector s(t), ṡ(t), s̈(t) that feeds the generated code.
 
 Signals are laid out flat as [s, ṡ, s̈] (3 × n_signals), the layout of CompiledModel.signals, so

@@ -1,4 +1,4 @@
-"""The plant: forward dynamics as an index-1 DAE with Baumgarte stabilisation (design §9), with
+"""The plant: forward dynamics as an index-1 DAE with Baumgarte stabilisation (docs/model.md §8), with
 cables that only pull.
 
     [M  φ_qᵀ] [q̈]   [H u − c                ]

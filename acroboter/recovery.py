@@ -1,4 +1,4 @@
-"""Input recovery for the penalty methods: u from the servo-constraint forces (design §8).
+"""Input recovery for the penalty methods: u from the servo-constraint forces (docs/model.md §6).
 
 - projected (default): least squares over (u, Δλ) of H u − φ_qᵀ Δλ = −σ_qᵀ λ̂. The actuators need to
   reproduce the ideal servo force only up to constraint reactions; equals eq. 12 when collocated.

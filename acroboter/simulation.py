@@ -240,7 +240,7 @@ def simulate(
 
 
 def summarize(result: RunResult, scenario: Scenario, layout) -> dict:
-    """The per-method figures of summary.json (design §10)."""
+    """The per-method figures of summary.json (see the README, `python -m acroboter.run`)."""
     pos_err = np.linalg.norm(result.sigma[:, scenario.position_rows], axis=1)
     summary = {
         "max_position_error_mm": 1e3 * float(pos_err.max()),

@@ -1,4 +1,4 @@
-"""Initial state: the static equilibrium at the start of the path (design §7).
+"""Initial state: the static equilibrium at the start of the path (docs/model.md §9).
 
 Unknowns (q, λ, u); equations: force balance c(q, 0) + φ_qᵀ λ = H u, the geometric constraints
 φ(q, s0) = 0 and the servo-constraints σ(q, s0) = 0 with the targets at the path's start. For a

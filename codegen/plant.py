@@ -1,7 +1,7 @@
 """The plant's symbolic code: the Baumgarte DAE with cables that only pull, and one RK4 step of it.
 
     [M  φ_qᵀ] [q̈]   [H u − c                ]
-    [φ_q  0 ] [λ] = [−γ − 2ζ_B ω_B φ̇ − ω_B² φ]      (design §9, over the independent rows)
+    [φ_q  0 ] [λ] = [−γ − 2ζ_B ω_B φ̇ − ω_B² φ]      (docs/model.md §8, over the independent rows)
 
 A cable constrains only |p_a − p_b| ≤ L. Which cables are taut is the plant's business (events,
 acroboter/plant.py); here every cable row i of the independent rows gets a weight a_i, the entry

@@ -40,7 +40,7 @@ def full_runs(crane):
 
 
 def analytic_static_tension(spec) -> float:
-    """m_SU g L / (3 · drop) for the symmetric default crane (design §7)."""
+    """m_SU g L / (3 · drop) for the symmetric default crane (docs/model.md §9)."""
     cc, su = spec.body("CC"), spec.body("SU")
     a, b = cc.point("a1"), su.point("b1")
     drop = (cc.initial_position[2] + a[2]) - (su.initial_position[2] + b[2])

@@ -235,7 +235,7 @@ def test_winch_tensions_balance_gravity_at_the_start(crane):
         drop, length = top[2] - bottom[2], np.linalg.norm(top - bottom)
         assert drop == pytest.approx(0.70, abs=1e-12) and crane.q0[lay.winch_index[cable.name]] == length
         assert u[j] == pytest.approx(su.mass * g * length / (3 * drop), rel=1e-9)
-        assert f"{u[j]:.4g}" == "26.75"  # design §7
+        assert f"{u[j]:.4g}" == "26.75"  # docs/model.md §9
         i = lay.constraints.index(f"cable {cable.name}")
         assert u[j] == pytest.approx(2 * length * lam[i], rel=1e-9)  # u_i = 2 L_i lambda_i
     for j, act in enumerate(spec.actuators):

@@ -1,6 +1,6 @@
 """An independent sympy derivation of the model terms, compared with the compiled C.
 
-The oracle below follows ../shared/design/acroboter-model.md (§1-§5) directly and shares no code with
+The oracle below follows docs/model.md (§1-§5) directly and shares no code with
 codegen/: only the spec parser and the index layout are reused. It derives M, c, φ, φ_q, φ̇, γ, σ, σ_q, σ̇,
 γ_s, H and the energies of a spec in sympy, lambdifies them once per spec and compares them with the
 generated C (shipped specs) or with the CasADi expressions (a variant spec that has no generated code)
