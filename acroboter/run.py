@@ -119,6 +119,7 @@ def _publish(staging: Path, out: Path) -> None:
 @guarded
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    args.command_line = ["python", "-m", "acroboter.run", *(sys.argv[1:] if argv is None else argv)]
     try:
         staging = _staging_folder(args.out)
     except OSError as err:
@@ -217,7 +218,8 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
         write_csv(out / f"{name}.csv", r, scenario)
     limits = input_limits_summary(spec, model.layout)
     write_summary(out / "summary.json", spec.name, summaries, duration, warnings,
-                  extra={"input_limits": limits, "path_feasibility": feasibility.to_dict()})
+                  extra={"input_limits": limits, "path_feasibility": feasibility.to_dict(),
+                         "provenance": provenance(args, spec, gains, methods, duration)})
     if not args.no_plots:
         lay = model.layout
         input_labels = [f"{name} [{unit}]" for name, unit in zip(lay.inputs, lay.input_units, strict=True)]
@@ -242,6 +244,37 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
         held = f"; saturated: {', '.join(saturated)}" if saturated else ""
         print(f"the path was not feasible with these limits: {reason}{held}")
     return 0
+
+
+def provenance(args: argparse.Namespace, spec, gains, methods: list[str], duration: float) -> dict:
+    """What made this run: enough to repeat it (spec content, every setting, versions, command line)."""
+    import datetime
+    import hashlib
+    import platform
+    from dataclasses import asdict
+    from importlib import metadata
+
+    import casadi
+
+    try:
+        version = metadata.version("acroboter")
+    except metadata.PackageNotFoundError:
+        version = "unknown"
+    return {
+        "spec_file": str(args.spec),
+        "spec_sha256": hashlib.sha256(Path(args.spec).read_bytes()).hexdigest(),
+        "spec_model_hash": spec.model_hash(),
+        "gains": asdict(gains),
+        "methods": methods,
+        "duration_s": duration,
+        "rate_hz": spec.controller.rate_hz,
+        "plant_step_s": spec.simulation.step,
+        "acroboter_version": version,
+        "casadi_version": casadi.__version__,
+        "python": platform.python_version(),
+        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "command_line": args.command_line,
+    }
 
 
 def input_limits_summary(spec, layout) -> dict:

@@ -45,6 +45,15 @@ def test_summary_json_fields(short_run):
     _, out = short_run
     doc = json.loads((out / "summary.json").read_text())
     assert doc["spec"] == "acroboter"
+    prov = doc["provenance"]  # enough to repeat the run
+    spec_bytes = (REPO / "model_spec" / "acroboter.toml").read_bytes()
+    import hashlib
+
+    assert prov["spec_sha256"] == hashlib.sha256(spec_bytes).hexdigest()
+    assert prov["gains"]["alpha_servo"] == 1e7 and prov["gains"]["recovery"] == "projected"
+    assert prov["methods"] == ["mlm", "penalty", "iterative-3"] and prov["duration_s"] == 1.0
+    assert prov["casadi_version"] == "3.8.2" and prov["command_line"][:3] == ["python", "-m", "acroboter.run"]
+    assert "--iterations" in prov["command_line"] and prov["date"].startswith("20")
     assert set(doc["methods"]) == {"mlm", "penalty", "iterative-3"}
     for method, fields in doc["methods"].items():
         assert METHOD_FIELDS <= set(fields), method
