@@ -291,7 +291,8 @@ class Penalty(Controller):
             self._qdd_sum = self._chain_end["qdd_sum_next"]
         if self.redundant_inputs and self.fast_recovery:
             return self._bounded_projected()  # the fit leaves internal forces free: distribute them
-        if not (self.fast_recovery and self.recovery.projected_fast(T, self._qdd_sum, self.iterations) is not None):
+        fast = self.fast_recovery and self.recovery.projected_fast(T, self._qdd_sum, self.iterations) is not None
+        if not fast:  # another recovery, or the generated projected map was singular
             self._multipliers()
             self.recovery.recover(T, self.lam_hat, self._qdd_last, self.lam)
         if self.limits.accept(self.u):
