@@ -3,45 +3,48 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+# Inside the checkout the cache of compiled libraries is build/ (installed, it is the per-user cache).
+export ACROBOTER_CACHE_DIR := $(CURDIR)/build
 
 .PHONY: run test setup build generate check-generated bench study sweep clean
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
+	$(PY) -m pip install --quiet -e '.[test,dask]'
 	touch $(STAMP)
 
 setup: $(STAMP)
 
-# Compile every generated/<spec>/ into build/<spec>/lib<spec>-<sources hash>.so (-O2 -fPIC, no fast-math).
+# Compile every generated/<spec>/ into build/lib/<spec>-<sources hash>/lib<spec>.so (-O2 -fPIC, no
+# fast-math); a library whose sources and flags did not change is not recompiled.
 build: $(STAMP)
-	$(PY) -m acroboter.build
+	$(PY) -m acroboter build
 
 # Regenerate the C for every spec in model_spec/.
 generate: $(STAMP)
-	$(PY) -m codegen generate
+	$(PY) -m acroboter generate
 
 # Regenerate into a temporary folder and compare file set and bytes with generated/.
 check-generated: $(STAMP)
-	$(PY) -m codegen check
+	$(PY) -m acroboter check
 
 run: build
-	$(PY) -m acroboter.run
+	$(PY) -m acroboter run
 
 test: build
-	$(PY) -m ruff check acroboter codegen tests
+	$(PY) -m ruff check acroboter tests setup.py
 	$(PY) -m pytest -q
 
 bench: build
-	$(PY) -m acroboter.bench
+	$(PY) -m acroboter bench
 
 # The redundancy / non-collocation study and the penalty-number sweep (Dask, local cluster).
 study: build
-	$(PY) -m acroboter.study
+	$(PY) -m acroboter study
 
 sweep: build
-	$(PY) -m acroboter.sweep
+	$(PY) -m acroboter sweep
 
 clean:
 	rm -rf build results

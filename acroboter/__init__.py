@@ -1,4 +1,14 @@
-"""acroboter: compiled crane dynamics, three inverse-dynamics controllers and a fixed-step plant."""
+"""acroboter: compiled crane dynamics, three inverse-dynamics controllers and a fixed-step plant.
+
+    import acroboter
+
+    crane = acroboter.Crane.from_toml(acroboter.example_spec("acroboter"))
+    result = crane.simulate("penalty", duration=5.0)
+    print(result.summary()["max_position_error_mm"])
+    result.plot()
+
+The names below load on first use, so `import acroboter` (and every command's --help) stays quick.
+"""
 
 import os
 
@@ -7,3 +17,49 @@ import os
 # loads OpenBLAS; a user's explicit setting wins.
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
+
+
+def _package_version() -> str:
+    from importlib import metadata
+
+    try:
+        return metadata.version("acroboter")
+    except metadata.PackageNotFoundError:  # run from a checkout that was never installed
+        return "0+unknown"
+
+
+__version__ = _package_version()
+
+# public name -> the module that defines it
+_EXPORTS = {
+    "Crane": "acroboter.crane",
+    "Controller": "acroboter.crane",
+    "Equilibrium": "acroboter.statics",
+    "Result": "acroboter.result",
+    "Spec": "acroboter.spec",
+    "SpecError": "acroboter.spec",
+    "load_spec": "acroboter.spec",
+    "example_spec": "acroboter.locations",
+    "example_names": "acroboter.locations",
+    "cache_dir": "acroboter.locations",
+    "SampledTrajectory": "acroboter.path",
+    "StaleModelError": "acroboter.compiled",
+    "SimulationError": "acroboter.plant",
+    "SingularSystemError": "acroboter.controllers",
+}
+
+__all__ = ["__version__", *sorted(_EXPORTS)]
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        from importlib import import_module
+
+        value = getattr(import_module(_EXPORTS[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'acroboter' has no attribute '{name}'")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

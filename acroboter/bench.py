@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .build import REPO
 from .entry import check_out_folder, guarded, whole
+from .locations import example_spec
 from .report import PAPER_MATLAB_US
 from .spec import MAX_ITERATIONS
 
@@ -77,7 +77,7 @@ def stats(seconds: np.ndarray) -> dict:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m acroboter.bench", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--spec", type=Path, default=REPO / "model_spec" / "acroboter.toml",
+    parser.add_argument("--spec", type=Path, default=example_spec("acroboter"),
                         help="model spec (TOML) whose scenario is timed (default: %(default)s)")
     parser.add_argument("--method", "--methods", dest="methods",
                         default="mlm,penalty,iterative-3,iterative-4,iterative-5",
@@ -85,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=whole(1, 100), default=5, help="passes over the scenario's states (1..100)")
     parser.add_argument("--casadi-states", type=whole(1, 100_000), default=500,
                         help="states timed on the casadi.Function path (b) (it is slow)")
-    parser.add_argument("--limits-spec", type=Path, default=REPO / "model_spec" / "acroboter_4cable.toml",
+    parser.add_argument("--limits-spec", type=Path, default=example_spec("acroboter_4cable"),
                         help="crane on which the cost of input limits is timed (default: %(default)s)")
     parser.add_argument("--out", type=Path, default=Path("results"), help="folder for bench.json")
     args = parser.parse_args(argv)
@@ -98,8 +98,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--methods names no method")
     check_out_folder(parser, args.out)
 
+    from .cache import load_model
     from .casadi_backend import CasadiModel
-    from .compiled import CompiledModel, StaleModelError
+    from .compiled import StaleModelError
     from .controllers import Gains, SingularSystemError, make_controller
     from .plant import SimulationError
     from .recovery import RecoveryError
@@ -110,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         spec = load_spec(args.spec)
         load_spec(args.limits_spec)  # validated before any work too
-        model = CompiledModel(spec)
+        model = load_model(spec)
     except (SpecError, StaleModelError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
@@ -225,14 +226,14 @@ def main(argv: list[str] | None = None) -> int:
 
 def bench_limits(spec_path: Path, methods: list[str], repeats: int) -> dict:
     """Control step on a crane's own scenario with its limits, without, and saturated at every step."""
-    from .compiled import CompiledModel
+    from .cache import load_model
     from .controllers import Gains, make_controller, unbounded
     from .simulation import setup_default, simulate
     from .spec import load_spec
     from .statics import desired_path, solve_equilibrium
 
     spec = load_spec(spec_path)
-    model = CompiledModel(spec)
+    model = load_model(spec)
     path, gains = desired_path(model), Gains.from_spec(spec)
     start = solve_equilibrium(model, path)
     rate, h = spec.controller.rate_hz, spec.simulation.step

@@ -48,7 +48,7 @@ class CasadiModel:
     """The spec's functions as casadi.Function objects behind CompiledModel's interface."""
 
     def __init__(self, spec: Spec):
-        from codegen.generate import GenerationContext  # CasADi symbolics: only this backend needs them
+        from acroboter.codegen.generate import GenerationContext  # CasADi symbolics: only this backend needs them
 
         self.spec = spec
         self.layout = build_layout(spec)

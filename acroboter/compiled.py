@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .build import BUILD_DIR, GENERATED_DIR, BuildError, ensure_built
+from .build import BuildError, ensure_built, is_current, library_path
+from .fingerprint import codegen_hash, manifest_hash
 from .layout import Layout, build_layout
 from .spec import Spec
 
@@ -28,13 +29,17 @@ class StaleModelError(RuntimeError):
     """Generated code or library does not match the spec or the code generator."""
 
 
+class NotBuiltError(StaleModelError):
+    """The library is not compiled and compiling was not allowed."""
+
+
 # Outputs that are matrices whatever their shape (the others with one column are vectors).
 MATRIX_OUTPUTS = frozenset({
     "mass_matrix", "phi_q", "sigma_q", "input_matrix", "schur", "minv_w", "penalty_matrix", "recovery_gain",
     "hessian", "servo_map",
 })
 
-_REGENERATE = ("regenerate it with `python -m codegen generate SPEC_FILE` (`make generate` for the specs in "
+_REGENERATE = ("regenerate it with `acroboter generate SPEC_FILE` (`make generate` for the specs in "
                "model_spec/)")
 
 
@@ -149,10 +154,14 @@ def _check_structure(manifest, path: Path) -> None:
 class CompiledModel:
     """All generated functions of one spec, bound to shared input buffers q, qd, s, sd, sdd."""
 
-    def __init__(self, spec: Spec, generated_dir: Path = GENERATED_DIR, build_dir: Path = BUILD_DIR):
+    def __init__(self, spec: Spec, source_dir: Path, cache_root: Path, build: bool = True):
+        """Bind the generated code in `source_dir` (a generated/<spec>/ folder, checked against the
+        spec and by content hash) compiled into the cache at `cache_root` (on first use).
+        acroboter.cache.load_model finds both for a spec. build=False: a missing library is a
+        NotBuiltError instead of a compilation (e.g. on a worker machine that must not compile)."""
         self.spec = spec
         self.layout: Layout = build_layout(spec)
-        source_dir = generated_dir / spec.name
+        self.source_dir = source_dir
         manifest_path = source_dir / "manifest.json"
         if not manifest_path.is_file():
             raise StaleModelError(
@@ -163,19 +172,24 @@ class CompiledModel:
         except (OSError, ValueError) as err:
             raise StaleModelError(f"{manifest_path} cannot be read ({err}): {_REGENERATE}") from None
         _check_structure(self.manifest, manifest_path)
-        self._check_fresh(generated_dir)
+        self._check_fresh(source_dir)
         self._check_contents(source_dir)
+        if not build:
+            lib_path = library_path(spec.name, source_dir, cache_root)
+            if not is_current(lib_path):
+                raise NotBuiltError(f"no compiled library for spec '{spec.name}' at {lib_path}: build it first "
+                                    f"(`acroboter build {spec.name}` for an example, or load the model once with "
+                                    "build allowed)")
         try:
-            lib_path = ensure_built(spec.name, generated_dir, build_dir)
+            lib_path = ensure_built(spec.name, source_dir, cache_root)
         except BuildError as err:
             raise StaleModelError(str(err)) from None
+        self.library_path = lib_path
         try:
             self.lib = ctypes.CDLL(str(lib_path))
         except OSError as err:
             raise StaleModelError(f"library {lib_path} cannot be loaded ({err}): run `make build` "
-                                  f"(`python -m acroboter.build {spec.name}`)") from None
-        from codegen.generate import manifest_hash  # the same description the library embeds
-
+                                  f"(`acroboter build {spec.name}`)") from None
         expected = {**{k: self.manifest[k] for k in ("spec_model_hash", "codegen_hash")},
                     "manifest_hash": manifest_hash(self.manifest)}
         for what, value in expected.items():
@@ -183,7 +197,7 @@ class CompiledModel:
                 fn = getattr(self.lib, f"{spec.name}_{what}")
             except AttributeError:
                 raise StaleModelError(f"library {lib_path} has no {spec.name}_{what}: it was not built from "
-                                      f"{source_dir}; run `make build` (`python -m acroboter.build {spec.name}`)"
+                                      f"{source_dir}; run `make build` (`acroboter build {spec.name}`)"
                                       ) from None
             fn.restype = ctypes.c_char_p
             if fn().decode() != value:
@@ -192,7 +206,7 @@ class CompiledModel:
                                 if what == "manifest_hash" else
                                 f"library {lib_path} does not hold the code of {source_dir} (its embedded {what} "
                                 "differs, although its name carries the sources' hash: replaced or damaged): run "
-                                f"`make build` (`python -m acroboter.build {spec.name}`), or delete it and the next "
+                                f"`make build` (`acroboter build {spec.name}`), or delete it and the next "
                                 "run builds it again")
                 raise StaleModelError(what_differs)
 
@@ -207,7 +221,7 @@ class CompiledModel:
                 self.buffers.setdefault(name, np.zeros(size))
         self.q, self.qd = self.buffers["q"], self.buffers["qd"]
         self.s, self.sd, self.sdd = self.buffers["s"], self.buffers["sd"], self.buffers["sdd"]
-        self.p = self.buffers["p"]  # solver parameters, codegen.structured.PARAMS
+        self.p = self.buffers["p"]  # solver parameters, acroboter.codegen.structured.PARAMS
         self.parameters_owner = None  # the controller whose gains are in p
         self._inputs = (self.q, self.qd, self.s, self.sd, self.sdd)
         self.functions: dict[str, BoundFunction] = {
@@ -222,20 +236,18 @@ class CompiledModel:
         info = self.manifest["functions"][name]
         return BoundFunction(self.lib, info["symbol"], [self.buffers[i] for i, _ in info["inputs"]], info["outputs"])
 
-    def _check_fresh(self, generated_dir: Path) -> None:
-        from codegen.generate import codegen_hash  # the generator's sources decide freshness
-
+    def _check_fresh(self, source_dir: Path) -> None:
         if self.manifest["spec_model_hash"] != self.spec.model_hash():
             raise StaleModelError(
-                f"generated code in {generated_dir / self.spec.name} was made from a different version of "
+                f"generated code in {source_dir} was made from a different version of "
                 f"spec '{self.spec.name}': run `make generate` (then `make build`); for a spec outside "
-                "model_spec/ with a name of its own, `python -m codegen generate SPEC_FILE`"
+                "model_spec/ with a name of its own, `acroboter generate SPEC_FILE`"
             )
         if self.manifest["codegen_hash"] != codegen_hash():
             raise StaleModelError(
-                f"generated code in {generated_dir / self.spec.name} was made by a different version of the "
+                f"generated code in {source_dir} was made by a different version of the "
                 "code generator: run `make generate` (for a spec outside model_spec/: "
-                "`python -m codegen generate SPEC_FILE`)"
+                "`acroboter generate SPEC_FILE`)"
             )
 
     def _check_contents(self, source_dir: Path) -> None:

@@ -1,7 +1,7 @@
 """The three inverse-dynamics controllers of the paper (docs/model.md §6), fed only by the compiled model.
 
 Every controller maps (q, q̇, t) to the input u. One call into the compiled library gives what
-the method needs at the state (codegen.structured); the remaining linear algebra is LAPACK through
+the method needs at the state (acroboter.codegen.structured); the remaining linear algebra is LAPACK through
 scipy on preallocated arrays.
 
   ρ   = γ   + 2Ωμ φ̇ + Ω² φ          (geometric constraints, penalty dynamics)
@@ -10,18 +10,15 @@ scipy on preallocated arrays.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
-
 import numpy as np
 from scipy.linalg import lapack
 
-from .distribution import PENALTY_SECONDARY_WEIGHT, BoundedInputs, DistributionError
+from .distribution import BoundedInputs, DistributionError
 from .path import DesiredPath
 from .recovery import InputRecovery
+from .settings import MLM_RCOND_LIMIT, PENALTY_SECONDARY_WEIGHT, Gains
 from .spec import Spec
 
-# MLM: a reciprocal condition number below this means a singular system (redundant constraints).
-MLM_RCOND_LIMIT = 1e-13
 # A step saturates when no input within the limits causes the servo-constraint accelerations the
 # unbounded input would, to this fraction of max(1, their size): a limit that only moves internal
 # forces (redundant inputs) is not saturation, whatever distribution the method then applies.
@@ -36,28 +33,6 @@ def unbounded(spec: Spec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Limits that bound nothing (for the ideal inverse dynamics), with the spec's preferred values."""
     _, _, preferred = spec.input_limits()
     return np.full(preferred.size, -np.inf), np.full(preferred.size, np.inf), preferred
-
-
-@dataclass(frozen=True)
-class Gains:
-    kp: float
-    kd: float
-    alpha_geometric: float
-    alpha_servo: float
-    omega: float
-    mu: float
-    recovery: str
-    kappa: float
-
-    @classmethod
-    def from_spec(cls, spec: Spec, **overrides) -> Gains:
-        c, p = spec.controller, spec.controller.penalty
-        gains = cls(c.kp, c.kd, p.alpha_geometric, p.alpha_servo, p.omega, p.mu, p.recovery, p.kappa)
-        return replace(gains, **{k: v for k, v in overrides.items() if v is not None})
-
-    def parameter_vector(self) -> np.ndarray:
-        """The generated functions' p = [k_P, k_D, α̃, α̂, Ω, μ] (codegen.structured.PARAMS)."""
-        return np.array([self.kp, self.kd, self.alpha_geometric, self.alpha_servo, self.omega, self.mu])
 
 
 class Controller:
@@ -245,7 +220,7 @@ class Penalty(Controller):
         self.iterations = iterations
         self.name = "penalty" if iterations == 1 else f"iterative-{iterations}"
         n = self.n
-        # M is constant in natural coordinates (codegen.structured checks it): take it once.
+        # M is constant in natural coordinates (acroboter.codegen.structured checks it): take it once.
         self.mass = model.term("mass_matrix").copy()
         self._qdd_sum = np.zeros(n)
         self._qdd_last = np.zeros(n)

@@ -44,19 +44,8 @@ import daqp
 import numpy as np
 from scipy.linalg import lapack
 
-# Eigenvalues of G below this fraction of its mean eigenvalue are internal forces (round-off leaves
-# them at ~1e-15 relative where they are exactly zero).
-RANK_TOLERANCE = 1e-9
-# Weight of the secondary objective on the internal forces in the bounded QP (lexicographic case),
-# relative to G's mean eigenvalue.
-SECONDARY_WEIGHT = 1e-9
-# The penalty methods' weighted secondary objective (redundant inputs), relative likewise: it sets
-# how tightly the internal force stays at u_pref. On the four-cable crane's 55 s path with u_pref =
-# 20 N (tension range; max position error 0.062 mm in all three): 4e-6: 17.1..23.3 N; 1e-5:
-# 19.0..21.5 N; 1e-4: 20.0..20.4 N. A u_pref far from the need (152.5 N) also pulls real directions:
-# 0.07, 0.09, 0.41 mm. The internal force's share of the fit there is 4e-10..8e-9 of G's mean
-# eigenvalue, its other directions' share at least 0.16.
-PENALTY_SECONDARY_WEIGHT = 1e-5
+from .settings import RANK_TOLERANCE, SECONDARY_WEIGHT
+
 # DAQP's feasibility tolerance on the bounds it leaves inactive (its default, 1e-6, is loose for N).
 PRIMAL_TOLERANCE = 1e-9
 

@@ -5,7 +5,7 @@ cables that only pull.
     [φ_q  0 ] [λ] = [−γ − 2ζ_B ω_B φ̇ − ω_B² φ]      over the rigid rows and the TAUT cables
 
 integrated with fixed-step RK4 for a held input u. The whole RK4 step is one generated C function
-(codegen.plant.plant_step_function), written independently of the controllers: it shares only the
+(acroboter.codegen.plant.plant_step_function), written independently of the controllers: it shares only the
 symbolic model. Alongside q and q̇ it integrates the work of the inputs, the work of the moving
 anchors through the constraint forces (λᵀφ_t) and the energy dissipated by damping. State
 x = [q, q̇, W_u, W_anchor, E_d].
@@ -54,7 +54,7 @@ Limits: slack onset at step granularity (above); re-tension located to ~1e-12 m 
 goes positive and back within one substep is not seen; a slack cable whose gap comes up so smoothly
 from contact that no point below −GAP_TOL brackets it ends that step stretched by a little (seen
 ≤ 2e-10 m) and is taken up by the next step's force-level decision; a cable whose row is dependent
-(left out of the plant, codegen.structured.independent_rows) is never switched and reports
+(left out of the plant, acroboter.codegen.structured.independent_rows) is never switched and reports
 tension 0. Stage signals at fractional times come from `path` (a hand-made table is taken to follow
 `path` when an event happens). No consistent state within max_events_per_step events raises
 SimulationError (simulate reports it as a divergence).

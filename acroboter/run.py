@@ -15,12 +15,12 @@ import sys
 import tempfile
 from pathlib import Path
 
-from .build import REPO
 from .entry import guarded, number, positive
 from .interrupts import deferred_interrupt
+from .locations import example_spec
 from .spec import MAX_CONTROL_STEPS, MAX_ITERATIONS
 
-DEFAULT_SPEC = REPO / "model_spec" / "acroboter.toml"
+DEFAULT_SPEC = example_spec("acroboter")
 WARM_UP_STEPS = 200  # untimed control steps at the start state before each method's run
 
 
@@ -139,7 +139,8 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
     import numpy as np
     from tqdm import tqdm
 
-    from .compiled import CompiledModel, StaleModelError
+    from .cache import load_model
+    from .compiled import StaleModelError
     from .controllers import Gains, SingularSystemError, make_controller
     from .feasibility import check_path
     from .plant import SimulationError
@@ -152,7 +153,7 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
     try:
         spec = load_spec(args.spec)
         methods = expand_methods(args.method, args.iterations or spec.controller.penalty.iterations)
-        model = CompiledModel(spec)
+        model = load_model(spec)
         gains = Gains.from_spec(spec, kp=args.kp, kd=args.kd, alpha_geometric=args.alpha_geometric,
                                 alpha_servo=args.alpha_servo, omega=args.omega, mu=args.mu,
                                 recovery=args.recovery, kappa=args.kappa)

@@ -18,28 +18,28 @@ from pathlib import Path
 
 import numpy as np
 
-from .build import REPO
 from .entry import check_out_folder, guarded, positive
+from .locations import spec_folder
 from .spec import MAX_CONTROL_STEPS
 
 # The study's cranes run at 50 Hz: the record cap in seconds.
 STUDY_RATE_HZ = 50.0
 STUDY_MAX_DURATION_S = MAX_CONTROL_STEPS / STUDY_RATE_HZ
 
-SPECS = REPO / "model_spec"
+SPECS = spec_folder()
 REDUNDANT_SPECS = ("acroboter", "acroboter_redundant", "acroboter_redundant_task")
 RECOVERY_CASES = (("projected", None), ("eq12", None), ("eq13", None), ("eq15", None),
                   ("kappa", 0.0), ("kappa", 0.5), ("kappa", 1.0))
 
 
 def _setup(spec_name: str):
-    from .compiled import CompiledModel
+    from .cache import load_model
     from .simulation import Scenario, setup_default
     from .spec import load_spec
     from .statics import desired_path, solve_equilibrium
 
     spec = load_spec(SPECS / f"{spec_name}.toml")
-    model = CompiledModel(spec)
+    model = load_model(spec)
     path = desired_path(model)
     start = solve_equilibrium(model, path)
     return spec, model, path, start, setup_default(model, path), Scenario.from_model(model)

@@ -34,11 +34,11 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from .build import REPO
 from .entry import check_out_folder, guarded, number, positive, whole
+from .locations import example_spec
 from .spec import MAX_CONTROL_STEPS, MAX_ITERATIONS
 
-DEFAULT_SPEC = REPO / "model_spec" / "acroboter.toml"
+DEFAULT_SPEC = example_spec("acroboter")
 DEFAULT_ALPHAS = "1e1:1e16"
 DEFAULT_OMEGAS = "5,10,20"
 DEFAULT_ITERATIONS = "1,3,5,10"
@@ -178,22 +178,22 @@ def _context(spec_text: str, source: str) -> _Context:
     if key not in cache:
         import tomllib
 
-        from .build import BUILD_DIR, GENERATED_DIR, is_current
-        from .compiled import CompiledModel
+        from .cache import load_model
+        from .compiled import NotBuiltError
         from .simulation import Scenario, setup_default
         from .spec import parse_spec
         from .statics import desired_path, solve_equilibrium
 
         spec = parse_spec(tomllib.loads(spec_text), source)
-        if not (GENERATED_DIR / spec.name / "manifest.json").is_file() or not is_current(spec.name):
+        try:
+            model = load_model(spec, build=False)  # a task never generates or compiles
+        except NotBuiltError as err:
             import socket
 
             raise MissingLibraryError(
-                f"worker on {socket.gethostname()}: no compiled model library for spec '{spec.name}' under "
-                f"{BUILD_DIR}; sweep tasks never compile. Run `make build` (or `python -m acroboter.build "
-                f"{spec.name}`) in this checkout on every worker machine, then rerun the sweep."
-            )
-        model = CompiledModel(spec)
+                f"worker on {socket.gethostname()}: {err}; sweep tasks never compile. Build it on every worker "
+                f"machine (`acroboter build {spec.name}`, or run the spec once there), then rerun the sweep."
+            ) from None
         path = desired_path(model)
         cache[key] = _Context(spec, model, path, solve_equilibrium(model, path).q, setup_default(model, path),
                               Scenario.from_model(model))
@@ -409,7 +409,8 @@ def sweep(spec_path: Path = DEFAULT_SPEC, *, alphas: list[float] | None = None, 
           kd: float | None = None, mu: float | None = None) -> SweepResult:
     """The whole study as a function: build the model once here, run the grid on the cluster, and
     (with `out`) write sweep.csv and the figures. Raises SweepError when it cannot run at all."""
-    from .compiled import CompiledModel, StaleModelError
+    from .cache import load_model
+    from .compiled import StaleModelError
     from .spec import SpecError, load_spec
 
     alphas = alphas or parse_values(DEFAULT_ALPHAS)
@@ -417,7 +418,7 @@ def sweep(spec_path: Path = DEFAULT_SPEC, *, alphas: list[float] | None = None, 
     iterations = iterations or parse_iterations(DEFAULT_ITERATIONS)
     try:
         spec = load_spec(spec_path)
-        CompiledModel(spec)  # builds the library here if missing: the tasks only load it
+        load_model(spec)  # builds the library here if missing: the tasks only load it
     except (SpecError, StaleModelError) as err:
         raise SweepError(str(err)) from None
     rate = spec.controller.rate_hz

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from acroboter.cache import load_model
 from acroboter.compiled import CompiledModel
 from acroboter.layout import Layout, nominal_coordinates
 from acroboter.spec import Spec, load_spec
@@ -100,7 +101,7 @@ def crane(request, compiled_cranes) -> Crane:
     if name not in compiled_cranes:
         path = SPEC_DIR / f"{name}.toml"
         spec = load_spec(path)
-        model = CompiledModel(spec)
+        model = load_model(spec)
         compiled_cranes[name] = Crane(
             path, spec, model, nominal_coordinates(spec, model.layout), start_signals(spec, model.layout)
         )
@@ -132,6 +133,6 @@ def load_with_start(path: Path):
     from acroboter.statics import desired_path, solve_equilibrium
 
     spec = load_spec(path)
-    model = CompiledModel(spec)
+    model = load_model(spec)
     desired = desired_path(model)
     return spec, model, desired, solve_equilibrium(model, desired)

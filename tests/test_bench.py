@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from acroboter.bench import time_steps
+from acroboter.cache import load_model
 from acroboter.casadi_backend import CasadiModel
-from acroboter.compiled import CompiledModel
 from acroboter.controllers import Gains, make_controller
 from acroboter.spec import load_spec
 from acroboter.statics import desired_path, solve_equilibrium
@@ -22,7 +22,7 @@ SPEC = Path(__file__).resolve().parent.parent / "model_spec" / "acroboter.toml"
 @pytest.fixture(scope="module")
 def backends():
     spec = load_spec(SPEC)
-    compiled, casadi_model = CompiledModel(spec), CasadiModel(spec)
+    compiled, casadi_model = load_model(spec), CasadiModel(spec)
     path = desired_path(compiled)
     start = solve_equilibrium(compiled, path)
     rng = np.random.default_rng(0)

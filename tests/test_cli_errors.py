@@ -32,11 +32,11 @@ CASES = [
     ("acroboter.sweep", ["--workers", "0"], "expected a whole number between 1 and 64"),
     ("acroboter.sweep", ["--iterations", "100000000"], "between 1 (the plain penalty method) and 1000"),
     ("acroboter.sweep", ["--out", UNWRITABLE], "cannot write into --out"),
-    ("codegen", ["generate", "--out", UNWRITABLE], "cannot write into --out"),
-    ("codegen.export_step", ["--out", UNWRITABLE], "cannot write into --out"),
-    ("codegen.export_step", ["--kp", "nan"], "argument --kp: expected a finite number"),
-    ("codegen.export_step", ["--kappa", "-1"], "argument --kappa: expected a number at least 0"),
-    ("codegen.export_step", ["--method", "iterative-1001"], "1 <= N <= 1000"),
+    ("acroboter", ["generate", "--out", UNWRITABLE], "cannot write into --out"),
+    ("acroboter", ["export-step", "--out", UNWRITABLE], "cannot write into --out"),
+    ("acroboter", ["export-step", "--kp", "nan"], "argument --kp: expected a finite number"),
+    ("acroboter", ["export-step", "--kappa", "-1"], "argument --kappa: expected a number at least 0"),
+    ("acroboter", ["export-step", "--method", "iterative-1001"], "1 <= N <= 1000"),
 ]
 
 

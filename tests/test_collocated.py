@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acroboter.compiled import CompiledModel
+from acroboter.cache import load_model
+from acroboter.codegen.generate import generate
 from acroboter.controllers import Gains, make_controller
 from acroboter.spec import load_spec
 from acroboter.statics import desired_path
-from codegen.generate import generate
 
 TOY = Path(__file__).resolve().parent / "specs" / "collocated_toy.toml"
 
@@ -23,7 +23,7 @@ def toy(tmp_path_factory):
     spec = load_spec(TOY)
     root = tmp_path_factory.mktemp("toy")
     generate(spec, root / "generated")
-    model = CompiledModel(spec, generated_dir=root / "generated", build_dir=root / "build")
+    model = load_model(spec, generated_dir=root / "generated", cache_dir=root / "build")
     return spec, model, desired_path(model)
 
 

@@ -17,10 +17,10 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from acroboter.compiled import CompiledModel
+from acroboter.cache import load_model
+from acroboter.codegen.generate import FUNCTIONS, GenerationContext
 from acroboter.layout import nominal_coordinates
 from acroboter.spec import load_spec
-from codegen.generate import FUNCTIONS, GenerationContext
 
 REPO = Path(__file__).resolve().parent.parent
 SPEC_DIR = REPO / "model_spec"
@@ -35,7 +35,7 @@ class Pair:
     def __init__(self, name: str):
         self.spec = load_spec(SPEC_DIR / f"{name}.toml")
         self.ctx = GenerationContext(self.spec).register_all()
-        self.model = CompiledModel(self.spec)
+        self.model = load_model(self.spec)
         self.layout = self.model.layout
 
 
@@ -186,7 +186,7 @@ def test_generation_is_deterministic(name, tmp_path):
     third = tmp_path / "third"
     script = (
         "import sys; from pathlib import Path; from acroboter.spec import load_spec; "
-        "from codegen.generate import GenerationContext; "
+        "from acroboter.codegen.generate import GenerationContext; "
         "GenerationContext(load_spec(sys.argv[1])).register_all().write(Path(sys.argv[2]))"
     )
     env = {**os.environ, "PYTHONHASHSEED": "12345"}

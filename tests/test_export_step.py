@@ -1,4 +1,4 @@
-"""Embedded control step (codegen.export_step): the exported C, compiled with a small C driver, gives the
+"""Embedded control step (acroboter.codegen.export_step): the exported C, compiled with a small C driver, gives the
 same u as the Python controllers (to 1e-8 relative to max(|u|, 1)) at states of a short closed-loop run
 and at noisy copies of some of them (off the constraint manifold, where Ω and μ matter), for penalty,
 MLM and iterative-3 in both formulations, with the spec's gains and with distinct made-up gains; the
@@ -26,15 +26,16 @@ import mpmath
 import numpy as np
 import pytest
 
-from acroboter.compiled import CompiledModel
+from acroboter.cache import load_model
+from acroboter.codegen import export_step
+from acroboter.codegen.export_step import ExportError, build_step, step_name, write_step
+from acroboter.codegen.generate import generate
+from acroboter.codegen_cli import export_step_main as main
 from acroboter.controllers import Gains, make_controller
-from acroboter.distribution import PENALTY_SECONDARY_WEIGHT
+from acroboter.settings import PENALTY_SECONDARY_WEIGHT
 from acroboter.simulation import setup_default, simulate
 from acroboter.spec import load_spec, parse_spec
 from acroboter.statics import desired_path, solve_equilibrium
-from codegen import export_step
-from codegen.export_step import ExportError, build_step, main, step_name, write_step
-from codegen.generate import generate
 
 REPO = Path(__file__).resolve().parent.parent
 SPEC_PATH = REPO / "model_spec" / "acroboter.toml"
@@ -138,7 +139,7 @@ def scenario():
     """The default spec's model, path and states: N_STATES of a short penalty closed-loop run, plus
     N_NOISY noisy copies of them (sensor-like noise: φ ≠ 0, so the geometric penalty dynamics enter u)."""
     spec = load_spec(SPEC_PATH)
-    model = CompiledModel(spec)
+    model = load_model(spec)
     path = desired_path(model)
     start = solve_equilibrium(model, path)
     gains = Gains.from_spec(spec)
@@ -276,7 +277,7 @@ def redundant_crane(tmp_path_factory):
     spec = parse_spec(data)
     root = tmp_path_factory.mktemp("redundant")
     generate(spec, root / "generated")
-    model = CompiledModel(spec, generated_dir=root / "generated", build_dir=root / "build")
+    model = load_model(spec, generated_dir=root / "generated", cache_dir=root / "build")
     return spec, model, desired_path(model)
 
 
@@ -375,7 +376,7 @@ def test_default_formulation_against_high_precision(method, spec_path):
     condition λmax/μ ≈ 4e5 at these states, which amplifies the round-off of G and λ̂ along the internal
     force: 4.0e-10 measured (the Python controller: 2.7e-9..7.4e-9), hence 2e-9 there."""
     spec = load_spec(spec_path)
-    model = CompiledModel(spec)
+    model = load_model(spec)
     desired = desired_path(model)
     q0 = solve_equilibrium(model, desired).q
     rng = np.random.default_rng(5)
@@ -477,7 +478,7 @@ def four_cable():
     of a penalty closed-loop run, and noisy copies of them (1e-3 in q, 1e-2 in q̇), where tensions
     spread over ~18..22.3 N for the penalty methods (20.05..20.08 N on the run)."""
     spec = load_spec(FOUR_CABLE_PATH)
-    model = CompiledModel(spec)
+    model = load_model(spec)
     path = desired_path(model)
     start = solve_equilibrium(model, path)
     gains = Gains.from_spec(spec)

@@ -14,17 +14,22 @@ import numpy as np
 import pytest
 from conftest import REPO, SHIPPED_NAMES, SHIPPED_SPECS, SPEC_DIR, raw_spec
 
-from acroboter.build import GENERATED_DIR, build, library_path
-from acroboter.compiled import CompiledModel, StaleModelError
+from acroboter.build import build, library_path
+from acroboter.cache import load_model
+from acroboter.codegen.generate import generate
+from acroboter.compiled import StaleModelError
+from acroboter.fingerprint import codegen_hash
+from acroboter.locations import cache_dir, shipped_generated_folder
 from acroboter.spec import load_spec, parse_spec
-from codegen.generate import codegen_hash, generate
+
+GENERATED_DIR = shipped_generated_folder()
 
 SU_MASS_LINE = "mass = 8.0"
 
 
 def _check(*args):
     return subprocess.run(
-        [sys.executable, "-m", "codegen", "check", *map(str, args)], cwd=REPO, capture_output=True, text=True,
+        [sys.executable, "-m", "acroboter", "check", *map(str, args)], cwd=REPO, capture_output=True, text=True,
         timeout=300,
     )
 
@@ -132,7 +137,7 @@ def modified_spec(tmp_path_factory):
 def test_generated_code_of_another_spec_version_is_stale(spec, modified_spec, tmp_path):
     generate(modified_spec, tmp_path / "gen")
     with pytest.raises(StaleModelError, match="make generate") as info:
-        CompiledModel(spec, generated_dir=tmp_path / "gen", build_dir=tmp_path / "build")
+        load_model(spec, generated_dir=tmp_path / "gen", cache_dir=tmp_path / "build")
     assert "different version of spec 'acroboter'" in str(info.value)
     assert not (tmp_path / "build").exists()  # nothing was built from stale code
 
@@ -140,7 +145,7 @@ def test_generated_code_of_another_spec_version_is_stale(spec, modified_spec, tm
 def test_missing_generated_folder_is_stale(spec, tmp_path):
     (tmp_path / "gen").mkdir()
     with pytest.raises(StaleModelError, match="make generate") as info:
-        CompiledModel(spec, generated_dir=tmp_path / "gen", build_dir=tmp_path / "build")
+        load_model(spec, generated_dir=tmp_path / "gen", cache_dir=tmp_path / "build")
     assert "no generated code for spec 'acroboter'" in str(info.value)
 
 
@@ -151,36 +156,40 @@ def test_generated_code_of_another_code_generator_is_stale(spec, tmp_path):
     manifest["codegen_hash"] = "0" * 64
     (gen / "acroboter" / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(StaleModelError, match="make generate") as info:
-        CompiledModel(spec, generated_dir=gen, build_dir=tmp_path / "build")
+        load_model(spec, generated_dir=gen, cache_dir=tmp_path / "build")
     assert "different version of the code generator" in str(info.value)
 
 
+def _lib(gen, cache):
+    return library_path("acroboter", gen / "acroboter", cache)
+
+
 def test_missing_library_is_built_and_loads(spec, tmp_path):
-    build_dir = tmp_path / "build"
-    assert not library_path("acroboter", build_dir).exists()
-    model = CompiledModel(spec, build_dir=build_dir)
-    assert library_path("acroboter", build_dir).is_file()
+    cache = tmp_path / "cache"
+    model = load_model(spec, cache_dir=cache)
+    assert model.library_path.is_file() and model.library_path.is_relative_to(cache)
+    assert model.source_dir == GENERATED_DIR / "acroboter"  # the checked-in C, not a copy
     i = model.layout.body_offset["SU"]
     assert model.term("mass_matrix", q=np.zeros(model.layout.n))[i, i] == spec.body("SU").mass
 
 
 def test_stale_library_is_rebuilt(spec, modified_spec, tmp_path):
-    gen, build_dir = tmp_path / "gen", tmp_path / "build"
+    gen, cache = tmp_path / "gen", tmp_path / "cache"
     generate(modified_spec, gen)
-    old = build("acroboter", gen, build_dir).read_bytes()
-    generate(spec, gen)  # generated/ moves on; the library in build/ is now older than it
-    model = CompiledModel(spec, generated_dir=gen, build_dir=build_dir)
-    assert library_path("acroboter", build_dir, gen).read_bytes() != old
+    old = build("acroboter", gen / "acroboter", cache).read_bytes()
+    generate(spec, gen)  # generated/ moves on; the library in the cache is now older than it
+    model = load_model(spec, generated_dir=gen, cache_dir=cache)
+    assert _lib(gen, cache).read_bytes() != old
     i = model.layout.body_offset["SU"]
     assert model.term("mass_matrix", q=np.zeros(model.layout.n))[i, i] == 8.0
 
 
 def test_library_rebuilt_in_the_same_process_is_reloaded(spec, modified_spec, tmp_path):
-    gen, build_dir = tmp_path / "gen", tmp_path / "build"
+    gen, cache = tmp_path / "gen", tmp_path / "cache"
     generate(modified_spec, gen)
-    CompiledModel(modified_spec, generated_dir=gen, build_dir=build_dir)  # loads the library of the modified spec
+    load_model(modified_spec, generated_dir=gen, cache_dir=cache)  # loads the library of the modified spec
     generate(spec, gen)
-    model = CompiledModel(spec, generated_dir=gen, build_dir=build_dir)  # rebuilds (new path) and loads it
+    model = load_model(spec, generated_dir=gen, cache_dir=cache)  # rebuilds (new path) and loads it
     i = model.layout.body_offset["SU"]
     assert model.term("mass_matrix", q=np.zeros(model.layout.n))[i, i] == 8.0
 
@@ -189,11 +198,11 @@ def test_library_built_from_other_code_is_refused(spec, modified_spec, tmp_path)
     gen_a, gen_b = tmp_path / "gen_a", tmp_path / "gen_b"
     generate(modified_spec, gen_a)
     generate(spec, gen_b)
-    lib_a = build("acroboter", gen_a, tmp_path / "build_a")
-    lib_b = build("acroboter", gen_b, tmp_path / "build_b")
+    lib_a = build("acroboter", gen_a / "acroboter", tmp_path / "cache_a")
+    lib_b = build("acroboter", gen_b / "acroboter", tmp_path / "cache_b")
     shutil.copy(lib_a, lib_b)  # the name says b's sources, the content is a's
     # The build's SHA-256 beside the library gives it away: rebuilt, never loaded.
-    model = CompiledModel(spec, generated_dir=gen_b, build_dir=tmp_path / "build_b")
+    model = load_model(spec, generated_dir=gen_b, cache_dir=tmp_path / "cache_b")
     assert lib_b.read_bytes() != lib_a.read_bytes()
     su = model.layout.body_offset["SU"]
     assert model.term("mass_matrix", q=np.zeros(model.layout.n))[su, su] == 8.0  # b's spec, not a's 8.5
@@ -205,19 +214,31 @@ def test_library_whose_hashes_disagree_is_refused(spec, tmp_path):
 
     gen = tmp_path / "gen"
     generate(spec, gen)
-    lib = build("acroboter", gen, tmp_path / "build")
+    lib = build("acroboter", gen / "acroboter", tmp_path / "cache")
     text = lib.read_bytes().replace(spec.model_hash().encode(), b"0" * 64)
     lib.write_bytes(text)
     lib.with_name(lib.name + ".sha256").write_text(hashlib.sha256(text).hexdigest() + "\n")
     with pytest.raises(StaleModelError, match="make build"):
-        CompiledModel(spec, generated_dir=gen, build_dir=tmp_path / "build")
+        load_model(spec, generated_dir=gen, cache_dir=tmp_path / "cache")
+
+
+def test_a_changed_spec_is_generated_into_the_cache(modified_spec, tmp_path):
+    """A spec that is not a shipped example as generated (here: the SU 0.5 kg heavier, same name) gets
+    C of its own in the cache, keyed by its content; generated/ is not touched."""
+    cache = tmp_path / "cache"
+    model = load_model(modified_spec, cache_dir=cache)
+    assert model.source_dir.is_relative_to(cache / "generated")
+    i = model.layout.body_offset["SU"]
+    assert model.term("mass_matrix", q=np.zeros(model.layout.n))[i, i] == 8.5
+    again = load_model(modified_spec, cache_dir=cache)  # the second load generates nothing
+    assert again.source_dir == model.source_dir and len(list((cache / "generated").iterdir())) == 1
 
 
 def test_build_recompiles_only_what_changed():
     """`make build` (python -m acroboter.build) on a built checkout compiles nothing."""
-    libs = {name: library_path(name) for name in SHIPPED_NAMES}
+    libs = {name: library_path(name, GENERATED_DIR / name, cache_dir()) for name in SHIPPED_NAMES}
     before = {name: lib.stat().st_mtime_ns for name, lib in libs.items() if lib.is_file()}
-    proc = subprocess.run([sys.executable, "-m", "acroboter.build"], cwd=REPO, capture_output=True, text=True,
+    proc = subprocess.run([sys.executable, "-m", "acroboter", "build"], cwd=REPO, capture_output=True, text=True,
                           timeout=600)
     assert proc.returncode == 0, proc.stderr
     after = {name: lib.stat().st_mtime_ns for name, lib in libs.items()}

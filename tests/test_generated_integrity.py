@@ -18,10 +18,11 @@ from pathlib import Path
 import pytest
 from conftest import REPO, SPEC_DIR
 
-from acroboter.compiled import CompiledModel, StaleModelError
+from acroboter.cache import load_model
+from acroboter.codegen import generate as generation
+from acroboter.codegen.generate import GenerationContext, generate
+from acroboter.compiled import StaleModelError
 from acroboter.spec import load_spec
-from codegen import generate as generation
-from codegen.generate import GenerationContext, generate
 
 TOY = Path(__file__).resolve().parent / "specs" / "collocated_toy.toml"
 
@@ -85,11 +86,11 @@ def test_swap_failure_puts_the_previous_folder_back(toy_tree, monkeypatch):
 
 
 def test_interrupted_cli_generation_leaves_the_previous_files(tmp_path):
-    """Ctrl-C (SIGINT) while `python -m codegen generate` works: exit 130, one line, files unchanged."""
+    """Ctrl-C (SIGINT) while `python -m acroboter.codegen generate` works: exit 130, one line, files unchanged."""
     root = tmp_path / "generated"
     shutil.copytree(REPO / "generated" / "acroboter", root / "acroboter")
     before = snapshot(root / "acroboter")
-    proc = subprocess.Popen([sys.executable, "-m", "codegen", "generate", str(SPEC_DIR / "acroboter.toml"),
+    proc = subprocess.Popen([sys.executable, "-m", "acroboter", "generate", str(SPEC_DIR / "acroboter.toml"),
                              "--out", str(root)], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(2.0)  # inside the symbolic derivation or the compile check (about 10 s in all)
     proc.send_signal(signal.SIGINT)
@@ -104,7 +105,7 @@ def test_a_spec_from_elsewhere_cannot_overwrite_a_checked_in_crane(tmp_path):
     stranger = tmp_path / "my_copy.toml"
     stranger.write_text((SPEC_DIR / "acroboter.toml").read_text().replace("mass = 8.0", "mass = 9.0"))
     before = snapshot(REPO / "generated" / "acroboter")
-    proc = subprocess.run([sys.executable, "-m", "codegen", "generate", str(stranger)], cwd=REPO,
+    proc = subprocess.run([sys.executable, "-m", "acroboter", "generate", str(stranger)], cwd=REPO,
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2, proc.stdout + proc.stderr
     assert "model_spec/acroboter.toml" in proc.stderr and "would overwrite generated/acroboter/" in proc.stderr
@@ -114,7 +115,7 @@ def test_a_spec_from_elsewhere_cannot_overwrite_a_checked_in_crane(tmp_path):
 
 def test_generation_checks_that_the_code_compiles(tmp_path, monkeypatch):
     """The CLI's verification compiles the staged C: broken C never replaces working C."""
-    from codegen import __main__ as cli
+    from acroboter import codegen_cli as cli
 
     spec = load_spec(TOY)
     root = tmp_path / "generated"
@@ -148,9 +149,9 @@ def test_a_hand_edited_c_file_is_refused(toy_tree, tmp_path):
     assert "return 0;" in text
     edited.write_text(text.replace("return 0;", "w[0] = 2.0; return 0;", 1))  # a plausible hand edit
     with pytest.raises(StaleModelError) as info:
-        CompiledModel(spec, generated_dir=root, build_dir=build)
+        load_model(spec, generated_dir=root, cache_dir=build)
     message = str(info.value)
-    assert edited.name in message and "content hash" in message and "codegen generate" in message
+    assert edited.name in message and "content hash" in message and "acroboter generate" in message
     assert not build.exists()  # refused before anything was compiled
 
 
@@ -158,7 +159,7 @@ def test_an_extra_c_file_is_refused(toy_tree, tmp_path):
     spec, root, build = copy_tree(toy_tree, tmp_path)
     (root / spec.name / "extra.c").write_text("int x;\n")
     with pytest.raises(StaleModelError, match="extra.c"):
-        CompiledModel(spec, generated_dir=root, build_dir=build)
+        load_model(spec, generated_dir=root, cache_dir=build)
 
 
 def test_manifest_shapes_are_checked_against_the_library(toy_tree, tmp_path):
@@ -171,7 +172,7 @@ def test_manifest_shapes_are_checked_against_the_library(toy_tree, tmp_path):
     outputs[0][1] = [rows - 1, cols]  # one row short: the call would write past the buffer
     manifest_path.write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
     with pytest.raises(StaleModelError) as info:
-        CompiledModel(spec, generated_dir=root, build_dir=build)
+        load_model(spec, generated_dir=root, cache_dir=build)
     # the library's embedded manifest hash finds it first; the sparsity check stands behind it
     assert "manifest.json does not describe this library" in str(info.value) and "shapes" in str(info.value)
 
@@ -206,7 +207,7 @@ def test_git_status_stays_clean_after_a_failed_generation_of_a_checked_in_spec(m
 
 def test_git_status_stays_clean_after_an_interrupted_generation_of_a_checked_in_spec():
     status, before = _git_status(REPO / "generated"), snapshot(REPO / "generated" / "acroboter")
-    proc = subprocess.Popen([sys.executable, "-m", "codegen", "generate", str(SPEC_DIR / "acroboter.toml")],
+    proc = subprocess.Popen([sys.executable, "-m", "acroboter", "generate", str(SPEC_DIR / "acroboter.toml")],
                             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(2.0)
     proc.send_signal(signal.SIGINT)
@@ -218,8 +219,8 @@ def test_git_status_stays_clean_after_an_interrupted_generation_of_a_checked_in_
 
 def test_two_checked_in_specs_with_one_name_are_refused(tmp_path, monkeypatch):
     """A copy in model_spec/ that kept the original's name (step 1 of "Model a new crane", forgotten)."""
+    from acroboter import codegen_cli as cli
     from acroboter.spec import SpecError
-    from codegen import __main__ as cli
 
     specs = tmp_path / "model_spec"
     specs.mkdir()
@@ -237,9 +238,9 @@ def test_a_truncated_library_is_rebuilt_not_loaded(toy_tree, tmp_path):
     from acroboter.build import build as build_library
 
     spec, root, build = copy_tree(toy_tree, tmp_path)
-    lib = build_library(spec.name, root, build)  # built, not loaded: this process never maps it
+    lib = build_library(spec.name, root / spec.name, build)  # built, not loaded: this process never maps it
     lib.write_bytes(lib.read_bytes()[:1000])  # loading this would crash the process (SIGBUS)
-    model = CompiledModel(spec, generated_dir=root, build_dir=build)
+    model = load_model(spec, generated_dir=root, cache_dir=build)
     assert lib.stat().st_size > 1000 and model.term("mass_matrix").shape[0] == model.layout.n
 
 
@@ -260,4 +261,4 @@ def test_an_edited_manifest_is_refused_with_a_message(toy_tree, tmp_path, edit):
         words = "not a JSON object"
     path.write_text(json.dumps(manifest))
     with pytest.raises(StaleModelError, match=words):
-        CompiledModel(spec, generated_dir=root, build_dir=build)
+        load_model(spec, generated_dir=root, cache_dir=build)

@@ -17,7 +17,7 @@ import pytest
 from conftest import load_with_start
 
 from acroboter import run
-from acroboter.compiled import CompiledModel
+from acroboter.cache import load_model
 from acroboter.controllers import Gains, make_controller, unbounded
 from acroboter.simulation import Scenario, setup_default, simulate, summarize
 from acroboter.statics import desired_path, solve_equilibrium
@@ -222,8 +222,8 @@ def test_a_reversed_winch_reports_its_tension_as_gain_times_u(tmp_path):
     """gain = −1 (reversed mounting): u ≈ −26.75, the cable pulls with +26.75 N and never goes slack."""
     from conftest import raw_spec
 
+    from acroboter.codegen.generate import generate
     from acroboter.spec import parse_spec
-    from codegen.generate import generate
 
     data = raw_spec("acroboter")
     data["name"] = "acroboter_reversed_winch"
@@ -231,7 +231,7 @@ def test_a_reversed_winch_reports_its_tension_as_gain_times_u(tmp_path):
     spec = parse_spec(data)
     assert spec.input_limits()[0][0] == -math.inf and spec.input_limits()[1][0] == 0.0  # pulling is u <= 0
     generate(spec, tmp_path / "generated")
-    model = CompiledModel(spec, generated_dir=tmp_path / "generated", build_dir=tmp_path / "build")
+    model = load_model(spec, generated_dir=tmp_path / "generated", cache_dir=tmp_path / "build")
     path = desired_path(model)
     start = solve_equilibrium(model, path)
     controller = make_controller("mlm", model, path, Gains.from_spec(spec))

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acroboter.compiled import CompiledModel
+from acroboter.cache import load_model
 from acroboter.controllers import Gains, SingularSystemError, make_controller
 from acroboter.simulation import Scenario, setup_default, simulate, summarize
 from acroboter.spec import load_spec
@@ -21,7 +21,7 @@ DURATION = 6.0  # s: past the first corner's acceleration and the start of the y
 
 def crane(name: str):
     spec = load_spec(SPECS / f"{name}.toml")
-    model = CompiledModel(spec)
+    model = load_model(spec)
     path = desired_path(model)
     return spec, model, path, solve_equilibrium(model, path)
 
@@ -97,7 +97,7 @@ def test_noncollocated_recoveries_that_assume_collocation_lose_the_load(recovery
 def test_a_duplicated_cable_is_handled_by_the_penalty_methods(tmp_path):
     """Redundancy the spec does not flag (a second main cable, identical to the first): the code
     generator finds the dependent row, MLM refuses, the penalty methods track as on the default."""
-    from codegen.generate import generate
+    from acroboter.codegen.generate import generate
 
     text = (SPECS / "acroboter.toml").read_text().replace('name = "acroboter"', 'name = "acroboter_dup"', 1)
     text += '\n[[cables]]\nname = "main_again"\nends = ["climbing_unit", "CC.top"]\nlength = 1.5\n'
@@ -105,7 +105,7 @@ def test_a_duplicated_cable_is_handled_by_the_penalty_methods(tmp_path):
     path.write_text(text)
     spec = load_spec(path)
     generate(spec, tmp_path / "generated")
-    model = CompiledModel(spec, generated_dir=tmp_path / "generated", build_dir=tmp_path / "build")
+    model = load_model(spec, generated_dir=tmp_path / "generated", cache_dir=tmp_path / "build")
     desired = desired_path(model)
     start = solve_equilibrium(model, desired)
     gains = Gains.from_spec(spec)

@@ -90,10 +90,10 @@ def test_an_equilibrium_solve_gives_up_within_its_time_limit(monkeypatch):
     """The lab crane's start needs the solve; with no time allowed it says so at once, as it would after
     EQUILIBRIUM_TIME_LIMIT_S (5 s) on a spec that has no equilibrium."""
     from acroboter import statics
-    from acroboter.compiled import CompiledModel
+    from acroboter.cache import load_model
     from acroboter.spec import load_spec
 
-    model = CompiledModel(load_spec(REPO / "model_spec" / "lab_crane.toml"))
+    model = load_model(load_spec(REPO / "model_spec" / "lab_crane.toml"))
     path = statics.desired_path(model)
     monkeypatch.setattr(statics, "EQUILIBRIUM_TIME_LIMIT_S", 0.0)
     started = time.perf_counter()
@@ -105,16 +105,16 @@ def test_an_equilibrium_solve_gives_up_within_its_time_limit(monkeypatch):
 def test_a_one_input_crane_runs(tmp_path):
     """One actuator: its n x 1 terms stay matrices. The winch lifts the box along the vertical path;
     MLM (one input for three servo-constraints) refuses with its reason."""
-    from acroboter.compiled import CompiledModel
+    from acroboter.cache import load_model
+    from acroboter.codegen.generate import generate
     from acroboter.controllers import Gains, SingularSystemError, make_controller
     from acroboter.simulation import Scenario, setup_default, simulate, summarize
     from acroboter.spec import load_spec
     from acroboter.statics import desired_path, solve_equilibrium
-    from codegen.generate import generate
 
     spec = load_spec(Path(__file__).resolve().parent / "specs" / "one_winch.toml")
     generate(spec, tmp_path / "generated")
-    model = CompiledModel(spec, generated_dir=tmp_path / "generated", build_dir=tmp_path / "build")
+    model = load_model(spec, generated_dir=tmp_path / "generated", cache_dir=tmp_path / "build")
     assert model.functions["model_terms"].outputs["input_matrix"].shape == (model.layout.n, 1)
     path = desired_path(model)
     start = solve_equilibrium(model, path)
@@ -135,14 +135,14 @@ def test_a_long_run_needs_memory_for_its_records_only():
     (~24 MB here); a table of every RK4 stage of the run would add 100 MB."""
     import tracemalloc
 
-    from acroboter.compiled import CompiledModel
+    from acroboter.cache import load_model
     from acroboter.controllers import Gains, make_controller
     from acroboter.simulation import setup_default, simulate
     from acroboter.spec import load_spec
     from acroboter.statics import desired_path, solve_equilibrium
 
     spec = load_spec(REPO / "model_spec" / "acroboter.toml")
-    model = CompiledModel(spec)
+    model = load_model(spec)
     path = desired_path(model)
     start = solve_equilibrium(model, path)
     controller = make_controller("penalty", model, path, Gains.from_spec(spec))

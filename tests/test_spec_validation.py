@@ -295,7 +295,7 @@ def _bad_spec_file(tmp_path):
 
 
 def _run_cli(*args, cwd=REPO):
-    return subprocess.run([sys.executable, "-m", "codegen", *map(str, args)], cwd=cwd, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "acroboter", *map(str, args)], cwd=cwd, capture_output=True,
                           text=True, timeout=300)
 
 

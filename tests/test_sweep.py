@@ -149,14 +149,10 @@ def test_task_statuses_in_process():
     assert broken["cond_penalty_matrix"] > 1e16  # beyond 1/eps: why the factorization fails
 
 
-def test_task_never_compiles(monkeypatch):
-    import acroboter.build as build
-
-    def no_build(*args, **kwargs):
-        raise AssertionError("a sweep task tried to compile the model")
-
-    monkeypatch.setattr(build, "is_current", lambda *args, **kwargs: False)
-    monkeypatch.setattr(build, "build", no_build)
+def test_task_never_compiles(monkeypatch, tmp_path):
+    """A worker whose cache has no library for the spec says so; it neither generates nor compiles."""
+    monkeypatch.setenv("ACROBOTER_CACHE_DIR", str(tmp_path))
     text = SPEC.read_text() + "\n# a variant: not in the worker's model cache\n"
     with pytest.raises(sw.MissingLibraryError, match="never compile"):
         sw.run_case(text, str(SPEC), sw.Case("mlm"), 0.1)
+    assert not (tmp_path / "lib").exists() and not (tmp_path / "generated").exists()

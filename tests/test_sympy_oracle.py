@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import sympy as sp
 
-from acroboter.compiled import CompiledModel
+from acroboter.cache import load_model
 from acroboter.layout import Layout, build_layout, nominal_coordinates
 from acroboter.spec import (
     BodyThrust,
@@ -288,7 +288,7 @@ def oracle_for(name: str) -> Oracle:
 @pytest.fixture(scope="module", params=SHIPPED)
 def shipped(request):
     oracle = oracle_for(request.param)
-    return oracle, CompiledModel(oracle.spec)
+    return oracle, load_model(oracle.spec)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -334,7 +334,7 @@ def test_model_terms_matches_the_oracle(shipped):
 # A variant spec without generated code: oracle against the CasADi expressions
 # ------------------------------------------------------------------------------------------------
 def test_variant_spec_casadi_derivation_matches_the_oracle():
-    from codegen.symbolic import build_symbolic_model
+    from acroboter.codegen.symbolic import build_symbolic_model
 
     oracle = oracle_for("variant")
     lay = oracle.layout
@@ -382,8 +382,8 @@ def _rotation(rng: np.random.Generator) -> np.ndarray:
 def _evaluator(name: str):
     """(function name, q, qd, s, sd, sdd) -> outputs: the compiled C for a shipped spec, else CasADi's VM."""
     if name in SHIPPED:
-        return CompiledModel(oracle_for(name).spec).evaluate
-    from codegen.generate import GenerationContext
+        return load_model(oracle_for(name).spec).evaluate
+    from acroboter.codegen.generate import GenerationContext
 
     functions = GenerationContext(oracle_for(name).spec).register_all().functions
 

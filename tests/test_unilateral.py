@@ -23,14 +23,14 @@ from conftest import load_with_start, rigid_plant_rhs
 from scipy.integrate import quad, solve_ivp
 from scipy.optimize import brentq
 
-from acroboter.compiled import CompiledModel
+from acroboter.cache import load_model
+from acroboter.codegen.generate import generate
 from acroboter.controllers import Gains, make_controller
 from acroboter.plant import Plant
 from acroboter.report import write_csv
 from acroboter.simulation import Scenario, setup_default, simulate, summarize
 from acroboter.spec import load_spec, parse_spec
 from acroboter.statics import desired_path, solve_equilibrium
-from codegen.generate import generate
 
 REPO = Path(__file__).resolve().parent.parent
 G = 9.81
@@ -217,7 +217,7 @@ def ball(tmp_path_factory):
     spec = parse_spec(BALL, "cable_ball (test)")
     root = tmp_path_factory.mktemp("cable_ball")
     generate(spec, root / "generated")
-    model = CompiledModel(spec, generated_dir=root / "generated", build_dir=root / "build")
+    model = load_model(spec, generated_dir=root / "generated", cache_dir=root / "build")
     path = desired_path(model)
     sim = spec.simulation
     return model, Plant(model, path, sim.baumgarte_zeta, sim.baumgarte_omega)
@@ -432,7 +432,7 @@ def test_the_non_collocated_crane_under_mlm_keeps_its_cables_consistent():
     stretched), the energy balance across all of it with a drift that shrinks like h⁴, and no impact
     that adds energy (beyond round-off; the climbing unit barely moves)."""
     spec = load_spec(REPO / "model_spec" / "acroboter_4input.toml")
-    model = CompiledModel(spec)
+    model = load_model(spec)
     path = desired_path(model)
     start = solve_equilibrium(model, path)
     rows = [model.layout.constraints.index(f"cable {c.name}") for c in spec.cables]

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from acroboter.layout import Layout, build_layout
-from acroboter.spec import BodyThrust, BodyTorque, LevelTask, PositionTask, Spec, WinchTension, YawTask
+from ..layout import Layout, build_layout
+from ..spec import BodyThrust, BodyTorque, LevelTask, PositionTask, Spec, WinchTension, YawTask
 
 AXIS_INDEX = {"u": 0, "v": 1, "w": 2}
 # Heading of a body axis relative to the body's u axis, for the yaw servo-constraint.

@@ -1,4 +1,4 @@
-"""Solver-shaped terms: what each controller needs per step, in one generated call (the plant: codegen/plant.py).
+"""Solver-shaped terms: what each controller needs per step, in one generated call (plant: codegen/plant.py).
 
 The mass matrix of natural coordinates is constant, so M⁻¹ is a numeric (sparse) constant here and
 every product with it is folded into the generated code. Parameters that a user may change at run
@@ -12,8 +12,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from acroboter.layout import nominal_coordinates
-from codegen.symbolic import SymbolicModel
+from ..layout import nominal_coordinates
+from .symbolic import SymbolicModel
 
 PARAMS = ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu")
 

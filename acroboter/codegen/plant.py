@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import casadi as ca
 
-from codegen.structured import cholesky_solve, constant_inverse_mass, independent_rows
-from codegen.symbolic import SymbolicModel
+from .structured import cholesky_solve, constant_inverse_mass, independent_rows
+from .symbolic import SymbolicModel
 
 
 def cable_rows(model: SymbolicModel) -> list[int]:

@@ -1,4 +1,9 @@
-"""`python -m codegen generate|check [SPEC ...]`: regenerate generated/, or check it is fresh."""
+"""The code generator's command lines: `acroboter generate|check [SPEC ...]` and `acroboter export-step`.
+
+generate: write the C of specs (default: every example of model_spec/) into generated/ (in a
+checkout) or --out; check: regenerate into a temporary folder and compare with generated/ (what
+`make check-generated` runs). export-step: one method's complete control step as embedded C.
+"""
 
 from __future__ import annotations
 
@@ -11,12 +16,18 @@ import sys
 import tempfile
 from pathlib import Path
 
-from acroboter.entry import check_out_folder, guarded
-from acroboter.spec import Spec, SpecError, load_spec
-from codegen.generate import REPO, generate
+from .codegen.generate import generate
+from .entry import check_out_folder, guarded, number, positive
+from .locations import checkout_root, example_spec, shipped_generated_folder, spec_folder
+from .spec import Spec, SpecError, load_spec
 
-SPEC_DIR = REPO / "model_spec"
-GENERATED_DIR = REPO / "generated"
+SPEC_DIR = spec_folder()
+GENERATED_DIR = shipped_generated_folder()
+REPO = checkout_root() or Path.cwd()
+# Outside a checkout nothing is written next to the package: generated C and embedded steps go to
+# the current folder unless --out says otherwise.
+DEFAULT_GENERATED = GENERATED_DIR if checkout_root() is not None else Path("generated")
+DEFAULT_EMBEDDED = REPO / "build" / "embedded" if checkout_root() is not None else Path("embedded")
 
 
 def _specs(paths: list[str]) -> list[Path]:
@@ -67,7 +78,7 @@ def refuse_collisions(specs: list[tuple[Path, Spec]], out_root: Path) -> None:
 
 def compile_check(folder: Path) -> None:
     """The generated C compiles and links into a library whose hashes are the manifest's."""
-    from acroboter.build import BuildError, build  # the CLI composes both; codegen itself stays below the runtime
+    from .build import BuildError, build  # the CLI composes both; codegen itself stays below the runtime
 
     manifest = json.loads((folder / "manifest.json").read_text())
     with tempfile.TemporaryDirectory(prefix="acroboter-compile-check-") as tmp:
@@ -76,7 +87,7 @@ def compile_check(folder: Path) -> None:
         sources = tmp_root / "generated" / manifest["spec"]
         shutil.copytree(folder, sources)
         try:
-            lib = build(manifest["spec"], tmp_root / "generated", tmp_root / "build")
+            lib = build(manifest["spec"], sources, tmp_root / "build")
         except BuildError as err:
             raise GenerationError(f"the generated C for '{manifest['spec']}' does not compile: {err}") from None
         library = ctypes.CDLL(str(lib))
@@ -140,13 +151,19 @@ def cmd_check(spec_paths: list[Path], committed: Path, whole_tree: bool) -> int:
 
 @guarded
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m codegen", description=__doc__)
-    parser.add_argument("command", choices=["generate", "check"])
+    parser = argparse.ArgumentParser(prog="acroboter", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("command", choices=["generate", "check"],
+                        help="generate the C, or check generated/ is fresh")
     parser.add_argument("specs", nargs="*", help="spec files (default: every model_spec/*.toml)")
-    parser.add_argument("--out", type=Path, default=GENERATED_DIR, help="generated/ folder (default: %(default)s)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="the folder written (generate; default: generated/ in a checkout, else ./generated) "
+                             "or compared (check; default: the shipped generated/)")
     parser.add_argument("--no-compile-check", action="store_true",
                         help="generate: skip compiling each spec's C before it replaces the previous files")
     args = parser.parse_args(argv)
+    if args.out is None:
+        args.out = DEFAULT_GENERATED if args.command == "generate" else GENERATED_DIR
     if args.command == "generate":
         check_out_folder(parser, args.out)
     try:
@@ -165,6 +182,58 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as err:
         print(f"error: cannot write the generated files: {err}", file=sys.stderr)
         return 3
+
+
+@guarded
+def export_step_main(argv: list[str] | None = None) -> int:
+    """`acroboter export-step`: one method's complete control step as self-contained C and a header."""
+    import numpy as np
+
+    from .codegen.export_step import GAIN_OPTIONS, MLM_SYSTEMS, PENALTY_SYSTEMS, ExportError, export_step
+    from .spec import RECOVERIES
+
+    parser = argparse.ArgumentParser(
+        prog="acroboter export-step",
+        description="Export one method's complete control step as self-contained C with a header.",
+    )
+    parser.add_argument("--spec", type=Path, default=example_spec(), help="model spec (default: %(default)s)")
+    parser.add_argument("--method", default="penalty", help="mlm, penalty or iterative-N (default: %(default)s)")
+    parser.add_argument("--recovery", choices=RECOVERIES, default=None,
+                        help="input recovery of the penalty methods (default: the spec's, normally projected)")
+    for option in GAIN_OPTIONS:
+        parser.add_argument(f"--{option.replace('_', '-')}", default=None, dest=option,
+                            type=number(0.0, 1.0) if option == "kappa" else positive(1e300),
+                            help="override the spec's value")
+    parser.add_argument("--mlm-system", choices=MLM_SYSTEMS, default="reduced",
+                        help="MLM: the (m+l) system reduced by the constant M, or the full (n+m+l) one "
+                        "(default: %(default)s)")
+    parser.add_argument("--penalty-system", choices=PENALTY_SYSTEMS, default="auto",
+                        help="penalty methods: solve the (m+k) x (m+k) multiplier matrix D^-1 + J M^-1 J^T, or the "
+                        "n x n penalty matrix A = M + J^T D J; the same iterates. auto: multipliers, unless the "
+                        "spec has redundant constraints (then matrix) (default: %(default)s)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help=f"output folder (default: {DEFAULT_EMBEDDED}/<spec>_<method>/)")
+    args = parser.parse_args(argv)
+    if args.out is not None:
+        check_out_folder(parser, args.out)
+    overrides = {name: getattr(args, name) for name in (*GAIN_OPTIONS, "recovery")}
+    for name, value in overrides.items():
+        if isinstance(value, float) and (not np.isfinite(value) or value < 0 or (name != "kappa" and value == 0)):
+            print(f"error: --{name.replace('_', '-')} must be a finite positive number, got {value}", file=sys.stderr)
+            return 2
+    if overrides["kappa"] is not None and overrides["kappa"] > 1:
+        print("error: --kappa must be in [0, 1]", file=sys.stderr)
+        return 2
+    try:
+        spec_name = load_spec(args.spec).name
+        out = args.out if args.out is not None else DEFAULT_EMBEDDED / f"{spec_name}_{args.method}"
+        written = export_step(args.spec, args.method, out, args.mlm_system, args.penalty_system, **overrides)
+    except (SpecError, ExportError, OSError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    for path in written:
+        print(f"wrote {_shown(path)}")
+    return 0
 
 
 if __name__ == "__main__":

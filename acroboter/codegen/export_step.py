@@ -61,9 +61,7 @@ is singular at the nominal configuration although there are no more inputs than 
 
 from __future__ import annotations
 
-import argparse
 import re
-import sys
 import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -72,17 +70,13 @@ import casadi as ca
 import numpy as np
 from scipy.linalg import cholesky, solve_triangular
 
-from acroboter.controllers import MLM_RCOND_LIMIT, Gains
-from acroboter.distribution import PENALTY_SECONDARY_WEIGHT, RANK_TOLERANCE, SECONDARY_WEIGHT
-from acroboter.entry import check_out_folder, guarded, number, positive
-from acroboter.layout import Layout, nominal_coordinates
-from acroboter.spec import MAX_ITERATIONS, RECOVERIES, Spec, SpecError, load_spec
-from codegen.generate import INPUT_NAMES, REPO
-from codegen.structured import cholesky_solve, mlm_bounded_terms, penalty_bounded_terms
-from codegen.symbolic import SymbolicModel, build_symbolic_model
+from ..layout import Layout, nominal_coordinates
+from ..settings import MLM_RCOND_LIMIT, PENALTY_SECONDARY_WEIGHT, RANK_TOLERANCE, SECONDARY_WEIGHT, Gains
+from ..spec import MAX_ITERATIONS, RECOVERIES, Spec, load_spec
+from .generate import INPUT_NAMES
+from .structured import cholesky_solve, mlm_bounded_terms, penalty_bounded_terms
+from .symbolic import SymbolicModel, build_symbolic_model
 
-DEFAULT_SPEC = REPO / "model_spec" / "acroboter.toml"
-EMBEDDED_DIR = REPO / "build" / "embedded"
 LINSOL_SPD = "ldl"  # sparse LDLᵀ, static ordering, no pivoting: fine for symmetric positive definite
 LINSOL_GENERAL = "qr"  # sparse Householder QR: any nonsingular square matrix
 # Model terms the step needs, in the order of the wrapped SX function's outputs.
@@ -930,54 +924,5 @@ def export_step(spec_path: Path, method: str, out_dir: Path | None = None, mlm_s
     gains = Gains.from_spec(spec, **gain_overrides)
     export = build_step(spec, method, gains, spec_path=Path(spec_path), mlm_system=mlm_system,
                         penalty_system=penalty_system)
-    out_dir = out_dir if out_dir is not None else EMBEDDED_DIR / f"{spec.name}_{method}"
+    out_dir = out_dir if out_dir is not None else Path("embedded") / f"{spec.name}_{method}"
     return write_step(export, out_dir)
-
-
-@guarded
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m codegen.export_step",
-        description="Export one method's complete control step as self-contained C with a header.",
-    )
-    parser.add_argument("--spec", type=Path, default=DEFAULT_SPEC, help="model spec (default: %(default)s)")
-    parser.add_argument("--method", default="penalty", help="mlm, penalty or iterative-N (default: %(default)s)")
-    parser.add_argument("--recovery", choices=RECOVERIES, default=None,
-                        help="input recovery of the penalty methods (default: the spec's, normally projected)")
-    for option in GAIN_OPTIONS:
-        parser.add_argument(f"--{option.replace('_', '-')}", default=None, dest=option,
-                            type=number(0.0, 1.0) if option == "kappa" else positive(1e300),
-                            help="override the spec's value")
-    parser.add_argument("--mlm-system", choices=MLM_SYSTEMS, default="reduced",
-                        help="MLM: the (m+l) system reduced by the constant M, or the full (n+m+l) one "
-                        "(default: %(default)s)")
-    parser.add_argument("--penalty-system", choices=PENALTY_SYSTEMS, default="auto",
-                        help="penalty methods: solve the (m+k) x (m+k) multiplier matrix D^-1 + J M^-1 J^T, or the "
-                        "n x n penalty matrix A = M + J^T D J; the same iterates. auto: multipliers, unless the "
-                        "spec has redundant constraints (then matrix) (default: %(default)s)")
-    parser.add_argument("--out", type=Path, default=None,
-                        help="output folder (default: build/embedded/<spec>_<method>/)")
-    args = parser.parse_args(argv)
-    if args.out is not None:
-        check_out_folder(parser, args.out)
-    overrides = {name: getattr(args, name) for name in (*GAIN_OPTIONS, "recovery")}
-    for name, value in overrides.items():
-        if isinstance(value, float) and (not np.isfinite(value) or value < 0 or (name != "kappa" and value == 0)):
-            print(f"error: --{name.replace('_', '-')} must be a finite positive number, got {value}", file=sys.stderr)
-            return 2
-    if overrides["kappa"] is not None and overrides["kappa"] > 1:
-        print("error: --kappa must be in [0, 1]", file=sys.stderr)
-        return 2
-    try:
-        written = export_step(args.spec, args.method, args.out, args.mlm_system, args.penalty_system,
-                              **overrides)
-    except (SpecError, ExportError, OSError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    for path in written:
-        print(f"wrote {path.relative_to(REPO) if path.is_relative_to(REPO) else path}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -7,7 +7,6 @@ the same spec and codegen give the same bytes (no dates, no paths, sorted manife
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shutil
@@ -17,17 +16,12 @@ from pathlib import Path
 
 import casadi as ca
 
-from acroboter.interrupts import deferred_interrupt
-from acroboter.spec import Spec
-from codegen import plant, structured
-from codegen.symbolic import SymbolicModel, build_symbolic_model
+from ..fingerprint import codegen_hash, file_digest, manifest_hash
+from ..interrupts import deferred_interrupt
+from ..spec import Spec
+from . import plant, structured
+from .symbolic import SymbolicModel, build_symbolic_model
 
-REPO = Path(__file__).resolve().parent.parent
-# Sources whose content decides the generated code (besides the spec and CasADi's version).
-CODEGEN_SOURCES = (
-    "codegen/symbolic.py", "codegen/structured.py", "codegen/plant.py", "codegen/generate.py", "acroboter/spec.py",
-    "acroboter/layout.py",
-)
 INPUT_NAMES = ("q", "qd", "s", "sd", "sdd")
 
 # The generated functions: name -> the model terms it returns (in order).
@@ -51,14 +45,6 @@ FUNCTIONS: dict[str, tuple[str, ...]] = {
         "sigma", "sigma_q", "sigma_dot", "gamma_s", "input_matrix",
     ),
 }
-
-
-def codegen_hash() -> str:
-    """Hash of the code that turns a spec into C, and of the CasADi version doing it."""
-    h = hashlib.sha256(f"casadi {ca.__version__}\n".encode())
-    for rel in CODEGEN_SOURCES:
-        h.update(rel.encode() + b"\n" + (REPO / rel).read_bytes())
-    return h.hexdigest()
 
 
 def _term(model: SymbolicModel, name: str) -> ca.SX:
@@ -87,7 +73,7 @@ class GenerationContext:
         )
 
     def register_solver_terms(self, name: str, build) -> None:
-        """Controller-shaped terms with the run-time parameter vector p (codegen.structured.PARAMS)."""
+        """Controller-shaped terms with the run-time parameter vector p (acroboter.codegen.structured.PARAMS)."""
         p = ca.SX.sym("p", len(structured.PARAMS))
         terms = build(self.model, p)
         self.functions[name] = ca.Function(
@@ -181,17 +167,6 @@ class GenerationContext:
         manifest.write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
         written.append(manifest)
         return written
-
-
-def manifest_hash(manifest: dict) -> str:
-    """SHA-256 of the manifest's description of the library (its file list aside): embedded in the
-    library, so a manifest edited to name other symbols or shapes is found out."""
-    described = {k: v for k, v in manifest.items() if k != "files"}
-    return hashlib.sha256(json.dumps(described, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
-
-
-def file_digest(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def generate(spec: Spec, out_root: Path, verify: Callable[[Path], None] | None = None) -> Path:

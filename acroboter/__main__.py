@@ -1,0 +1,7 @@
+"""`python -m acroboter <command>`: the same as the `acroboter` console script."""
+
+import sys
+
+from .cli import main
+
+sys.exit(main())

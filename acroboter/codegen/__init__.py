@@ -1,0 +1,1 @@
+"""Spec -> CasADi symbolic model -> generated C (see acroboter.codegen.generate)."""

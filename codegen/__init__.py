@@ -1,1 +1,0 @@
-"""Spec -> CasADi symbolic model -> generated C (see codegen.generate)."""
