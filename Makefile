@@ -3,8 +3,8 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
-# Inside the checkout the cache of compiled libraries is build/ (installed, it is the per-user cache).
-export ACROBOTER_CACHE_DIR := $(CURDIR)/build
+# Inside the checkout the cache of compiled libraries is build/cache/ (installed: the per-user cache).
+export ACROBOTER_CACHE_DIR := $(CURDIR)/build/cache
 
 .PHONY: run test setup build generate check-generated bench study sweep clean
 
@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml setup.py
 
 setup: $(STAMP)
 
-# Compile every generated/<spec>/ into build/lib/<spec>-<sources hash>/lib<spec>.so (-O2 -fPIC, no
+# Compile every generated/<spec>/ into build/cache/lib/<spec>-<sources hash>/lib<spec>.so (-O2 -fPIC, no
 # fast-math); a library whose sources and flags did not change is not recompiled.
 build: $(STAMP)
 	$(PY) -m acroboter build

@@ -42,8 +42,11 @@ def load_model(spec: Spec, generated_dir: Path | None = None, cache_dir: Path | 
     NotBuiltError instead (what a sweep worker does)."""
     root = resolve_cache_dir(cache_dir)
     if generated_dir is not None:
-        return CompiledModel(spec, Path(generated_dir) / spec.name, root, build=build)
-    return CompiledModel(spec, model_sources(spec, root, generate=build), root, build=build)
+        model = CompiledModel(spec, Path(generated_dir) / spec.name, root, build=build)
+    else:
+        model = CompiledModel(spec, model_sources(spec, root, generate=build), root, build=build)
+    log.debug("model '%s': generated C in %s, library %s", spec.name, model.source_dir, model.library_path)
+    return model
 
 
 def shipped_sources(spec: Spec) -> Path | None:

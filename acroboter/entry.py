@@ -125,3 +125,13 @@ def check_out_folder(parser: argparse.ArgumentParser, out: Path, option: str = "
             pass
     except OSError as err:
         parser.error(f"cannot write into {option} {out}: {err.strerror or err}")
+
+
+def progress_disabled(quiet: bool = False) -> bool | None:
+    """tqdm's `disable`: off with --quiet or `acroboter -q`, else tqdm's own choice (None: off when
+    stderr is not a terminal)."""
+    import logging
+
+    if quiet or logging.getLogger("acroboter").getEffectiveLevel() > logging.INFO:
+        return True
+    return None

@@ -9,7 +9,7 @@ Two ways to run the package, one set of rules:
 
 Compiled libraries, and the C of any spec that is not a shipped example, go to a per-user cache
 (``platformdirs.user_cache_dir("acroboter")``), never into the package: ``ACROBOTER_CACHE_DIR`` or
-the CLIs' ``--cache-dir`` move it (the Makefile points it at the checkout's ``build/``).
+the CLIs' ``--cache-dir`` move it (the Makefile points it at the checkout's ``build/cache/``).
 """
 
 from __future__ import annotations

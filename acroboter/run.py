@@ -1,4 +1,7 @@
-"""Run the paper's scenario: `python -m acroboter.run` (see --help).
+"""Run the paper's scenario: `acroboter run` (or `python -m acroboter.run`; see --help).
+
+A thin layer over the library (acroboter.Crane.simulate): what it prints and writes is what
+`crane.simulate(method, duration=..., **settings).summary()` gives for the same options.
 
 With no arguments: the default spec, MLM, Penalty and Iterative Penalty with the spec's iteration
 counts (3, 4, 5), the full path; a table on stdout and results/ with summary.json, one CSV per
@@ -15,18 +18,17 @@ import sys
 import tempfile
 from pathlib import Path
 
-from .entry import guarded, number, positive
+from .entry import guarded, number, positive, progress_disabled
 from .interrupts import deferred_interrupt
 from .locations import example_spec
 from .spec import MAX_CONTROL_STEPS, MAX_ITERATIONS
 
 DEFAULT_SPEC = example_spec("acroboter")
-WARM_UP_STEPS = 200  # untimed control steps at the start state before each method's run
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
-        prog="python -m acroboter.run",
+        prog="acroboter run",
         description="Simulate the crane under the inverse-dynamics controllers and report tracking and timing.",
     )
     p.add_argument("--spec", type=Path, default=DEFAULT_SPEC, help="model spec (TOML) (default: %(default)s)")
@@ -47,8 +49,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--kd", type=positive(), default=None, help="servo gain k_D, 1/s (default: spec)")
     p.add_argument("--duration", type=positive(1e6), default=None, help="simulated seconds (default: the whole path)")
     p.add_argument("--out", type=Path, default=Path("results"), help="output folder (default: %(default)s)")
+    p.add_argument("--state", action="store_true",
+                   help="add the natural coordinates q and their rates q̇ to each CSV (one column each)")
+    p.add_argument("--cache-dir", type=Path, default=None,
+                   help="where compiled models are cached (default: $ACROBOTER_CACHE_DIR, else the per-user cache)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true", help="no progress bar (the same as `acroboter -q run`)")
     args = p.parse_args(argv)
     try:
         if args.out.exists() and not args.out.is_dir():
@@ -119,7 +125,10 @@ def _publish(staging: Path, out: Path) -> None:
 @guarded
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    args.command_line = ["python", "-m", "acroboter.run", *(sys.argv[1:] if argv is None else argv)]
+    # as typed: `acroboter run ...` (console script, python -m acroboter) or `python -m acroboter.run ...`
+    via_cli = Path(sys.argv[0]).name in ("acroboter", "__main__.py")
+    prefix = ["acroboter", "run"] if via_cli else ["python", "-m", "acroboter.run"]
+    args.command_line = [*prefix, *(sys.argv[1:] if argv is None else argv)]
     try:
         staging = _staging_folder(args.out)
     except OSError as err:
@@ -139,28 +148,24 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
     import numpy as np
     from tqdm import tqdm
 
-    from .cache import load_model
     from .compiled import StaleModelError
-    from .controllers import Gains, SingularSystemError, make_controller
-    from .feasibility import check_path
+    from .controllers import SingularSystemError
+    from .crane import Crane
     from .plant import SimulationError
     from .recovery import RecoveryError
-    from .report import format_table, write_csv, write_figures, write_summary
-    from .simulation import Scenario, setup_default, simulate, summarize
-    from .spec import SpecError, load_spec
-    from .statics import EquilibriumError, desired_path, solve_equilibrium
+    from .report import format_table, write_figures, write_summary
+    from .spec import SpecError
+    from .statics import EquilibriumError
 
+    overrides = {name: getattr(args, name) for name in
+                 ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu", "recovery", "kappa")}
     try:
-        spec = load_spec(args.spec)
+        crane = Crane.from_toml(args.spec, cache_dir=args.cache_dir)
+        spec = crane.spec
         methods = expand_methods(args.method, args.iterations or spec.controller.penalty.iterations)
-        model = load_model(spec)
-        gains = Gains.from_spec(spec, kp=args.kp, kd=args.kd, alpha_geometric=args.alpha_geometric,
-                                alpha_servo=args.alpha_servo, omega=args.omega, mu=args.mu,
-                                recovery=args.recovery, kappa=args.kappa)
-        path = desired_path(model)
-        start = solve_equilibrium(model, path)
-        plant = setup_default(model, path)
-        scenario = Scenario.from_model(model)
+        gains = crane.gains(**overrides)
+        path = crane.path
+        start = crane.equilibrium()
         duration = args.duration if args.duration is not None else path.duration
         rate, step = spec.controller.rate_hz, spec.simulation.step
         steps = int(round(duration * rate))
@@ -168,22 +173,17 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
             print(f"error: --duration {duration:g} s is {steps} control steps at {rate:g} Hz: give between one "
                   f"({1 / rate:g} s) and {MAX_CONTROL_STEPS} ({MAX_CONTROL_STEPS / rate:g} s)", file=sys.stderr)
             return 2
-        start_rates = np.zeros(model.layout.n)
         results, summaries, warnings = {}, {}, []
         # Before the run: can the path be followed within the limits at all?
-        feasibility = check_path(model, path, plant, start.q, duration, gains)
+        feasibility = crane.check_path(duration, **overrides)
         if feasibility.feasible is False:
             warnings.append(f"the desired path is {feasibility.message}")
-        with tqdm(total=steps * len(methods), unit="step", disable=args.quiet or None,
+        with tqdm(total=steps * len(methods), unit="step", disable=progress_disabled(args.quiet),
                   desc="simulating", file=sys.stderr) as bar:
             for method in methods:
                 bar.set_postfix_str(method)
                 try:
-                    controller = make_controller(method, model, path, gains)
-                    for _ in range(WARM_UP_STEPS):  # steady-state step times: first calls page code in
-                        controller.compute(start.q, start_rates, 0.0)
-                    r = simulate(model, path, controller, plant, start.q, duration, rate, step,
-                                 progress=bar.update, allow_divergence=True)
+                    r = crane.simulate(method, duration=duration, progress=bar.update, **overrides)
                 except (SingularSystemError, RecoveryError, SimulationError) as err:
                     # This method cannot handle this system (e.g. MLM and redundant constraints), or
                     # failed at its first step: say why, and go on with the others.
@@ -192,11 +192,10 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
                     bar.update(steps)
                     continue
                 results[method] = r
-                summaries[method] = summarize(r, scenario, model.layout)
+                summaries[method] = r.summary()
                 if r.diverged_at is not None:
-                    summaries[method]["diverged_at_s"] = r.diverged_at
-                    warnings.append(f"{method} diverged at t = {r.diverged_at:.2f} s: {r.divergence}")
-                    bar.update(steps - len(r.t) + 1)
+                    warnings.append(f"{method} diverged at t = {r.diverged_at:.2f} s: {r.run.divergence}")
+                    bar.update(steps - len(r.time) + 1)
                 for cable, c in summaries[method]["cables"].items():  # the plant's cables, not the inputs
                     if c["time_slack_s"] > 0 or c["transitions"] > 0:
                         warnings.append(f"{method}: cable {cable} was slack for {c['time_slack_s']:.3g} s "
@@ -216,15 +215,16 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
         return 3
     out: Path = staging  # published into args.out at the end, in one go
     for name, r in results.items():
-        write_csv(out / f"{name}.csv", r, scenario)
-    limits = input_limits_summary(spec, model.layout)
+        r.to_csv(out / f"{name}.csv", state=args.state)
+    limits = input_limits_summary(spec, crane.layout)
     write_summary(out / "summary.json", spec.name, summaries, duration, warnings,
                   extra={"input_limits": limits, "path_feasibility": feasibility.to_dict(),
                          "provenance": provenance(args, spec, gains, methods, duration)})
     if not args.no_plots:
-        lay = model.layout
+        lay = crane.layout
         input_labels = [f"{name} [{unit}]" for name, unit in zip(lay.inputs, lay.input_units, strict=True)]
-        write_figures(out, results, scenario, {m: s for m, s in summaries.items() if m in results},
+        write_figures(out, {m: r.run for m, r in results.items()}, crane.scenario,
+                      {m: s for m, s in summaries.items() if m in results},
                       input_labels, lay.servo_constraints, input_limits=spec.input_limits()[:2])
     _publish(staging, args.out)
     # Printed once the results are in place: a table on screen always has its files.

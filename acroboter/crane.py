@@ -1,0 +1,223 @@
+"""The library's face: a crane from its spec, its controllers, and closed-loop simulations.
+
+    import acroboter
+
+    crane = acroboter.Crane.from_toml(acroboter.example_spec("acroboter"))   # validate, compile once, bind
+    start = crane.equilibrium()                     # static start: q, multipliers, inputs
+    controller = crane.controller("penalty")        # for a plant of your own: u = controller.step(q, qd, t)
+    result = crane.simulate("iterative", iterations=5, duration=20.0, kd=6.0)   # -> acroboter.Result
+
+Methods are "mlm", "penalty", "iterative" (with `iterations=N`, default the spec's first count) or
+"iterative-N". Keyword overrides replace the spec's controller settings for that call: kp, kd,
+alpha_geometric, alpha_servo, omega, mu, recovery, kappa. A `trajectory` (a SampledTrajectory, or
+a function t -> (position, velocity, acceleration) with `duration`) replaces the spec's waypoints.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+
+from .cache import load_model
+from .compiled import CompiledModel
+from .controllers import make_controller
+from .feasibility import Feasibility, check_path
+from .locations import example_spec
+from .path import DesiredPath, SampledTrajectory, TrajectoryPath
+from .result import Result
+from .settings import Gains
+from .simulation import Scenario, setup_default, simulate
+from .spec import MAX_ITERATIONS, RECOVERIES, Spec, load_spec
+from .statics import Equilibrium, desired_path, solve_equilibrium, start_targets
+
+# Untimed control steps at the start state before a timed run: the first calls page code and data in.
+WARM_UP_STEPS = 200
+GAIN_NAMES = ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu", "recovery", "kappa")
+
+Trajectory = SampledTrajectory | Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
+
+
+class Crane:
+    """A crane model: its validated spec, the compiled dynamics bound once, its desired path.
+
+    Names, as the generated code orders them: `coordinates` (natural coordinates, e.g. "SU.r_x"),
+    `inputs` (actuators, e.g. "tension_1") with `input_units`, `servo_constraints` (the task),
+    `cables`."""
+
+    def __init__(self, spec: Spec, model: CompiledModel, source: Path | None = None):
+        self.spec, self.model, self.source = spec, model, source
+        self.layout = model.layout
+        self.name: str = spec.name
+        self.coordinates: list[str] = list(self.layout.coordinates)
+        self.inputs: list[str] = list(self.layout.inputs)
+        self.input_units: list[str] = list(self.layout.input_units)
+        self.servo_constraints: list[str] = list(self.layout.servo_constraints)
+        self.cables: list[str] = [c.name for c in spec.cables]
+        self.scenario = Scenario.from_model(model)
+        self._path: DesiredPath | None = None
+        self._start: Equilibrium | None = None
+
+    # --- construction -----------------------------------------------------------------------------
+    @classmethod
+    def from_toml(cls, path: str | PathLike, cache_dir: str | PathLike | None = None) -> Crane:
+        """Load and validate a spec file, generate and compile its model on first use (into the cache:
+        `cache_dir`, else $ACROBOTER_CACHE_DIR, else the per-user cache), and bind it."""
+        spec = load_spec(Path(path))
+        return cls(spec, load_model(spec, cache_dir=None if cache_dir is None else Path(cache_dir)), Path(path))
+
+    @classmethod
+    def from_example(cls, name: str = "acroboter", cache_dir: str | PathLike | None = None) -> Crane:
+        """One of the shipped cranes by name (acroboter.example_names())."""
+        return cls.from_toml(example_spec(name), cache_dir)
+
+    @classmethod
+    def from_spec(cls, spec: Spec, cache_dir: str | PathLike | None = None) -> Crane:
+        return cls(spec, load_model(spec, cache_dir=None if cache_dir is None else Path(cache_dir)))
+
+    def __repr__(self) -> str:
+        return (f"<Crane {self.name}: {len(self.coordinates)} coordinates, {len(self.inputs)} inputs, "
+                f"{len(self.servo_constraints)} servo-constraints, {len(self.cables)} cables>")
+
+    # --- the pieces -------------------------------------------------------------------------------
+    @property
+    def path(self) -> DesiredPath:
+        """The spec's desired path (waypoints, mean speed, yaw turn)."""
+        if self._path is None:
+            self._path = desired_path(self.model)
+        return self._path
+
+    def input_limits(self) -> dict[str, tuple[float, float, float]]:
+        """Per input: (min, max, preferred), as the spec resolves them."""
+        lower, upper, preferred = self.spec.input_limits()
+        return {name: (float(lo), float(hi), float(p))
+                for name, lo, hi, p in zip(self.inputs, lower, upper, preferred, strict=True)}
+
+    def desired(self, trajectory: Trajectory | None = None, duration: float | None = None) -> DesiredPath:
+        """The path a controller follows: the spec's, or the given trajectory's."""
+        if trajectory is None:
+            return self.path
+        if isinstance(trajectory, SampledTrajectory):
+            duration = trajectory.duration if duration is None else duration
+        elif not callable(trajectory):
+            raise TypeError("trajectory: expected a SampledTrajectory or a function t -> (position, velocity, "
+                            "acceleration)")
+        if duration is None:
+            raise ValueError("a trajectory function needs its duration: pass duration=seconds")
+        _, start_yaw = start_targets(self.model)
+        return TrajectoryPath(self.spec, self.layout, trajectory, float(duration), start_yaw)
+
+    def equilibrium(self, trajectory: Trajectory | None = None, duration: float | None = None) -> Equilibrium:
+        """The static equilibrium at the start of the path: q, constraint multipliers, inputs (at rest)."""
+        if trajectory is None:
+            if self._start is None:
+                self._start = solve_equilibrium(self.model, self.path)
+            return self._start
+        return solve_equilibrium(self.model, self.desired(trajectory, duration))
+
+    def gains(self, **overrides) -> Gains:
+        """The spec's controller settings with `overrides` (kp, kd, alpha_geometric, alpha_servo, omega,
+        mu, recovery, kappa) checked and applied."""
+        unknown = sorted(set(overrides) - set(GAIN_NAMES))
+        if unknown:
+            raise TypeError(f"unknown controller setting(s) {', '.join(unknown)}: use {', '.join(GAIN_NAMES)}")
+        for name, value in overrides.items():
+            if value is None:
+                continue
+            if name == "recovery":
+                if value not in RECOVERIES:
+                    raise ValueError(f"recovery: expected one of {', '.join(RECOVERIES)}, found {value!r}")
+                continue
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+                raise ValueError(f"{name}: expected a finite number, found {value!r}")
+            if name == "kappa" and not 0.0 <= value <= 1.0:
+                raise ValueError(f"kappa: expected a number in [0, 1], found {value:g}")
+            if name != "kappa" and value <= 0:
+                raise ValueError(f"{name}: expected a positive number, found {value:g}")
+        return Gains.from_spec(self.spec, **overrides)
+
+    def method_name(self, method: str, iterations: int | None = None) -> str:
+        """'mlm', 'penalty', 'iterative-N'; 'iterative' takes `iterations` (default the spec's first)."""
+        if method == "iterative":
+            iterations = self.spec.controller.penalty.iterations[0] if iterations is None else iterations
+            whole = isinstance(iterations, int) and not isinstance(iterations, bool)
+            if not whole or not 1 <= iterations <= MAX_ITERATIONS:
+                raise ValueError(f"iterations: expected a whole number from 1 to {MAX_ITERATIONS}, "
+                                 f"found {iterations!r}")
+            return f"iterative-{iterations}"
+        if iterations is not None:
+            raise ValueError(f"iterations= goes with method 'iterative', not '{method}'")
+        count = method.removeprefix("iterative-")
+        if method in ("mlm", "penalty") or (method.startswith("iterative-") and count.isdigit()
+                                            and 1 <= int(count) <= MAX_ITERATIONS):
+            return method
+        raise ValueError(f"unknown method '{method}': use mlm, penalty, iterative or iterative-N "
+                         f"(1 <= N <= {MAX_ITERATIONS})")
+
+    def controller(self, method: str = "penalty", trajectory: Trajectory | None = None,
+                   duration: float | None = None, iterations: int | None = None, **overrides) -> Controller:
+        """A controller for a plant of your own: `u = controller.step(q, qd, t)`."""
+        name = self.method_name(method, iterations)
+        path = self.desired(trajectory, duration)
+        return Controller(make_controller(name, self.model, path, self.gains(**overrides)), self.inputs)
+
+    def check_path(self, duration: float | None = None, trajectory: Trajectory | None = None,
+                   **overrides) -> Feasibility:
+        """Before a run: can the ideal motion be realised within the input limits (MLM on the plant)?"""
+        path = self.desired(trajectory, duration)
+        duration = path.duration if duration is None else float(duration)
+        start = self.equilibrium(trajectory, duration)
+        return check_path(self.model, path, setup_default(self.model, path), start.q, duration,
+                          self.gains(**overrides))
+
+    def simulate(self, method: str = "penalty", duration: float | None = None,
+                 trajectory: Trajectory | None = None, iterations: int | None = None,
+                 warm_up: int = WARM_UP_STEPS, progress: Callable[[int], object] | None = None,
+                 **overrides) -> Result:
+        """Closed loop from the static start: the controller at the spec's rate, the plant's RK4 between.
+
+        `duration` defaults to the path's. A run that diverges (state or input not finite, the tracked
+        point more than 0.5 m off, no consistent cable state) stops there and says so
+        (`result.diverged_at`); a method that cannot handle the crane at all raises
+        SingularSystemError (e.g. MLM with redundant constraints). `progress(n)` is called every
+        control step (e.g. a tqdm bar's update)."""
+        name = self.method_name(method, iterations)
+        gains = self.gains(**overrides)
+        path = self.desired(trajectory, duration)
+        duration = path.duration if duration is None else float(duration)
+        start = self.equilibrium(trajectory, duration)
+        controller = make_controller(name, self.model, path, gains)
+        rest = np.zeros(self.layout.n)
+        for _ in range(warm_up):  # steady-state step times: the first calls page code in
+            controller.compute(start.q, rest, 0.0)
+        run = simulate(self.model, path, controller, setup_default(self.model, path), start.q, duration,
+                       self.spec.controller.rate_hz, self.spec.simulation.step, progress=progress,
+                       allow_divergence=True)
+        return Result(run, self.layout, self.scenario, self.name)
+
+
+class Controller:
+    """One of the crane's controllers for a plant of your own: `u = controller.step(q, qd, t)`.
+
+    q and q̇ are the natural coordinates in `crane.coordinates` order; u is in `inputs` order (a new
+    array each call). After a step, `limit_state` says which inputs sit on a limit (−1 lower, +1
+    upper) and `saturated()` whether a limit kept the input from what the task asked."""
+
+    def __init__(self, inner, inputs: list[str]):
+        self._inner, self.inputs, self.name = inner, inputs, inner.name
+
+    def step(self, q: np.ndarray, qd: np.ndarray, t: float) -> np.ndarray:
+        return self._inner.compute(np.asarray(q, dtype=float), np.asarray(qd, dtype=float), float(t)).copy()
+
+    @property
+    def limit_state(self) -> np.ndarray:
+        return self._inner.limit_state.copy()
+
+    def saturated(self) -> bool:
+        return bool(self._inner.saturation())
+
+    def __repr__(self) -> str:
+        return f"<Controller {self.name}: inputs {', '.join(self.inputs)}>"
