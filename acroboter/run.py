@@ -94,7 +94,7 @@ def expand_methods(requested: list[str] | None, iterations: list[int]) -> list[s
 
 
 # The files a run writes into --out: a new run replaces these (and only these) from an earlier one.
-FIGURES = ("path_3d.png", "servo_errors.png", "inputs.png", "control_step_time.png")
+FIGURES = ("path_3d.png", "tracking_errors.png", "servo_errors.png", "inputs.png", "control_step_time.png")
 
 
 def _is_run_file(path: Path) -> bool:
@@ -214,6 +214,7 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
               file=sys.stderr)
         return 3
     out: Path = staging  # published into args.out at the end, in one go
+    paper = is_paper_crane(spec)
     for name, r in results.items():
         r.to_csv(out / f"{name}.csv", state=args.state)
     limits = input_limits_summary(spec, crane.layout)
@@ -225,12 +226,12 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
         input_labels = [f"{name} [{unit}]" for name, unit in zip(lay.inputs, lay.input_units, strict=True)]
         write_figures(out, {m: r.run for m, r in results.items()}, crane.scenario,
                       {m: s for m, s in summaries.items() if m in results},
-                      input_labels, lay.servo_constraints, input_limits=spec.input_limits()[:2])
+                      input_labels, lay.servo_constraints, input_limits=spec.input_limits()[:2], paper=paper)
     _publish(staging, args.out)
     # Printed once the results are in place: a table on screen always has its files.
     print(f"spec {spec.name}: {duration:g} s at {rate:g} Hz, plant RK4 h = {step * 1e3:g} ms; "
           f"start tensions {np.array2string(start.inputs, precision=4)}")
-    print(format_table(summaries))
+    print(format_table(summaries, paper=paper))
     for w in warnings:
         print(f"warning: {w}")
     print(f"results in {args.out}/")
@@ -276,6 +277,13 @@ def provenance(args: argparse.Namespace, spec, gains, methods: list[str], durati
         "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "command_line": args.command_line,
     }
+
+
+def is_paper_crane(spec) -> bool:
+    """The paper's crane (its MATLAB times and bounds apply): the shipped example's model."""
+    from .spec import load_spec
+
+    return spec.model_hash() == load_spec(example_spec("acroboter")).model_hash()
 
 
 def input_limits_summary(spec, layout) -> dict:

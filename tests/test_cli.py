@@ -68,18 +68,23 @@ def test_csv_columns_and_rows(short_run):
     with (out / "mlm.csv").open() as f:
         rows = list(csv.reader(f))
     header = rows[0]
-    expected = ["t", "x", "y", "z", "yaw_deg", "x_d", "y_d", "z_d", "yaw_d_deg"]
-    expected += [f"sigma_{i}" for i in range(1, 7)] + [f"u_{i}" for i in range(1, 7)]
+    expected = ["t_s", "x_m", "y_m", "z_m", "yaw_deg", "x_d_m", "y_d_m", "z_d_m", "yaw_d_deg", "position_error_mm",
+                "yaw_error_deg", "tilt_deg"]
+    expected += [f"servo_SU_position_{axis}_mm" for axis in "xyz"]
+    expected += ["servo_SU_yaw_via_u", "servo_SU_level_w_x", "servo_SU_level_w_y"]
+    expected += ["tension_1_N", "tension_2_N", "tension_3_N", "yaw_torque_Nm", "thrust_u_N", "thrust_v_N"]
     cables = ("main", "L1", "L2", "L3")
-    expected += [f"tension_{c}_N" for c in cables] + [f"slack_{c}" for c in cables]
+    for c in cables:
+        expected += [f"cable_{c}_tension_N", f"cable_{c}_slack"]
+    expected += ["saturated"]
     assert header == expected
     assert len(rows) == 1 + 51  # 1 s at 50 Hz, both ends
     first = dict(zip(header, map(float, rows[1]), strict=True))
-    assert first["t"] == 0.0
-    assert first["z"] == pytest.approx(0.35, abs=1e-9)  # p0 of the design
-    assert first["u_1"] == pytest.approx(26.75, abs=0.01)
-    assert first["tension_L1_N"] == pytest.approx(26.75, abs=0.01)  # the plant's cable pulls with u_1
-    assert all(first[f"slack_{c}"] == 0 for c in cables)
+    assert first["t_s"] == 0.0
+    assert first["z_m"] == pytest.approx(0.35, abs=1e-9)  # p0 of the design
+    assert first["tension_1_N"] == pytest.approx(26.75, abs=0.01)
+    assert first["cable_L1_tension_N"] == pytest.approx(26.75, abs=0.01)  # the plant's cable pulls with tension_1
+    assert all(first[f"cable_{c}_slack"] == 0 for c in cables) and first["saturated"] == 0
 
 
 def test_help_lists_the_options():

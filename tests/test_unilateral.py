@@ -27,7 +27,7 @@ from acroboter.cache import load_model
 from acroboter.codegen.generate import generate
 from acroboter.controllers import Gains, make_controller
 from acroboter.plant import Plant
-from acroboter.report import write_csv
+from acroboter.result import Result
 from acroboter.simulation import Scenario, setup_default, simulate, summarize
 from acroboter.spec import load_spec, parse_spec
 from acroboter.statics import desired_path, solve_equilibrium
@@ -138,12 +138,12 @@ def test_slack_winch_cables_let_the_su_fall_freely(crane, tmp_path):
     assert result.limit_state.shape == (len(t), lay.l) and (result.limit_state == limit).all()
     assert "max_position_error_mm" in s and "control_step_us" in s  # the existing keys stay
     np.testing.assert_array_equal(result.energy["impacts"], 0.0)
-    write_csv(tmp_path / "run.csv", result, Scenario.from_model(model))
+    Result(result, lay, Scenario.from_model(model), spec.name).to_csv(tmp_path / "run.csv")
     with (tmp_path / "run.csv").open() as f:
         rows = list(csv.DictReader(f))
     assert len(rows) == len(t)
-    assert rows[0]["slack_L1"] == "1" and rows[0]["slack_main"] == "0"
-    assert float(rows[0]["tension_main_N"]) == pytest.approx(spec.body("CC").mass * G, rel=1e-9)
+    assert rows[0]["cable_L1_slack"] == "1" and rows[0]["cable_main_slack"] == "0"
+    assert float(rows[0]["cable_main_tension_N"]) == pytest.approx(spec.body("CC").mass * G, rel=1e-9)
 
 
 def test_taut_winch_cables_drag_the_drums(crane):
