@@ -12,15 +12,18 @@ Writes a Markdown table, summary.json and figures per study into --out (default 
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from .entry import check_out_folder, guarded, positive
+from .entry import check_out_folder, guarded, positive, progress_disabled
+from .grid import run_cases, setup
 from .locations import spec_folder
 from .spec import MAX_CONTROL_STEPS
+from .study_figures import case_label, position_error_figure
 
 # The study's cranes run at 50 Hz: the record cap in seconds.
 STUDY_RATE_HZ = 50.0
@@ -28,21 +31,9 @@ STUDY_MAX_DURATION_S = MAX_CONTROL_STEPS / STUDY_RATE_HZ
 
 SPECS = spec_folder()
 REDUNDANT_SPECS = ("acroboter", "acroboter_redundant", "acroboter_redundant_task")
+REDUNDANT_METHODS = ("mlm", "penalty", "iterative-3", "iterative-5")
 RECOVERY_CASES = (("projected", None), ("eq12", None), ("eq13", None), ("eq15", None),
                   ("kappa", 0.0), ("kappa", 0.5), ("kappa", 1.0))
-
-
-def _setup(spec_name: str):
-    from .cache import load_model
-    from .simulation import Scenario, setup_default
-    from .spec import load_spec
-    from .statics import desired_path, solve_equilibrium
-
-    spec = load_spec(SPECS / f"{spec_name}.toml")
-    model = load_model(spec)
-    path = desired_path(model)
-    start = solve_equilibrium(model, path)
-    return spec, model, path, start, setup_default(model, path), Scenario.from_model(model)
 
 
 def run_case(spec_name: str, method: str, duration: float | None, **overrides) -> dict:
@@ -50,8 +41,10 @@ def run_case(spec_name: str, method: str, duration: float | None, **overrides) -
     from .controllers import Gains, SingularSystemError, make_controller
     from .recovery import RecoveryError
     from .simulation import simulate, summarize
+    from .spec import load_spec
 
-    spec, model, path, start, plant, scenario = _setup(spec_name)
+    ctx = setup(load_spec(SPECS / f"{spec_name}.toml"))  # loaded (built if needed) once per spec
+    spec, model, path, start, plant, scenario = ctx.spec, ctx.model, ctx.path, ctx.start, ctx.plant, ctx.scenario
     gains = Gains.from_spec(spec, **overrides)
     duration = path.duration if duration is None else duration
     case = {"spec": spec_name, "method": method, **{k: v for k, v in overrides.items() if v is not None}}
@@ -69,32 +62,34 @@ def run_case(spec_name: str, method: str, duration: float | None, **overrides) -
             "winch_min_N": result.u[:, scenario.winch_inputs].min(axis=1).tolist() if scenario.winch_inputs else []}
 
 
-def _label(case: dict) -> str:
-    label = case["method"]
-    if case.get("recovery"):
-        label += f" / {case['recovery']}"
-        if case.get("kappa") is not None:
-            label += f" κ={case['kappa']:g}"
-    return label
+def redundant_cases() -> list[tuple[str, str, dict]]:
+    """(spec, method, gain overrides) of the redundancy study: every spec under every method."""
+    return [(name, method, {}) for name in REDUNDANT_SPECS for method in REDUNDANT_METHODS]
+
+
+def noncollocated_cases() -> list[tuple[str, str, dict]]:
+    """The four-input crane: MLM, then both penalty methods under every input recovery."""
+    return [("acroboter_4input", "mlm", {})] + [
+        ("acroboter_4input", method, {"recovery": recovery, "kappa": kappa})
+        for recovery, kappa in RECOVERY_CASES for method in ("penalty", "iterative-3")]
+
+
+def _run(case: tuple[str, str, dict], duration: float | None) -> dict:
+    spec_name, method, overrides = case
+    return run_case(spec_name, method, duration, **overrides)
+
+
+def _run_all(cases: list, duration: float | None, progress) -> list[dict]:
+    # In this process, in order: the study is small, and a failure to set up a spec stops it at once.
+    return run_cases(functools.partial(_run, duration=duration), cases, on_done=lambda case, result: progress(1))
 
 
 def study_redundant(duration: float | None, progress) -> list[dict]:
-    cases = []
-    for spec_name in REDUNDANT_SPECS:
-        for method in ("mlm", "penalty", "iterative-3", "iterative-5"):
-            cases.append(run_case(spec_name, method, duration))
-            progress(1)
-    return cases
+    return _run_all(redundant_cases(), duration, progress)
 
 
 def study_noncollocated(duration: float | None, progress) -> list[dict]:
-    cases = [run_case("acroboter_4input", "mlm", duration)]
-    progress(1)
-    for recovery, kappa in RECOVERY_CASES:
-        for method in ("penalty", "iterative-3"):
-            cases.append(run_case("acroboter_4input", method, duration, recovery=recovery, kappa=kappa))
-            progress(1)
-    return cases
+    return _run_all(noncollocated_cases(), duration, progress)
 
 
 def markdown_table(cases: list[dict], with_spec: bool) -> str:
@@ -103,7 +98,7 @@ def markdown_table(cases: list[dict], with_spec: bool) -> str:
     columns = 8 + (1 if with_spec else 0)
     lines = [head, "|" + "---|" * columns]
     for c in cases:
-        first = (f"| {c['spec']} | " if with_spec else "| ") + f"{_label(c)} | "
+        first = (f"| {c['spec']} | " if with_spec else "| ") + f"{case_label(c)} | "
         if c["outcome"] == "refused":
             lines.append(first + f"refused: {c['message'].split(':')[0]} | – | – | – | – | – | – |")
             continue
@@ -119,46 +114,6 @@ def markdown_table(cases: list[dict], with_spec: bool) -> str:
     return "\n".join(lines)
 
 
-def figure_errors(cases: list[dict], path: Path, title: str, with_spec: bool) -> None:
-    """Position error over time: the whole run on the left, the first 1.5 s on the right."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(12, 5), gridspec_kw={"width_ratios": [3, 2]})
-    colors = plt.cm.tab10(np.linspace(0, 1, 10))
-    shown = [c for c in cases if c["outcome"] != "refused"]
-    # One colour per variant (spec, or recovery); penalty solid, iterative dashed.
-    def key(c):
-        return (c["spec"], c["method"] == "mlm") if with_spec else (c.get("recovery"), c.get("kappa"))
-
-    keys = list(dict.fromkeys(key(c) for c in shown))
-    for c in shown:
-        label = (f"{c['spec']}: " if with_spec else "") + _label(c)
-        if c["diverged_at_s"] is not None:
-            label += f" (diverged {c['diverged_at_s']:.2f} s)"
-        err = np.maximum(np.asarray(c["position_error_mm"]), 1e-6)
-        style = {"color": colors[keys.index(key(c)) % 10], "lw": 1.0,
-                 "ls": "--" if c["method"].startswith("iterative") else "-"}
-        for ax in axes:
-            ax.semilogy(c["t"], err, label=label, **style)
-    for ax in axes:
-        ax.axhline(5.3, color="k", ls=":", lw=1, label="paper's bound, 5.3 mm")
-        ax.set_xlabel("t [s]")
-        ax.grid(alpha=0.3, which="both")
-    axes[1].set_xlim(0, 1.5)
-    axes[0].set_ylabel("|r_SU − r_d| [mm]")
-    axes[0].set_title("whole run")
-    axes[1].set_title("first 1.5 s")
-    handles, labels = axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels, fontsize=7, ncol=3, loc="lower center")
-    fig.suptitle(title)
-    fig.tight_layout(rect=(0, 0.07 + 0.02 * ((len(shown) + 3) // 3), 1, 1))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
 def _write(out: Path, name: str, cases: list[dict], title: str, with_spec: bool) -> str:
     folder = out / name
     folder.mkdir(parents=True, exist_ok=True)
@@ -166,7 +121,7 @@ def _write(out: Path, name: str, cases: list[dict], title: str, with_spec: bool)
     (folder / "table.md").write_text(table + "\n")
     brief = [{k: v for k, v in c.items() if k not in ("t", "position_error_mm", "winch_min_N")} for c in cases]
     (folder / "summary.json").write_text(json.dumps(brief, indent=2) + "\n")
-    figure_errors(cases, folder / "position_error.png", title, with_spec)
+    position_error_figure(cases, folder / "position_error.png", title, with_spec)
     return table
 
 
@@ -189,10 +144,10 @@ def main(argv: list[str] | None = None) -> int:
     from .compiled import StaleModelError
     from .spec import SpecError
 
-    total = (12 if args.which in ("redundant", "all") else 0) + (
-        1 + 2 * len(RECOVERY_CASES) if args.which in ("noncollocated", "all") else 0)
+    total = (len(redundant_cases()) if args.which in ("redundant", "all") else 0) + (
+        len(noncollocated_cases()) if args.which in ("noncollocated", "all") else 0)
     try:
-        with tqdm(total=total, unit="run", file=sys.stderr) as bar:
+        with tqdm(total=total, unit="run", file=sys.stderr, disable=progress_disabled()) as bar:
             if args.which in ("redundant", "all"):
                 cases = study_redundant(args.duration, bar.update)
                 print("## Redundant constraints and a redundant task\n")

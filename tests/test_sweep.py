@@ -3,12 +3,14 @@
 A tiny grid — α ∈ {1e3, 1e7}, Ω = 10, penalty and iterative-3, plus the MLM reference, 1 s of the path —
 through the function API (a LocalCluster owned by the test, used both directly and as a --scheduler
 address) and through the CLI (its own one-worker LocalCluster). Clusters are always closed by context
-managers. The task function also runs in-process for the failure statuses and the no-compile rule.
+managers. The task function also runs in-process for the failure statuses and the no-compile rule,
+and the CLI without dask installed (an optional extra) for its one-line error.
 """
 
 from __future__ import annotations
 
 import csv
+import importlib.util
 import math
 import socket
 import subprocess
@@ -17,12 +19,19 @@ from pathlib import Path
 
 import pytest
 
+from acroboter import grid, judging
+from acroboter import penalty_grid as pg
 from acroboter import sweep as sw
 
 REPO = Path(__file__).resolve().parent.parent
 SPEC = REPO / "model_spec" / "acroboter.toml"
 ALPHAS, OMEGAS, ITERATIONS, DURATION = [1e3, 1e7], [10.0], [1, 3], 1.0
 N_RUNS = 1 + len(ALPHAS) * len(OMEGAS) * len(ITERATIONS)
+# dask is an optional extra (acroboter[dask]): the tests that start a cluster need it.
+needs_dask = pytest.mark.skipif(importlib.util.find_spec("distributed") is None,
+                                reason="dask.distributed is not installed (pip install 'acroboter[dask]')")
+# Python code that makes dask and distributed unimportable, as if they were not installed.
+WITHOUT_DASK = "import sys; sys.modules['dask'] = None; sys.modules['distributed'] = None; "
 
 
 def run_cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
@@ -33,7 +42,7 @@ def run_cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
 def check_rows(rows: list[dict]) -> None:
     """The tiny grid's rows: all finished, MLM once, the default α = 1e7 tracks like MLM."""
     assert len(rows) == N_RUNS
-    assert all(set(r) >= set(sw.COLUMNS) for r in rows)
+    assert all(set(r) >= set(pg.COLUMNS) for r in rows)
     assert [r["status"] for r in rows] == ["ok"] * N_RUNS, [r["status"] for r in rows]
     mlm = [r for r in rows if r["method"] == "mlm"]
     assert len(mlm) == 1 and mlm[0]["alpha_geometric"] is None and mlm[0]["iterations"] is None
@@ -55,10 +64,11 @@ def check_rows(rows: list[dict]) -> None:
     assert soft["max_servo_accel_residual"] > 1e3 * stiff["max_servo_accel_residual"]
 
 
+@needs_dask
 def test_function_api_on_a_local_cluster(tmp_path):
     from distributed import Client, LocalCluster
 
-    cases = sw.make_grid(ALPHAS, OMEGAS, ITERATIONS)
+    cases = pg.make_grid(ALPHAS, OMEGAS, ITERATIONS)
     assert len(cases) == N_RUNS and cases[0].method == "mlm"
     with (
         LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None)
@@ -77,12 +87,13 @@ def test_function_api_on_a_local_cluster(tmp_path):
     assert {"sweep.csv", "sweep_tracking_error.png", "sweep_constraints.png", "sweep_condition.png"} <= names
     for png in tmp_path.glob("*.png"):
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    check_rows(sw.read_csv(tmp_path / "sweep.csv"))
-    text = "\n".join(sw.findings(result.rows))
+    check_rows(pg.read_csv(tmp_path / "sweep.csv"))
+    text = "\n".join(judging.findings(result.rows))
     assert "iterative-3 (Ω = 10): good for 1e+03 <= α <= 1e+07" in text
     assert "penalty (Ω = 10): good for 1e+07" in text and "soft penalty" in text
 
 
+@needs_dask
 def test_cli_on_a_one_worker_cluster(tmp_path):
     proc = run_cli("--alphas", "1e3,1e7", "--omegas", "10", "--iterations", "1,3", "--duration", str(DURATION),
                    "--workers", "1", "--no-plots", "--quiet", "--out", str(tmp_path))
@@ -92,14 +103,15 @@ def test_cli_on_a_one_worker_cluster(tmp_path):
         reader = csv.reader(f)
         header = next(reader)
         body = list(reader)
-    assert header == sw.COLUMNS
+    assert header == pg.COLUMNS
     assert len(body) == N_RUNS
-    check_rows(sw.read_csv(tmp_path / "sweep.csv"))
+    check_rows(pg.read_csv(tmp_path / "sweep.csv"))
     assert not list(tmp_path.glob("*.png"))
     assert f"{N_RUNS} runs of 1 s" in proc.stdout and "on 1 worker(s)" in proc.stdout
     assert "mlm (no penalty numbers)" in proc.stdout and "good for" in proc.stdout
 
 
+@needs_dask
 def test_unreachable_scheduler_is_a_clear_error():
     with socket.socket() as s:  # a port nobody listens on
         s.bind(("127.0.0.1", 0))
@@ -124,16 +136,16 @@ def test_help_and_bad_options():
 
 
 def test_grid_values_and_modes():
-    assert sw.parse_values("1e3:1e12") == [10.0**k for k in range(3, 13)]
-    assert sw.parse_values("1:100:2") == pytest.approx([1, 10**0.5, 10, 10**1.5, 100])
-    assert sw.parse_values("5, 10,20,10") == [5.0, 10.0, 20.0]
+    assert grid.parse_values("1e3:1e12") == [10.0**k for k in range(3, 13)]
+    assert grid.parse_values("1:100:2") == pytest.approx([1, 10**0.5, 10, 10**1.5, 100])
+    assert grid.parse_values("5, 10,20,10") == [5.0, 10.0, 20.0]
     for bad in ("", "a", "0:10", "10:1", "-1", "1:10:0.5"):
         with pytest.raises(ValueError):
-            sw.parse_values(bad)
-    assert sw.parse_iterations("1,3,5") == [1, 3, 5]
-    grid = sw.make_grid([1e3, 1e6], [10.0], [1], "grid")
-    assert {(c.alpha_geometric, c.alpha_servo) for c in grid[1:]} == {(a, b) for a in (1e3, 1e6) for b in (1e3, 1e6)}
-    servo = sw.make_grid([1e3, 1e6], [10.0], [1, 5], "servo", fixed_geometric=7.0)
+            grid.parse_values(bad)
+    assert pg.parse_iterations("1,3,5") == [1, 3, 5]
+    pairs = pg.make_grid([1e3, 1e6], [10.0], [1], "grid")
+    assert {(c.alpha_geometric, c.alpha_servo) for c in pairs[1:]} == {(a, b) for a in (1e3, 1e6) for b in (1e3, 1e6)}
+    servo = pg.make_grid([1e3, 1e6], [10.0], [1, 5], "servo", fixed_geometric=7.0)
     assert [(c.method, c.alpha_geometric, c.alpha_servo) for c in servo[1:]] == [
         ("penalty", 7.0, 1e3), ("penalty", 7.0, 1e6), ("iterative-5", 7.0, 1e3), ("iterative-5", 7.0, 1e6)]
 
@@ -141,10 +153,10 @@ def test_grid_values_and_modes():
 def test_task_statuses_in_process():
     """Divergence at a tiny α and a Cholesky failure at a huge α are statuses, not exceptions."""
     text = SPEC.read_text()
-    diverged = sw.run_case(text, str(SPEC), sw.Case("penalty", 1e-2, 1e-2, 10.0, 1), 0.6)
+    diverged = pg.run_case(text, str(SPEC), pg.Case("penalty", 1e-2, 1e-2, 10.0, 1), 0.6)
     assert diverged["status"].startswith("diverged at t = 0.3"), diverged["status"]
     assert diverged["max_position_error_mm"] is None and diverged["cond_penalty_matrix"] > 0
-    broken = sw.run_case(text, str(SPEC), sw.Case("iterative-3", 1e16, 1e16, 10.0, 3), 0.2)
+    broken = pg.run_case(text, str(SPEC), pg.Case("iterative-3", 1e16, 1e16, 10.0, 3), 0.2)
     assert broken["status"].startswith("error: ") and "not positive definite" in broken["status"]
     assert broken["cond_penalty_matrix"] > 1e16  # beyond 1/eps: why the factorization fails
 
@@ -153,6 +165,42 @@ def test_task_never_compiles(monkeypatch, tmp_path):
     """A worker whose cache has no library for the spec says so; it neither generates nor compiles."""
     monkeypatch.setenv("ACROBOTER_CACHE_DIR", str(tmp_path))
     text = SPEC.read_text() + "\n# a variant: not in the worker's model cache\n"
-    with pytest.raises(sw.MissingLibraryError, match="never compile"):
-        sw.run_case(text, str(SPEC), sw.Case("mlm"), 0.1)
+    with pytest.raises(grid.MissingLibraryError, match="never compile"):
+        pg.run_case(text, str(SPEC), pg.Case("mlm"), 0.1)
     assert not (tmp_path / "lib").exists() and not (tmp_path / "generated").exists()
+
+
+def test_cases_run_in_process_in_order():
+    """Without a client the same runner runs here: results in case order, a failure through on_error."""
+    assert grid.run_cases(lambda c: 1 / c, [1, 0, 4], on_error=lambda c, err: type(err).__name__) == [
+        1.0, "ZeroDivisionError", 0.25]
+    with pytest.raises(ZeroDivisionError):
+        grid.run_cases(lambda c: 1 / c, [0])
+    rows = sw.run_sweep(None, SPEC, pg.make_grid([1e7], [10.0], [3]), 0.2)
+    assert [(r["method"], r["status"], r["worker"]) for r in rows] == [("mlm", "ok", "local"),
+                                                                       ("iterative-3", "ok", "local")]
+
+
+def test_import_and_help_need_no_dask():
+    """Importing the sweep loads no dask; with dask unimportable, `acroboter sweep --help` still works."""
+    code = "import sys, acroboter.sweep; print(sorted({'dask', 'distributed'} & set(sys.modules)))"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert proc.returncode == 0 and proc.stdout.strip() == "[]", proc.stdout + proc.stderr
+    code = WITHOUT_DASK + "from acroboter.cli import main; sys.exit(main(['sweep', '--help']))"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert "--scheduler" in proc.stdout and "Traceback" not in proc.stderr
+
+
+def test_a_sweep_without_dask_says_what_to_install(monkeypatch, capsys, tmp_path):
+    """No dask: one line naming the cause and the fix, exit 3 (cannot run), before any work."""
+    monkeypatch.setitem(sys.modules, "dask", None)  # `import dask` now raises ImportError
+    monkeypatch.setitem(sys.modules, "distributed", None)
+    assert sw.main(["--out", str(tmp_path / "out"), "--quiet"]) == 3
+    captured = capsys.readouterr()
+    assert captured.err.splitlines() == [
+        "error: acroboter sweep needs dask (dask is not installed): pip install 'acroboter[dask]'"]
+    assert captured.out == "" and list((tmp_path / "out").iterdir()) == []
+    with pytest.raises(grid.DaskMissingError, match="acroboter\\[dask\\]"):  # the function API alike
+        sw.sweep(SPEC, out=tmp_path / "api")
+    assert not (tmp_path / "api").exists()
