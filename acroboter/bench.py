@@ -98,31 +98,31 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--methods names no method")
     check_out_folder(parser, args.out)
 
-    from .cache import load_model
     from .casadi_backend import CasadiModel
     from .compiled import StaleModelError
-    from .controllers import Gains, SingularSystemError, make_controller
+    from .controllers import SingularSystemError, make_controller
+    from .crane import Crane
     from .plant import SimulationError
     from .recovery import RecoveryError
     from .simulation import setup_default, simulate
     from .spec import SpecError, load_spec
-    from .statics import desired_path, solve_equilibrium
+    from .statics import desired_path
 
     try:
-        spec = load_spec(args.spec)
         load_spec(args.limits_spec)  # validated before any work too
-        model = load_model(spec)
+        crane = Crane.from_toml(args.spec)
     except (SpecError, StaleModelError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    gains = Gains.from_spec(spec)
-    path = desired_path(model)
+    spec, model = crane.spec, crane.model
+    gains = crane.gains()
+    path = crane.path
     rate, h = spec.controller.rate_hz, spec.simulation.step
     if path.duration * rate < MIN_INSTANTS:
         print(f"error: the scenario of {spec.name} has {path.duration * rate:.0f} control instants, the benchmark "
               f"needs at least {MIN_INSTANTS}: lengthen the path (or lower path.mean_speed)", file=sys.stderr)
         return 2
-    start = solve_equilibrium(model, path)
+    start = crane.equilibrium()
     plant = setup_default(model, path)
     results = {}
     # Every model term (M, c, φ, φ_q, φ̇, γ, σ, σ_q, σ̇, γ_s, H) at one state: one pre-bound C call.
@@ -226,16 +226,12 @@ def main(argv: list[str] | None = None) -> int:
 
 def bench_limits(spec_path: Path, methods: list[str], repeats: int) -> dict:
     """Control step on a crane's own scenario with its limits, without, and saturated at every step."""
-    from .cache import load_model
-    from .controllers import Gains, make_controller, unbounded
+    from .controllers import make_controller, unbounded
+    from .crane import Crane
     from .simulation import setup_default, simulate
-    from .spec import load_spec
-    from .statics import desired_path, solve_equilibrium
 
-    spec = load_spec(spec_path)
-    model = load_model(spec)
-    path, gains = desired_path(model), Gains.from_spec(spec)
-    start = solve_equilibrium(model, path)
+    crane = Crane.from_toml(spec_path)
+    spec, model, path, gains, start = crane.spec, crane.model, crane.path, crane.gains(), crane.equilibrium()
     rate, h = spec.controller.rate_hz, spec.simulation.step
     reference = simulate(model, path, make_controller(methods[0], model, path, gains), setup_default(model, path),
                          start.q, path.duration, rate, h)
