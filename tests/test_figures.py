@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from matplotlib.image import imread
 from conftest import load_with_start
 
 from acroboter.controllers import Gains, make_controller
@@ -68,7 +69,9 @@ def test_write_figures_writes_every_png_and_returns_the_paths(run, tmp_path, pap
     for p in paths:
         width, height = png_size(p)
         assert 700 <= width <= 2000 and 400 <= height <= 2000, (p.name, width, height)
-        assert p.stat().st_size > 20_000, p.name  # drawn, not blank
+        pixels = imread(p)[..., :3]
+        drawn = np.mean(pixels.min(axis=2) < 0.9)  # drawn, not blank (the file size varies with the timings)
+        assert drawn > 0.02, (p.name, drawn)
 
 
 def overlapping_legends(fig) -> list[str]:
