@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from matplotlib.image import imread
 from conftest import load_with_start
+from matplotlib.image import imread
 
 from acroboter.controllers import Gains, make_controller
 from acroboter.figures import FIGURE_NAMES, build_figures, magnification, yaw_error_deg
