@@ -75,7 +75,7 @@ def stats(seconds: np.ndarray) -> dict:
 
 @guarded
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m acroboter.bench", description=__doc__,
+    parser = argparse.ArgumentParser(prog="acroboter bench", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--spec", type=Path, default=example_spec("acroboter"),
                         help="model spec (TOML) whose scenario is timed (default: %(default)s)")

@@ -114,19 +114,29 @@ def cache_lock(cache_root: Path, name: str):
             fcntl.flock(handle, fcntl.LOCK_UN)
 
 
+def cache_write_error(cache_root: Path, err: OSError) -> str:
+    return (f"cannot write the model cache {cache_root} ({err.strerror or err}): point ACROBOTER_CACHE_DIR "
+            "(or --cache-dir) at a folder you can write")
+
+
 def ensure_built(spec_name: str, source_dir: Path, cache_root: Path) -> Path:
     """The current library of `source_dir`, compiled first if it is missing or damaged."""
     lib = library_path(spec_name, source_dir, cache_root)
     if is_current(lib):
         return lib
-    with cache_lock(cache_root, lib.parent.name):
-        if not is_current(lib):  # another process may have built it while we waited
-            log.info("compiling the model library of '%s' into %s (once per version) ...", spec_name, lib.parent)
-            build(spec_name, source_dir, cache_root)
+    try:
+        with cache_lock(cache_root, lib.parent.name):
+            if not is_current(lib):  # another process may have built it while we waited
+                log.info("compiling the model library of '%s' into %s (once per version) ...", spec_name,
+                         lib.parent)
+                build(spec_name, source_dir, cache_root)
+    except OSError as err:
+        raise BuildError(cache_write_error(cache_root, err)) from None
     return lib
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The command line (`acroboter build` runs it inside the error boundary, codegen_cli.build_main)."""
     parser = argparse.ArgumentParser(prog="acroboter build", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("specs", nargs="*", help="example spec names (default: every shipped example)")
@@ -142,7 +152,9 @@ def main(argv: list[str] | None = None) -> int:
         for name in names:
             source = generated / name
             if not source.is_dir():
-                print(f"error: no generated C for '{name}' in {generated}", file=sys.stderr)
+                known = ", ".join(sorted(p.name for p in generated.iterdir() if p.is_dir() and p.name[0] != "."))
+                print(f"error: no example '{name}' (the examples are {known}); a spec file of your own is built "
+                      "by its first run (`acroboter run --spec FILE`)", file=sys.stderr)
                 return 2
             lib = library_path(name, source, root)
             if not args.force and is_current(lib):  # incremental: the name carries sources and flags
@@ -150,9 +162,8 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             with cache_lock(root, lib.parent.name):
                 print(f"built {build(name, source, root)}")
-    except BuildError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 3
+    except OSError as err:
+        raise BuildError(cache_write_error(root, err)) from None
     return 0
 
 

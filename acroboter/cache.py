@@ -23,9 +23,10 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from .build import cache_lock
-from .compiled import CompiledModel, NotBuiltError
+from .build import BuildError, cache_lock, cache_write_error
+from .compiled import CompiledModel, NotBuiltError, StaleModelError
 from .fingerprint import codegen_hash
+from .interrupts import remembered_interrupt
 from .locations import cache_dir as resolve_cache_dir
 from .locations import shipped_generated_folder
 from .spec import Spec
@@ -44,7 +45,19 @@ def load_model(spec: Spec, generated_dir: Path | None = None, cache_dir: Path | 
     if generated_dir is not None:
         model = CompiledModel(spec, Path(generated_dir) / spec.name, root, build=build)
     else:
-        model = CompiledModel(spec, model_sources(spec, root, generate=build), root, build=build)
+        source = model_sources(spec, root, generate=build)
+        try:
+            model = CompiledModel(spec, source, root, build=build)
+        except NotBuiltError:
+            raise
+        except StaleModelError as err:
+            if not build or not source.is_relative_to(root / "generated"):
+                raise  # the shipped C, or a folder the caller named: say so, never touch it
+            # The cache's own copy was damaged (a file edited or removed): it is ours to remake.
+            log.warning("the cached C of spec '%s' is damaged (%s): generating it again", spec.name, err)
+            with cache_lock(root, f"generate-{source.parent.name}"):
+                shutil.rmtree(source.parent, ignore_errors=True)
+            model = CompiledModel(spec, model_sources(spec, root), root)
     log.debug("model '%s': generated C in %s, library %s", spec.name, model.source_dir, model.library_path)
     return model
 
@@ -77,20 +90,29 @@ def model_sources(spec: Spec, cache_root: Path, generate: bool = True) -> Path:
     if not generate:
         raise NotBuiltError(f"no generated C for spec '{spec.name}' in {folder}: load the model once with build "
                             "allowed (it generates and compiles there)")
-    with cache_lock(cache_root, f"generate-{spec.name}-{key}"):
-        if (source / "manifest.json").is_file():  # another process generated it while we waited
-            return source
-        from .codegen.generate import generate  # only here: loading a shipped model never imports CasADi
+    try:
+        with cache_lock(cache_root, f"generate-{folder.name}"):
+            return _generate_into(spec, folder, source)
+    except OSError as err:
+        raise BuildError(cache_write_error(cache_root, err)) from None
 
-        log.info("generating the C of spec '%s' into %s (once per spec version) ...", spec.name, folder)
-        folder.parent.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.new-", dir=folder.parent))
-        try:
-            generate(spec, staging)
-            staging.chmod(0o755)
-            if folder.exists():  # an earlier, interrupted attempt without a manifest
-                shutil.rmtree(folder)
-            staging.rename(folder)
-        finally:
-            shutil.rmtree(staging, ignore_errors=True)
+
+def _generate_into(spec: Spec, folder: Path, source: Path) -> Path:
+    """Generate `spec` into `folder` (called under its lock): a staging folder, then one rename."""
+    if (source / "manifest.json").is_file():  # another process generated it while we waited
+        return source
+    from .codegen.generate import generate  # only here: loading a shipped model never imports CasADi
+
+    log.info("generating the C of spec '%s' into %s (once per spec version) ...", spec.name, folder)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.new-", dir=folder.parent))
+    try:
+        with remembered_interrupt() as interrupt:  # CasADi swallows Ctrl-C: honour it before the rename
+            generate(spec, staging, verify=lambda _: interrupt.check())
+        staging.chmod(0o755)
+        if folder.exists():  # an earlier attempt that was damaged or cut short
+            shutil.rmtree(folder)
+        staging.rename(folder)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
     return source

@@ -29,7 +29,7 @@ COMMANDS: dict[str, tuple[str, str, tuple[str, ...]]] = {
     "sweep": ("acroboter.sweep", "main", ()),
     "generate": ("acroboter.codegen_cli", "main", ("generate",)),
     "check": ("acroboter.codegen_cli", "main", ("check",)),
-    "build": ("acroboter.build", "main", ()),
+    "build": ("acroboter.codegen_cli", "build_main", ()),
     "export-step": ("acroboter.codegen_cli", "export_step_main", ()),
 }
 
@@ -66,10 +66,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("command", choices=sorted(COMMANDS), metavar="COMMAND",
                         help=f"one of: {', '.join(COMMANDS)}")
     parser.add_argument("arguments", nargs=argparse.REMAINDER, help="the command's own options (see COMMAND --help)")
+    if not argv:
+        parser.print_help()
+        return 0
     args = parser.parse_args(argv)
     configure_logging(args.verbosity)
     module, function, prefix = COMMANDS[args.command]
-    command = getattr(import_module(module), function)
+    try:
+        command = getattr(import_module(module), function)
+    except KeyboardInterrupt:  # while the command's modules load (numpy, scipy): before any work
+        print("interrupted", file=sys.stderr)
+        return 130
     return command([*prefix, *args.arguments])
 
 

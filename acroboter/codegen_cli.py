@@ -18,6 +18,7 @@ from pathlib import Path
 
 from .codegen.generate import generate
 from .entry import check_out_folder, guarded, number, positive
+from .interrupts import remembered_interrupt
 from .locations import checkout_root, example_spec, shipped_generated_folder, spec_folder
 from .spec import Spec, SpecError, load_spec
 
@@ -105,9 +106,17 @@ class GenerationError(RuntimeError):
 def cmd_generate(spec_paths: list[Path], out_root: Path, check_compiles: bool = True) -> int:
     specs = load_all(spec_paths)  # all valid before anything is written
     refuse_collisions(specs, out_root)
-    for path, spec in specs:
-        out_dir = generate(spec, out_root, verify=compile_check if check_compiles else None)
-        print(f"generated {out_dir.relative_to(REPO) if out_dir.is_relative_to(REPO) else out_dir} from {path.name}")
+    with remembered_interrupt() as interrupt:  # Ctrl-C inside CasADi is honoured before any file is replaced
+
+        def verify(folder: Path) -> None:
+            interrupt.check()
+            if check_compiles:
+                compile_check(folder)
+                interrupt.check()
+
+        for path, spec in specs:
+            out_dir = generate(spec, out_root, verify=verify)
+            print(f"generated {_shown(out_dir)} from {path.name}")
     return 0
 
 
@@ -143,7 +152,7 @@ def cmd_check(spec_paths: list[Path], committed: Path, whole_tree: bool) -> int:
             problems = compare_trees(fresh, committed)
     if problems:
         print("generated/ is stale:", *problems, sep="\n  ")
-        print("fix: run `make generate` and commit generated/")
+        print("fix: run `acroboter generate` (in a checkout: `make generate`, then commit generated/)")
         return 1
     print(f"generated/ is up to date ({len(spec_paths)} spec(s))")
     return 0
@@ -234,6 +243,15 @@ def export_step_main(argv: list[str] | None = None) -> int:
     for path in written:
         print(f"wrote {_shown(path)}")
     return 0
+
+
+@guarded
+def build_main(argv: list[str] | None = None) -> int:
+    """`acroboter build`: compile the examples' libraries into the cache (acroboter.build), with the
+    error boundary of every command."""
+    from .build import main as build
+
+    return build(argv)
 
 
 if __name__ == "__main__":

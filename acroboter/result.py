@@ -205,18 +205,20 @@ class Result:
     def plot(self, path: str | Path | None = None):
         """Position error, yaw error, tilt and the inputs against time; saved to `path` if given.
         Returns the matplotlib Figure."""
-        import matplotlib
+        if path is not None:  # a file: no pyplot, so the caller's backend and figures are left alone
+            from matplotlib.figure import Figure
 
-        if path is not None:
-            matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+            fig = Figure(figsize=(9, 1.9 * (4 if self.yaw_error_deg is not None else 3) + 0.6))
+        else:
+            import matplotlib.pyplot as plt
 
+            fig = plt.figure(figsize=(9, 1.9 * (4 if self.yaw_error_deg is not None else 3) + 0.6))
         panels = [("position error [mm]", self.position_error_mm)]
         if self.yaw_error_deg is not None:
             panels.append(("yaw error [deg]", self.yaw_error_deg))
         panels.append(("tilt [deg]", self.tilt_deg))
         rows = len(panels) + 1
-        fig, axes = plt.subplots(rows, 1, figsize=(9, 1.9 * rows + 0.6), sharex=True)
+        axes = fig.subplots(rows, 1, sharex=True)
         for ax, (label, values) in zip(axes, panels, strict=False):
             ax.plot(self.time, values, lw=0.9)
             ax.set_ylabel(label, fontsize=8)
@@ -232,7 +234,6 @@ class Result:
         fig.tight_layout()
         if path is not None:
             fig.savefig(path, dpi=110)
-            plt.close(fig)
         return fig
 
     def __repr__(self) -> str:

@@ -127,7 +127,7 @@ def _write(out: Path, name: str, cases: list[dict], title: str, with_spec: bool)
 
 @guarded
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m acroboter.study", description=__doc__,
+    parser = argparse.ArgumentParser(prog="acroboter study", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("which", nargs="?", choices=["redundant", "noncollocated", "all"], default="all",
                         help="which study to run (default: %(default)s)")

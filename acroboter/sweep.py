@@ -136,7 +136,7 @@ def sweep(spec_path: Path = DEFAULT_SPEC, *, alphas: list[float] | None = None, 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
-        prog="python -m acroboter.sweep",
+        prog="acroboter sweep",
         description="Penalty-number study: how the penalty and iterative penalty methods track against MLM as "
                     "the penalty numbers α and Ω vary, one closed-loop simulation per grid point on Dask.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
@@ -160,7 +160,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--workers", type=whole(1, 64), default=2, help="worker processes of the local cluster")
     p.add_argument("--connect-timeout", type=positive(3600.0), default=10.0, help="seconds to wait for --scheduler")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar (the same as `acroboter -q sweep`)")
     args = p.parse_args(argv)
     check_out_folder(p, args.out)
     try:
