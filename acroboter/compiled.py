@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .build import BuildError, ensure_built, is_current, library_path
+from .build import ensure_built, is_current, library_path
 from .fingerprint import codegen_hash, manifest_hash
 from .layout import Layout, build_layout
 from .spec import Spec
@@ -180,10 +180,7 @@ class CompiledModel:
                 raise NotBuiltError(f"no compiled library for spec '{spec.name}' at {lib_path}: build it first "
                                     f"(`acroboter build {spec.name}` for an example, or load the model once with "
                                     "build allowed)")
-        try:
-            lib_path = ensure_built(spec.name, source_dir, cache_root)
-        except BuildError as err:
-            raise StaleModelError(str(err)) from None
+        lib_path = ensure_built(spec.name, source_dir, cache_root)  # BuildError: cannot run (exit 3)
         self.library_path = lib_path
         try:
             self.lib = ctypes.CDLL(str(lib_path))

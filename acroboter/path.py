@@ -9,6 +9,7 @@ control step's hot path); `table(times)` evaluates many at once for the plant.
 from __future__ import annotations
 
 import bisect
+import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -246,7 +247,12 @@ class TrajectoryPath(DesiredPath):
         if not (math.isfinite(duration) and duration > 0):
             raise TrajectoryError(f"trajectory duration: expected a positive number of seconds, found {duration}")
         self.motion, self._fixed_yaw = motion, float(start_yaw)
-        pos, _, _ = self._evaluate(np.zeros(1))
+        pos, vel, _ = self._evaluate(np.zeros(1))
+        speed = float(np.linalg.norm(vel[0, :3]))
+        if speed > 1e-9:  # the closed loop starts from the static equilibrium, at rest
+            logging.getLogger(__name__).warning(
+                "the trajectory starts moving (%.3g m/s at t = 0) but the crane starts at rest: expect a "
+                "tracking transient at the start", speed)
         super().__init__(spec, layout, pos[0, :3], float(pos[0, 3]) if pos.shape[1] == 4 else start_yaw)
         self.duration = float(duration)
 
@@ -261,8 +267,10 @@ class TrajectoryPath(DesiredPath):
             if value.shape not in ((times.size, 3), (times.size, 4)):
                 raise TrajectoryError(f"the trajectory function's {name} for {times.size} times is {value.shape}, "
                                       f"expected {times.size} x 3 or {times.size} x 4")
-            if not np.isfinite(value).all():
-                raise TrajectoryError(f"the trajectory function's {name} is not finite near t = {times[0]:g} s")
+            bad = ~np.isfinite(value).all(axis=1)
+            if bad.any():
+                raise TrajectoryError(f"the trajectory function's {name} is not finite at t = "
+                                      f"{times[np.argmax(bad)]:g} s")
         return out
 
     def table(self, times: np.ndarray) -> np.ndarray:
