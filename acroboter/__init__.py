@@ -43,9 +43,12 @@ _EXPORTS = {
     "example_names": "acroboter.locations",
     "cache_dir": "acroboter.locations",
     "SampledTrajectory": "acroboter.path",
+    "TrajectoryError": "acroboter.path",
+    "EquilibriumError": "acroboter.statics",
     "StaleModelError": "acroboter.compiled",
     "SimulationError": "acroboter.plant",
     "SingularSystemError": "acroboter.controllers",
+    "PlantParameterError": "acroboter.physical",
 }
 
 __all__ = ["__version__", *sorted(_EXPORTS)]

@@ -4,8 +4,14 @@ Every controller maps (q, q̇, t) to the input u. One call into the compiled lib
 the method needs at the state (acroboter.codegen.structured); the remaining linear algebra is LAPACK through
 scipy on preallocated arrays.
 
-  ρ   = γ   + 2Ωμ φ̇ + Ω² φ          (geometric constraints, penalty dynamics)
-  ρ_s = γ_s + 2k_D σ̇ + k_P² σ       (servo-constraints: the tracking error dynamics)
+  ρ   = γ   + 2Ωμ φ̇ + Ω² φ               (geometric constraints, penalty dynamics)
+  ρ_s = γ_s + 2k_D σ̇ + k_P² σ + k_I z    (servo-constraints: the tracking error dynamics)
+
+z = ∫σ dt is the integral action's state (docs/integral_action.md), held here, in the base class,
+for every method: trapezoidal over each control period from σ at the period's two ends, frozen over
+a period whose input was saturated (conditional integration: the anti-windup), and written into the
+generated functions' parameter vector, so that every method, recovery and bounded distribution
+reads the same ρ_s. With k_I = 0 (the default) nothing of it runs and z stays 0.
 """
 
 from __future__ import annotations
@@ -56,7 +62,7 @@ class Controller:
         self.model, self.path, self.gains = model, path, gains
         lay = model.layout
         self.n, self.m, self.k, self.l = lay.n, lay.m, lay.k, lay.l
-        self._params = gains.parameter_vector()
+        self._params = gains.parameter_vector(self.k)
         self._fn = model.functions[self.terms_function]
         self.terms = self._fn.outputs  # refreshed by every _load
         self._bounded_fn = model.functions[self.bounded_function]
@@ -73,6 +79,47 @@ class Controller:
         self._judge = BoundedInputs(self.limits.lower, self.limits.upper, self.limits.preferred)
         # More inputs than servo-constraints: the task leaves internal forces free, always distribute.
         self.redundant_inputs = self.l > self.k
+        # Integral action: z = ∫σ dt per servo-constraint, in p after the scalar gains.
+        self.ki = float(gains.ki)
+        self.anti_windup = True  # conditional integration: z holds over a period whose input saturated
+        self.integral = np.zeros(self.k)  # z
+        self._z = self._p[self._params.size - self.k :]  # z's place in the shared parameter buffer
+        self._sigma_fn = model.functions["sigma"]
+        self._sigma_last = np.zeros(self.k)
+        self._t_last: float | None = None
+        self._hold = False  # the last step saturated: do not integrate over the period after it
+        self._saturated: bool | None = None  # saturation() of the last compute(), once judged
+
+    def reset(self) -> None:
+        """Forget the integral action's state (z = 0): for a new run with the same controller."""
+        self.integral[:] = 0.0
+        self._t_last, self._hold = None, False
+
+    def _integrate(self, t: float) -> None:
+        """z += ½ (t − t_prev)(σ_prev + σ) with σ at the state in the buffers, unless the last step
+        saturated (anti-windup); then z into p. A time before the last one starts a new run (z = 0)."""
+        self._sigma_fn.call()  # σ at the state and signals just loaded
+        sigma = self._sigma_fn.outputs["sigma"]
+        if self._t_last is not None and t < self._t_last:
+            self.reset()
+        if self._t_last is not None and t > self._t_last and not self._hold:
+            self.integral += (0.5 * (t - self._t_last)) * (self._sigma_last + sigma)
+        self._sigma_last[:] = sigma
+        self._t_last = t
+        self._z[:] = self.integral
+
+    def compute(self, q: np.ndarray, qd: np.ndarray, t: float, signals=None) -> np.ndarray:
+        """The input u at state (q, q̇) and time t (a view of an internal buffer).
+
+        `signals`: the path's [s, ṡ, s̈] at t if already known (e.g. from DesiredPath.table);
+        otherwise they are evaluated here. With integral action, z is advanced to t first, and the
+        step's saturation is judged after it (for the anti-windup of the next period).
+        """
+        self._saturated = None
+        u = self._compute(q, qd, t, signals)
+        if self.ki != 0.0:
+            self._hold = self.anti_windup and self.saturation()
+        return u
 
     def _distribute(self, hessian: np.ndarray, gradient: np.ndarray) -> np.ndarray:
         """The bounded input (acroboter.distribution) into self.u."""
@@ -90,6 +137,12 @@ class Controller:
         of the limits in a second bounded least squares, min |E u − a|²; saturated if even its best
         input misses a by more than SATURATION_TOLERANCE.
         """
+        if self._saturated is not None:  # judged already for this step (the anti-windup asks first)
+            return self._saturated
+        self._saturated = self._judge_saturation()
+        return self._saturated
+
+    def _judge_saturation(self) -> bool:
         limits = self.limits
         if not limits.bounded_step:
             return False
@@ -112,14 +165,11 @@ class Controller:
         if self.model.parameters_owner is not self:  # another controller may have set other gains
             self._p[:] = self._params
             self.model.parameters_owner = self
+        if self.ki != 0.0:
+            self._integrate(t)
         (function or self._fn).call()
 
-    def compute(self, q: np.ndarray, qd: np.ndarray, t: float, signals=None) -> np.ndarray:
-        """The input u at state (q, q̇) and time t (a view of an internal buffer).
-
-        `signals`: the path's [s, ṡ, s̈] at t if already known (e.g. from DesiredPath.table);
-        otherwise they are evaluated here.
-        """
+    def _compute(self, q: np.ndarray, qd: np.ndarray, t: float, signals) -> np.ndarray:
         raise NotImplementedError
 
 
@@ -147,7 +197,7 @@ class MLM(Controller):
         self._y = np.zeros(self.m + self.l)
         self._y_current = True  # False when the applied u is not the Schur solution (limits, redundancy)
 
-    def compute(self, q, qd, t, signals=None):
+    def _compute(self, q, qd, t, signals):
         if self.redundant_inputs:
             # E u = e has a family of solutions (internal forces): the distribution picks one.
             self._load(q, qd, t, signals, self._bounded_fn)
@@ -242,7 +292,7 @@ class Penalty(Controller):
         self.fast_recovery = gains.recovery == "projected"
         self._gradient = np.zeros(self.l)
 
-    def compute(self, q, qd, t, signals=None):
+    def _compute(self, q, qd, t, signals):
         self._load(q, qd, t, signals)
         T = self.terms
         chol, info = self._potrf(T["penalty_matrix"], lower=False, overwrite_a=True, clean=False)

@@ -9,14 +9,16 @@
 
 Methods are "mlm", "penalty", "iterative" (with `iterations=N`, default the spec's first count) or
 "iterative-N". Keyword overrides replace the spec's controller settings for that call: kp, kd,
-alpha_geometric, alpha_servo, omega, mu, recovery, kappa. A `trajectory` (a SampledTrajectory, or
-a function t -> (position, velocity, acceleration) with `duration`) replaces the spec's waypoints.
+alpha_geometric, alpha_servo, omega, mu, recovery, kappa, ki (integral action, docs/integral_action.md).
+A `trajectory` (a SampledTrajectory, or a function t -> (position, velocity, acceleration) with
+`duration`) replaces the spec's waypoints.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+import numbers
+from collections.abc import Callable, Mapping
 from os import PathLike
 from pathlib import Path
 
@@ -28,15 +30,16 @@ from .controllers import make_controller
 from .feasibility import Feasibility, check_path
 from .locations import example_spec
 from .path import DesiredPath, SampledTrajectory, TrajectoryPath
+from .physical import parameter_names, parameter_values
 from .result import Result
 from .settings import Gains
 from .simulation import Scenario, setup_default, simulate
-from .spec import MAX_ITERATIONS, RECOVERIES, Spec, load_spec
+from .spec import MAX_ITERATIONS, RECOVERIES, Spec, integral_gain_problem, load_spec
 from .statics import Equilibrium, desired_path, solve_equilibrium, start_targets
 
 # Untimed control steps at the start state before a timed run: the first calls page code and data in.
 WARM_UP_STEPS = 200
-GAIN_NAMES = ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu", "recovery", "kappa")
+GAIN_NAMES = ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu", "recovery", "kappa", "ki")
 
 Trajectory = SampledTrajectory | Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
 
@@ -118,9 +121,16 @@ class Crane:
             return self._start
         return solve_equilibrium(self.model, self.desired(trajectory, duration))
 
+    def plant_parameters(self) -> dict[str, float]:
+        """The physical parameters a plant may differ in (`simulate(plant_params=...)`), with the spec's
+        values: gravity.x/y/z, <body>.mass, <body>.inertia.xx …, <body>.damping.translational/rotational,
+        <body>.points.<point>.x/y/z, <cable>.length, <cable>.winch.reflected_inertia (acroboter.physical)."""
+        return dict(zip(parameter_names(self.spec), map(float, parameter_values(self.spec)), strict=True))
+
     def gains(self, **overrides) -> Gains:
         """The spec's controller settings with `overrides` (kp, kd, alpha_geometric, alpha_servo, omega,
-        mu, recovery, kappa) checked and applied."""
+        mu, recovery, kappa, ki) checked and applied; ki ≥ 0 must keep the servo error dynamics stable,
+        ki < 2·kd·kp² (docs/integral_action.md)."""
         unknown = sorted(set(overrides) - set(GAIN_NAMES))
         if unknown:
             raise TypeError(f"unknown controller setting(s) {', '.join(unknown)}: use {', '.join(GAIN_NAMES)}")
@@ -131,27 +141,32 @@ class Crane:
                 if value not in RECOVERIES:
                     raise ValueError(f"recovery: expected one of {', '.join(RECOVERIES)}, found {value!r}")
                 continue
-            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value):
                 raise ValueError(f"{name}: expected a finite number, found {value!r}")
             if name == "kappa" and not 0.0 <= value <= 1.0:
                 raise ValueError(f"kappa: expected a number in [0, 1], found {value:g}")
-            if name != "kappa" and value <= 0:
+            if name == "ki" and value < 0:
+                raise ValueError(f"ki: expected a number ≥ 0, found {value:g}")
+            if name not in ("kappa", "ki") and value <= 0:
                 raise ValueError(f"{name}: expected a positive number, found {value:g}")
-        return Gains.from_spec(self.spec, **overrides)
+        gains = Gains.from_spec(self.spec, **overrides)
+        if (problem := integral_gain_problem(gains.kp, gains.kd, gains.ki)) is not None:
+            raise ValueError(f"ki: {problem}")
+        return gains
 
     def method_name(self, method: str, iterations: int | None = None) -> str:
         """'mlm', 'penalty', 'iterative-N'; 'iterative' takes `iterations` (default the spec's first)."""
         if method == "iterative":
             iterations = self.spec.controller.penalty.iterations[0] if iterations is None else iterations
-            whole = isinstance(iterations, int) and not isinstance(iterations, bool)
+            whole = isinstance(iterations, numbers.Integral) and not isinstance(iterations, bool)
             if not whole or not 1 <= iterations <= MAX_ITERATIONS:
                 raise ValueError(f"iterations: expected a whole number from 1 to {MAX_ITERATIONS}, "
                                  f"found {iterations!r}")
-            return f"iterative-{iterations}"
+            return f"iterative-{int(iterations)}"
         if iterations is not None:
             raise ValueError(f"iterations= goes with method 'iterative', not '{method}'")
         count = method.removeprefix("iterative-")
-        if method in ("mlm", "penalty") or (method.startswith("iterative-") and count.isdigit()
+        if method in ("mlm", "penalty") or (method.startswith("iterative-") and count.isascii() and count.isdigit()
                                             and 1 <= int(count) <= MAX_ITERATIONS):
             return method
         raise ValueError(f"unknown method '{method}': use mlm, penalty, iterative or iterative-N "
@@ -168,7 +183,7 @@ class Crane:
                    **overrides) -> Feasibility:
         """Before a run: can the ideal motion be realised within the input limits (MLM on the plant)?"""
         path = self.desired(trajectory, duration)
-        duration = path.duration if duration is None else float(duration)
+        duration = _duration(path, duration)
         start = self.equilibrium(trajectory, duration)
         return check_path(self.model, path, setup_default(self.model, path), start.q, duration,
                           self.gains(**overrides))
@@ -176,8 +191,13 @@ class Crane:
     def simulate(self, method: str = "penalty", duration: float | None = None,
                  trajectory: Trajectory | None = None, iterations: int | None = None,
                  warm_up: int = WARM_UP_STEPS, progress: Callable[[int], object] | None = None,
-                 **overrides) -> Result:
+                 plant_params: Mapping[str, float] | None = None, **overrides) -> Result:
         """Closed loop from the static start: the controller at the spec's rate, the plant's RK4 between.
+
+        `plant_params` (name -> value, e.g. {"SU.mass": 8.8}; the names: `plant_parameters()`) make the
+        plant's crane differ from the controller's model, which keeps the spec's numbers; checked
+        before any work (an unknown name or a value the spec would refuse: PlantParameterError, a
+        ValueError). The run starts at the model's static equilibrium.
 
         `duration` defaults to the path's. A run that diverges (state or input not finite, the tracked
         point more than 0.5 m off, no consistent cable state) stops there and says so
@@ -187,13 +207,15 @@ class Crane:
         name = self.method_name(method, iterations)
         gains = self.gains(**overrides)
         path = self.desired(trajectory, duration)
-        duration = path.duration if duration is None else float(duration)
+        duration = _duration(path, duration)
+        plant = setup_default(self.model, path, plant_params)
         start = self.equilibrium(trajectory, duration)
         controller = make_controller(name, self.model, path, gains)
         rest = np.zeros(self.layout.n)
         for _ in range(warm_up):  # steady-state step times: the first calls page code in
             controller.compute(start.q, rest, 0.0)
-        run = simulate(self.model, path, controller, setup_default(self.model, path), start.q, duration,
+        controller.reset()  # the run starts with the integral action's z = 0
+        run = simulate(self.model, path, controller, plant, start.q, duration,
                        self.spec.controller.rate_hz, self.spec.simulation.step, progress=progress,
                        allow_divergence=True)
         return Result(run, self.layout, self.scenario, self.name)
@@ -210,7 +232,18 @@ class Controller:
         self._inner, self.inputs, self.name = inner, inputs, inner.name
 
     def step(self, q: np.ndarray, qd: np.ndarray, t: float) -> np.ndarray:
-        return self._inner.compute(np.asarray(q, dtype=float), np.asarray(qd, dtype=float), float(t)).copy()
+        """The input at measured coordinates q, rates qd (n each, `coordinates` order) and time t (s).
+        Non-finite or mis-shaped measurements are a ValueError: they never reach the actuators."""
+        n = self._inner.n
+        q, qd = np.asarray(q, dtype=float), np.asarray(qd, dtype=float)
+        for name, value in (("q", q), ("qd", qd)):
+            if value.shape != (n,):
+                raise ValueError(f"{name}: expected {n} numbers (crane.coordinates order), found shape {value.shape}")
+            if not np.isfinite(value).all():
+                raise ValueError(f"{name}: expected finite numbers, found NaN or infinity")
+        if not math.isfinite(t):
+            raise ValueError(f"t: expected a finite time in seconds, found {t}")
+        return self._inner.compute(q, qd, float(t)).copy()
 
     @property
     def limit_state(self) -> np.ndarray:
@@ -219,5 +252,24 @@ class Controller:
     def saturated(self) -> bool:
         return bool(self._inner.saturation())
 
+    @property
+    def integral(self) -> np.ndarray:
+        """z = ∫σ dt per servo-constraint, the integral action's state (zero while ki = 0)."""
+        return self._inner.integral.copy()
+
+    def reset(self) -> None:
+        """z = 0: before a new run (a step at an earlier time than the last one also resets it)."""
+        self._inner.reset()
+
     def __repr__(self) -> str:
         return f"<Controller {self.name}: inputs {', '.join(self.inputs)}>"
+
+
+def _duration(path: DesiredPath, duration: float | None) -> float:
+    """The run's length: the path's, or a positive finite number of seconds (checked before any work)."""
+    if duration is None:
+        return path.duration
+    if isinstance(duration, bool) or not isinstance(duration, numbers.Real) or not math.isfinite(duration) \
+            or duration <= 0:
+        raise ValueError(f"duration: expected a positive number of seconds, found {duration!r}")
+    return float(duration)

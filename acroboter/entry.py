@@ -32,10 +32,11 @@ EXIT_INTERRUPTED = 130
 
 def _bad_input_errors() -> tuple[type[BaseException], ...]:
     from .compiled import StaleModelError  # imported late: `--help` stays instant
+    from .physical import PlantParameterError
     from .spec import SpecError
     from .statics import EquilibriumError
 
-    return SpecError, StaleModelError, EquilibriumError
+    return SpecError, StaleModelError, EquilibriumError, PlantParameterError
 
 
 def _cannot_run_errors() -> tuple[type[BaseException], ...]:

@@ -109,7 +109,7 @@ def _probe(ctx, controller, gains, result, count: int) -> tuple[float, float, fl
     import numpy as np
 
     model, fn = ctx.model, ctx.model.functions["penalty_terms"]
-    out, params = fn.outputs, gains.parameter_vector()
+    out, params = fn.outputs, gains.parameter_vector(model.layout.k)
     penalty = controller is not None and controller.name != "mlm"
     cond = res_phi = res_sigma = -np.inf
     samples = len(result.t) if result is not None else 1

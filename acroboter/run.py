@@ -47,6 +47,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--mu", type=positive(), default=None, help="μ of the constraint penalty (default: spec)")
     p.add_argument("--kp", type=positive(), default=None, help="servo gain k_P, 1/s (default: spec)")
     p.add_argument("--kd", type=positive(), default=None, help="servo gain k_D, 1/s (default: spec)")
+    p.add_argument("--ki", type=number(0.0), default=None,
+                   help="integral gain k_I of the servo error dynamics, 1/s³, below 2·kd·kp²; 0: none "
+                        "(default: spec, normally 0; docs/integral_action.md)")
+    p.add_argument("--plant-param", action="append", default=[], metavar="NAME=VALUE", dest="plant_param",
+                   help="a physical parameter of the plant other than the spec's (the controller keeps the spec's), "
+                        "e.g. SU.mass=8.8; repeatable; names: gravity.z, <body>.mass, <body>.inertia.xx, "
+                        "<body>.damping.translational, <body>.points.<point>.x, <cable>.length, "
+                        "<cable>.winch.reflected_inertia (docs/model.md, 'A plant that differs from the model')")
     p.add_argument("--duration", type=positive(1e6), default=None, help="simulated seconds (default: the whole path)")
     p.add_argument("--out", type=Path, default=Path("results"), help="output folder (default: %(default)s)")
     p.add_argument("--state", action="store_true",
@@ -54,13 +62,25 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--cache-dir", type=Path, default=None,
                    help="where compiled models are cached (default: $ACROBOTER_CACHE_DIR, else the per-user cache)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
-    p.add_argument("--quiet", action="store_true", help="no progress bar (the same as `acroboter -q run`)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar (the same as `acroboter -q run`)")
     args = p.parse_args(argv)
     try:
         if args.out.exists() and not args.out.is_dir():
             p.error(f"--out {args.out} is a file, not a folder")
     except OSError as err:
         p.error(f"cannot use --out {args.out}: {err.strerror or err}")
+    args.plant_params = {}
+    for item in args.plant_param:
+        name, sep, text = item.partition("=")
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not sep or not name.strip() or not math.isfinite(value):
+            p.error(f"--plant-param takes NAME=VALUE with a finite number, e.g. SU.mass=8.8, found '{item}'")
+        if name.strip() in args.plant_params:
+            p.error(f"--plant-param {name.strip()} given twice")
+        args.plant_params[name.strip()] = value
     if args.iterations is not None:
         try:
             args.iterations = [int(v) for v in args.iterations.split(",")]
@@ -151,6 +171,7 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
     from .compiled import StaleModelError
     from .controllers import SingularSystemError
     from .crane import Crane
+    from .physical import PlantParameterError, with_parameters
     from .plant import SimulationError
     from .recovery import RecoveryError
     from .report import format_table, write_figures, write_summary
@@ -158,12 +179,17 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
     from .statics import EquilibriumError
 
     overrides = {name: getattr(args, name) for name in
-                 ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu", "recovery", "kappa")}
+                 ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu", "recovery", "kappa", "ki")}
     try:
         crane = Crane.from_toml(args.spec, cache_dir=args.cache_dir)
         spec = crane.spec
+        with_parameters(spec, args.plant_params)  # names and values checked before any work (exit 2)
         methods = expand_methods(args.method, args.iterations or spec.controller.penalty.iterations)
-        gains = crane.gains(**overrides)
+        try:
+            gains = crane.gains(**overrides)
+        except ValueError as err:  # e.g. --ki past the stability bound of the spec's (or given) kp, kd
+            print(f"error: {err}", file=sys.stderr)
+            return 2
         path = crane.path
         start = crane.equilibrium()
         duration = args.duration if args.duration is not None else path.duration
@@ -183,7 +209,8 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
             for method in methods:
                 bar.set_postfix_str(method)
                 try:
-                    r = crane.simulate(method, duration=duration, progress=bar.update, **overrides)
+                    r = crane.simulate(method, duration=duration, progress=bar.update,
+                                       plant_params=args.plant_params, **overrides)
                 except (SingularSystemError, RecoveryError, SimulationError) as err:
                     # This method cannot handle this system (e.g. MLM and redundant constraints), or
                     # failed at its first step: say why, and go on with the others.
@@ -200,7 +227,7 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
                     if c["time_slack_s"] > 0 or c["transitions"] > 0:
                         warnings.append(f"{method}: cable {cable} was slack for {c['time_slack_s']:.3g} s "
                                         f"({c['transitions']} slack/taut transitions)")
-    except (SpecError, StaleModelError, EquilibriumError) as err:
+    except (SpecError, StaleModelError, EquilibriumError, PlantParameterError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     except ValueError as err:
@@ -231,6 +258,8 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
     # Printed once the results are in place: a table on screen always has its files.
     print(f"spec {spec.name}: {duration:g} s at {rate:g} Hz, plant RK4 h = {step * 1e3:g} ms; "
           f"start tensions {np.array2string(start.inputs, precision=4)}")
+    if args.plant_params:
+        print("plant differs from the model: " + ", ".join(f"{k}={v:g}" for k, v in args.plant_params.items()))
     print(format_table(summaries, paper=paper))
     for w in warnings:
         print(f"warning: {w}")
@@ -267,6 +296,8 @@ def provenance(args: argparse.Namespace, spec, gains, methods: list[str], durati
         "spec_sha256": hashlib.sha256(Path(args.spec).read_bytes()).hexdigest(),
         "spec_model_hash": spec.model_hash(),
         "gains": asdict(gains),
+        # the plant's physical parameters other than the spec's (acroboter.physical), {} for none
+        "plant_params": dict(getattr(args, "plant_params", {})),
         "methods": methods,
         "duration_s": duration,
         "rate_hz": spec.controller.rate_hz,

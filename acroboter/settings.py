@@ -39,13 +39,16 @@ class Gains:
     mu: float
     recovery: str
     kappa: float
+    ki: float = 0.0  # integral action on the servo-constraints (docs/integral_action.md); 0: the PD law
 
     @classmethod
     def from_spec(cls, spec: Spec, **overrides) -> Gains:
         c, p = spec.controller, spec.controller.penalty
-        gains = cls(c.kp, c.kd, p.alpha_geometric, p.alpha_servo, p.omega, p.mu, p.recovery, p.kappa)
+        gains = cls(c.kp, c.kd, p.alpha_geometric, p.alpha_servo, p.omega, p.mu, p.recovery, p.kappa, c.ki)
         return replace(gains, **{k: v for k, v in overrides.items() if v is not None})
 
-    def parameter_vector(self) -> np.ndarray:
-        """The generated functions' p = [k_P, k_D, α̃, α̂, Ω, μ] (acroboter.codegen.structured.PARAMS)."""
-        return np.array([self.kp, self.kd, self.alpha_geometric, self.alpha_servo, self.omega, self.mu])
+    def parameter_vector(self, servo_rows: int) -> np.ndarray:
+        """The generated functions' p = [k_P, k_D, α̃, α̂, Ω, μ, k_I, z] (acroboter.codegen.structured.PARAMS,
+        then the servo-constraints' integral z, one per row, here zero: the controller writes it each step)."""
+        scalars = [self.kp, self.kd, self.alpha_geometric, self.alpha_servo, self.omega, self.mu, self.ki]
+        return np.concatenate([scalars, np.zeros(servo_rows)])

@@ -50,6 +50,8 @@ class RunResult:
     # Per instant: whether a limit kept the input from what the controller asked of the task.
     saturated: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     control_period: float = 0.0  # s
+    # The plant's physical parameters other than the spec's (acroboter.physical); {}: the model's crane.
+    plant_params: dict[str, float] = field(default_factory=dict)
 
 
 # A run that strays this far from the path (m) has diverged: nothing useful follows.
@@ -231,7 +233,8 @@ def simulate(
                        diverged_at=diverged_at, divergence=divergence, cable_names=list(plant.cable_names),
                        cable_tension=rec_tension, cable_active=rec_active,
                        cable_transitions=plant.transitions.copy(), impact_energy=rec_impact,
-                       limit_state=rec_limit, saturated=rec_saturated, control_period=period)
+                       limit_state=rec_limit, saturated=rec_saturated, control_period=period,
+                       plant_params=dict(getattr(plant, "parameters", {})))
     if energy:
         names = ("mechanical", "work_inputs", "work_anchors", "dissipated")
         result.energy = {name: rec_energy[:, i].copy() for i, name in enumerate(names)}
@@ -320,8 +323,9 @@ def constraint_violation(result: RunResult, layout) -> float:
     return float(max(rigid, stretched))
 
 
-def setup_default(model: CompiledModel, path: DesiredPath):
-    """Plant for a spec's simulation section."""
+def setup_default(model: CompiledModel, path: DesiredPath, plant_params=None):
+    """Plant for a spec's simulation section; `plant_params` (name -> value, acroboter.physical)
+    make its crane differ from the controller's model."""
     sim = model.spec.simulation
-    return Plant(model, path, sim.baumgarte_zeta, sim.baumgarte_omega)
+    return Plant(model, path, sim.baumgarte_zeta, sim.baumgarte_omega, plant_params)
 

@@ -301,7 +301,19 @@ class Controller(_Strict):
     rate_hz: Positive
     kp: Positive
     kd: Positive
+    # Integral action on the servo-constraints (docs/integral_action.md): 0 is the plain PD law.
+    ki: NonNegative = 0.0
     penalty: Penalty
+
+
+def integral_gain_problem(kp: float, kd: float, ki: float) -> str | None:
+    """Why ki does not go with kp, kd (None if it does): the servo error dynamics with integral action,
+    s³ + 2k_D s² + k_P² s + k_I, are stable iff k_I < 2 k_D k_P² (Routh–Hurwitz; ki ≥ 0 checked apart)."""
+    bound = 2.0 * kd * kp**2
+    if ki >= bound:
+        return (f"expected ki below 2·kd·kp² = {bound:g} 1/s³ (Routh–Hurwitz: the servo error dynamics "
+                f"s³ + 2kd s² + kp² s + ki are unstable otherwise), found {ki:g}")
+    return None
 
 
 class Simulation(_Strict):
@@ -524,6 +536,9 @@ def _check_references(spec: Spec) -> list[tuple[str, str]]:
     for i, anchor in enumerate(spec.anchors):
         if len(set(anchor.follows_path)) != len(anchor.follows_path):
             problems.append((f"anchors[{i}].follows_path", f"expected each axis once, found {anchor.follows_path}"))
+    c = spec.controller
+    if (problem := integral_gain_problem(c.kp, c.kd, c.ki)) is not None:
+        problems.append(("controller.ki", problem))
     return problems
 
 

@@ -63,8 +63,9 @@ def random_model_inputs(pair: Pair, rng: np.random.Generator, noise: float) -> d
 
 def random_extra_input(pair: Pair, name: str, size: int, model_inputs, rng: np.random.Generator) -> np.ndarray:
     """Inputs of the solver-shaped functions (beyond q, qd, s, sd, sdd), in a physical range."""
-    if name == "p":  # k_P, k_D, α̃, α̂, Ω, μ
-        return np.array([5.0, 5.0, 1e7, 1e7, 10.0, 1.0]) * rng.uniform(0.5, 2.0, size)
+    if name == "p":  # k_P, k_D, α̃, α̂, Ω, μ, k_I, then the integral z of each servo-constraint
+        gains = np.array([5.0, 5.0, 1e7, 1e7, 10.0, 1.0, 20.0]) * rng.uniform(0.5, 2.0, 7)
+        return np.concatenate([gains, 1e-2 * rng.standard_normal(size - gains.size)])
     if name == "x":  # plant state [q, q̇, work of inputs, work of anchors, damping energy]
         return np.concatenate([model_inputs["q"], model_inputs["qd"], rng.standard_normal(size - 2 * pair.layout.n)])
     if name == "u":
@@ -83,6 +84,12 @@ def random_extra_input(pair: Pair, name: str, size: int, model_inputs, rng: np.r
             rng.standard_normal((n, n)), -1).reshape(-1, order="F")
     if name in ("force", "qdd", "qdd_sum"):
         return rng.standard_normal(size)
+    if name == "plant_params":  # physical parameters (acroboter.physical): the spec's ±2 % (inertias stay physical)
+        from acroboter.physical import parameter_values
+
+        return parameter_values(pair.spec) * rng.uniform(0.98, 1.02, size)
+    if name == "no_plant_params" and size == 0:  # the folded plant's empty parameter input
+        return np.zeros(0)
     raise AssertionError(f"no random value for input '{name}' of size {size}: teach this test about it")
 
 

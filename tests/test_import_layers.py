@@ -13,7 +13,7 @@ PACKAGE = Path(__file__).resolve().parent.parent / "acroboter"
 
 # Lowest first. A module may import its own layer and the layers below, never above.
 LAYERS = [
-    ("model", {"spec", "layout", "interrupts", "fingerprint", "settings", "locations"}),
+    ("model", {"spec", "layout", "interrupts", "fingerprint", "settings", "locations", "physical"}),
     ("codegen", {"codegen"}),  # the subpackage acroboter.codegen
     ("bindings", {"build", "compiled"}),
     ("store", {"cache", "casadi_backend"}),  # the only runtime modules that may call the code generator

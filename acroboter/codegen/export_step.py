@@ -200,7 +200,7 @@ class _Graph:
         # ρ = γ + 2Ωμ φ̇ + Ω² φ (geometric penalty); ρ_s = γ_s + 2 k_D σ̇ + k_P² σ (servo error dynamics)
         self.rho = T["gamma"] + 2.0 * g.omega * g.mu * T["phi_dot"] + g.omega**2 * T["phi"]
         self.rho_s = T["gamma_s"] + 2.0 * g.kd * T["sigma_dot"] + g.kp**2 * T["sigma"]
-        self.params = ca.DM(g.parameter_vector())  # codegen.structured's p, as constants
+        self.params = ca.DM(g.parameter_vector(self.k))  # codegen.structured's p, as constants (z = 0)
         self.bounds = _Bounds(self)
 
     def prelude(self, outputs: dict[str, ca.SX]) -> dict[str, ca.MX]:
@@ -235,6 +235,13 @@ def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = N
         raise ExportError(f"unknown penalty system '{penalty_system}': choose one of {', '.join(PENALTY_SYSTEMS)}")
     if mlm_system not in MLM_SYSTEMS:
         raise ExportError(f"unknown MLM system '{mlm_system}': choose one of {', '.join(MLM_SYSTEMS)}")
+    if gains.ki != 0:
+        raise ExportError(
+            f"integral action (ki = {gains.ki:g}) cannot be exported: the exported step is stateless "
+            "(u from q, qd, s, sd, sdd) and the integral z = ∫σ dt with its anti-windup is state the Python "
+            "controller holds (docs/integral_action.md): export from a spec without ki (or ki = 0) in its "
+            "[controller], and add the integral on the target"
+        )
     model = build_symbolic_model(spec)
     name = name or step_name(spec, method, gains.recovery)
     redundant = model.layout.redundant_rows

@@ -46,6 +46,13 @@ FUNCTIONS: dict[str, tuple[str, ...]] = {
     ),
 }
 
+# The plant's own functions: the same terms with the physical parameters as the input `plant_params`
+# (acroboter.physical), for the plant's events, impacts and energy; its RK4 step is plant_step.
+PLANT_FUNCTIONS: dict[str, tuple[str, ...]] = {
+    "plant_terms": ("mass_matrix", "bias_forces", "phi", "phi_q", "phi_dot", "gamma", "input_matrix"),
+    "plant_energy": ("kinetic", "potential", "dissipated_power"),
+}
+
 
 def _term(model: SymbolicModel, name: str) -> ca.SX:
     if name == "dissipated_power":  # qd . dD/dqd, the power taken out by damping
@@ -61,9 +68,12 @@ def _term(model: SymbolicModel, name: str) -> ca.SX:
 class GenerationContext:
     """Collects casadi.Functions for one spec and writes them, the manifest and the metadata."""
 
-    def __init__(self, spec: Spec):
+    def __init__(self, spec: Spec, parametric_plant: bool = True):
+        """parametric_plant=False folds the spec's physical parameters into the plant's functions too
+        (their `plant_params` input is then empty): the plant of one parameter set, as the controllers'."""
         self.spec = spec
         self.model = build_symbolic_model(spec)
+        self.plant_model = build_symbolic_model(spec, parametric=True) if parametric_plant else self.model
         self.functions: dict[str, ca.Function] = {}
 
     def register(self, name: str, terms: tuple[str, ...]) -> None:
@@ -72,9 +82,18 @@ class GenerationContext:
             f"{self.spec.name}_{name}", self.model.inputs, outputs, list(INPUT_NAMES), list(terms), {"cse": True}
         )
 
+    def register_plant(self, name: str, terms: tuple[str, ...]) -> None:
+        """Model terms of the plant: the five inputs and the physical parameters `plant_params`."""
+        model = self.plant_model
+        outputs = [ca.densify(ca.SX(_term(model, t))) for t in terms]
+        self.functions[name] = ca.Function(
+            f"{self.spec.name}_{name}", [*model.inputs, model.parameters], outputs,
+            [*INPUT_NAMES, "plant_params"], list(terms), {"cse": True}
+        )
+
     def register_solver_terms(self, name: str, build) -> None:
         """Controller-shaped terms with the run-time parameter vector p (acroboter.codegen.structured.PARAMS)."""
-        p = ca.SX.sym("p", len(structured.PARAMS))
+        p = ca.SX.sym("p", structured.parameter_size(self.model.layout.k))
         terms = build(self.model, p)
         self.functions[name] = ca.Function(
             f"{self.spec.name}_{name}",
@@ -96,7 +115,15 @@ class GenerationContext:
         self.functions["penalty_iteration"] = structured.penalty_iteration_function(
             self.model, f"{self.spec.name}_penalty_iteration"
         )
-        self.functions["plant_step"] = plant.plant_step_function(self.model, f"{self.spec.name}_plant_step")
+        for name, terms in PLANT_FUNCTIONS.items():
+            self.register_plant(name, terms)
+        rows = structured.independent_rows(self.model)
+        self.functions["plant_step"] = plant.plant_step_function(self.plant_model, f"{self.spec.name}_plant_step", rows)
+        if self.plant_model is not self.model:
+            # The plant of the spec's own numbers, folded as the controllers' (an empty plant_params):
+            # the nominal plant, bit for bit what it was before parameters were an input, and cheaper.
+            self.functions["plant_step_folded"] = plant.plant_step_function(
+                self.model, f"{self.spec.name}_plant_step_folded", rows)
         return self
 
     def header(self) -> str:
@@ -123,7 +150,8 @@ class GenerationContext:
                 "signals": lay.signals,
                 "redundant_constraint_rows": list(lay.redundant_rows),
                 "independent_constraint_rows": structured.independent_rows(self.model),
-                "parameters": list(structured.PARAMS),
+                "plant_parameters": list(self.plant_model.parameter_names),
+                "parameters": structured.parameter_names(lay.servo_constraints),
             },
             "functions": {
                 name: {
@@ -169,7 +197,8 @@ class GenerationContext:
         return written
 
 
-def generate(spec: Spec, out_root: Path, verify: Callable[[Path], None] | None = None) -> Path:
+def generate(spec: Spec, out_root: Path, verify: Callable[[Path], None] | None = None,
+             parametric_plant: bool = True) -> Path:
     """Generate the C for one spec into out_root/<spec name>/, replacing what was there, atomically.
 
     Everything is written into a temporary folder beside the target, `verify(folder)` (e.g. a
@@ -182,7 +211,7 @@ def generate(spec: Spec, out_root: Path, verify: Callable[[Path], None] | None =
     staging = Path(tempfile.mkdtemp(prefix=f".{spec.name}.new-", dir=out_root))
     staging.chmod(0o755)  # mkdtemp's 0700 would end up on the checked-in folder
     try:
-        GenerationContext(spec).register_all().write(staging)
+        GenerationContext(spec, parametric_plant).register_all().write(staging)
         if verify is not None:
             verify(staging)
         _swap_in(staging, out_dir)

@@ -4,7 +4,11 @@ The mass matrix of natural coordinates is constant, so M⁻¹ is a numeric (spar
 every product with it is folded into the generated code. Parameters that a user may change at run
 time (gains, penalty numbers) are an input vector, not constants:
 
-    p = [k_P, k_D, α̃, α̂, Ω, μ]
+    p = [k_P, k_D, α̃, α̂, Ω, μ, k_I, z_1 … z_k]
+
+z is the integral of the servo-constraints σ over time, held by the controller and written into p
+every step when k_I ≠ 0 (docs/integral_action.md); with k_I = 0 it stays 0 and ρ_s is the PD law's
+bit for bit (ρ + 0·z = ρ exactly in IEEE arithmetic).
 """
 
 from __future__ import annotations
@@ -15,7 +19,16 @@ import numpy as np
 from ..layout import nominal_coordinates
 from .symbolic import SymbolicModel
 
-PARAMS = ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu")
+PARAMS = ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu", "ki")  # then z, one per servo row
+
+
+def parameter_size(servo_rows: int) -> int:
+    """len(p): the scalar PARAMS, then the integral z of each servo-constraint."""
+    return len(PARAMS) + servo_rows
+
+
+def parameter_names(servo_constraints: list[str]) -> list[str]:
+    return [*PARAMS, *(f"z[{name}]" for name in servo_constraints)]
 
 
 def constant_inverse_mass(model: SymbolicModel) -> ca.DM:
@@ -60,10 +73,16 @@ def cholesky_solve(matrix: ca.SX, rhs: ca.SX) -> ca.SX:
 
 
 def servo_and_constraint_rates(model: SymbolicModel, p: ca.SX) -> tuple[ca.SX, ca.SX]:
-    """ρ = γ + 2Ωμ φ̇ + Ω² φ and ρ_s = γ_s + 2k_D σ̇ + k_P² σ."""
-    kp, kd, omega, mu = p[0], p[1], p[4], p[5]
+    """ρ = γ + 2Ωμ φ̇ + Ω² φ and ρ_s = γ_s + 2k_D σ̇ + k_P² σ + k_I z (z = ∫σ dt, from p).
+
+    Every controller's terms take ρ_s from here, so MLM, the penalty methods, every recovery and the
+    bounded distributions see the same servo-error law.
+    """
+    kp, kd, omega, mu, ki = p[0], p[1], p[4], p[5], p[6]
+    k = model.sigma.shape[0]
+    z = p[len(PARAMS) : len(PARAMS) + k]
     rho = model.gamma + 2 * omega * mu * model.phi_dot + omega**2 * model.phi
-    rho_s = model.gamma_s + 2 * kd * model.sigma_dot + kp**2 * model.sigma
+    rho_s = model.gamma_s + 2 * kd * model.sigma_dot + kp**2 * model.sigma + ki * z
     return rho, rho_s
 
 

@@ -13,6 +13,7 @@ import casadi as ca
 import numpy as np
 
 from ..layout import Layout, build_layout
+from ..physical import INERTIA_ENTRIES, parameter_names
 from ..spec import BodyThrust, BodyTorque, LevelTask, PositionTask, Spec, WinchTension, YawTask
 
 AXIS_INDEX = {"u": 0, "v": 1, "w": 2}
@@ -52,6 +53,11 @@ class SymbolicModel:
     sigma_dot: ca.SX
     gamma_s: ca.SX
     input_matrix: ca.SX
+    # The physical parameters (acroboter.physical) the terms depend on as symbols: a parametric model
+    # (the plant's) has one per name, the controller's none (its numbers are folded in).
+    parameters: ca.SX
+    parameter_names: list[str]
+    fixed_lengths: dict[str, ca.SX | float]  # fixed-length cable name -> its length
 
 
 def _time_derivatives(expr, q, qd, s, sd, sdd):
@@ -62,11 +68,24 @@ def _time_derivatives(expr, q, qd, s, sd, sdd):
     return jac, expr_dot, gamma
 
 
-def build_symbolic_model(spec: Spec) -> SymbolicModel:
+def build_symbolic_model(spec: Spec, parametric: bool = False) -> SymbolicModel:
+    """The model terms of `spec`: with the spec's numbers as constants, or (parametric) with every
+    physical parameter (acroboter.physical.parameter_names) a symbol of the vector `parameters`."""
     layout = build_layout(spec)
     n, ns = layout.n, layout.n_signals
     q, qd = ca.SX.sym("q", n), ca.SX.sym("qd", n)
     s, sd, sdd = ca.SX.sym("s", ns), ca.SX.sym("sd", ns), ca.SX.sym("sdd", ns)
+    names = parameter_names(spec) if parametric else []
+    theta = ca.SX.sym("plant_params", len(names))
+    index = {name: i for i, name in enumerate(names)}
+
+    def value(name: str, nominal: float):
+        """The parameter's symbol in a parametric model, else the spec's number (folded in as before)."""
+        return theta[index[name]] if parametric else nominal
+
+    def body_point(body, point: str) -> list:
+        xyz = body.point(point)
+        return [value(f"{body.name}.points.{point}.{c}", xyz[k]) for k, c in enumerate("xyz")]
 
     bodies: dict[str, BodySymbols] = {}
     for body in spec.bodies:
@@ -81,7 +100,7 @@ def build_symbolic_model(spec: Spec) -> SymbolicModel:
     def world_point(end: str) -> ca.SX:
         if "." in end:
             body_name, point_name = end.split(".", 1)
-            return bodies[body_name].point(spec.body(body_name).point(point_name))
+            return bodies[body_name].point(body_point(spec.body(body_name), point_name))
         anchor = spec.anchor(end)
         if end in layout.anchor_signal:
             j = layout.anchor_signal[end]
@@ -89,25 +108,31 @@ def build_symbolic_model(spec: Spec) -> SymbolicModel:
         return ca.DM(anchor.position)
 
     # --- energies ------------------------------------------------------------------------------
-    gravity = ca.DM(spec.gravity)
+    gravity = ca.vertcat(*[theta[index[f"gravity.{c}"]] for c in "xyz"]) if parametric else ca.DM(spec.gravity)
     kinetic, potential, dissipation = 0, 0, 0
     for body in spec.bodies:
         b = bodies[body.name]
         # T_rot = 1/2 sum_ij J_ij e_i'.e_j' with J = 1/2 tr(I_G) E - I_G (natural coordinates)
-        inertia = np.array(body.inertia, dtype=float)
-        j_matrix = 0.5 * np.trace(inertia) * np.eye(3) - inertia
-        kinetic += 0.5 * body.mass * ca.dot(b.r_dot, b.r_dot)
+        j_matrix = _axes_inertia(body, value) if parametric else (
+            0.5 * np.trace(np.array(body.inertia, dtype=float)) * np.eye(3) - np.array(body.inertia, dtype=float))
+        mass = value(f"{body.name}.mass", body.mass)
+        kinetic += 0.5 * mass * ca.dot(b.r_dot, b.r_dot)
         for a in range(3):
             for c in range(3):
-                if j_matrix[a, c] != 0:
-                    kinetic += 0.5 * j_matrix[a, c] * ca.dot(b.axes_dot[a], b.axes_dot[c])
-        potential += -body.mass * ca.dot(gravity, b.r)
-        dissipation += 0.5 * body.damping.translational * ca.dot(b.r_dot, b.r_dot)
-        dissipation += 0.25 * body.damping.rotational * sum(ca.dot(e, e) for e in b.axes_dot)
+                if not _is_zero(j_matrix[a][c]):
+                    kinetic += 0.5 * j_matrix[a][c] * ca.dot(b.axes_dot[a], b.axes_dot[c])
+        potential += -mass * ca.dot(gravity, b.r)
+        dissipation += 0.5 * value(f"{body.name}.damping.translational", body.damping.translational) * ca.dot(
+            b.r_dot, b.r_dot)
+        dissipation += 0.25 * value(f"{body.name}.damping.rotational", body.damping.rotational) * sum(
+            ca.dot(e, e) for e in b.axes_dot)
+    fixed_lengths = {}
     for cable in spec.cables:
         if cable.winch is not None:
             i = layout.winch_index[cable.name]
-            kinetic += 0.5 * cable.winch.reflected_inertia * qd[i] ** 2
+            kinetic += 0.5 * value(f"{cable.name}.winch.reflected_inertia", cable.winch.reflected_inertia) * qd[i] ** 2
+        else:
+            fixed_lengths[cable.name] = value(f"{cable.name}.length", cable.length)
 
     # Lagrange: M qdd + c = Q with M = d2T/dqd2, c = (d/dq dT/dqd) qd - dT/dq + dU/dq + dD/dqd
     mass_matrix, _ = ca.hessian(kinetic, qd)
@@ -129,7 +154,7 @@ def build_symbolic_model(spec: Spec) -> SymbolicModel:
             phi_rows += [cross[0], cross[1], cross[2]]
     for cable in spec.cables:
         d = world_point(cable.ends[0]) - world_point(cable.ends[1])
-        length = q[layout.winch_index[cable.name]] if cable.winch is not None else cable.length
+        length = q[layout.winch_index[cable.name]] if cable.winch is not None else fixed_lengths[cable.name]
         phi_rows.append(ca.dot(d, d) - length**2)
     phi = ca.vertcat(*phi_rows)
     phi_q, phi_dot, gamma = _time_derivatives(phi, q, qd, s, sd, sdd)
@@ -190,4 +215,22 @@ def build_symbolic_model(spec: Spec) -> SymbolicModel:
         sigma_dot=sigma_dot,
         gamma_s=gamma_s,
         input_matrix=input_matrix,
+        parameters=theta,
+        parameter_names=names,
+        fixed_lengths=fixed_lengths,
     )
+
+
+def _is_zero(entry) -> bool:
+    return entry.is_zero() if isinstance(entry, ca.SX) else entry == 0
+
+
+def _axes_inertia(body, value) -> list[list]:
+    """J = ½ tr(I_G) E − I_G with I_G's entries the body's parameters (SX; the products of inertia
+    that are zero in the spec stay exact zeros, acroboter.physical)."""
+    inertia = [[ca.SX(0)] * 3 for _ in range(3)]
+    for key, (a, c) in INERTIA_ENTRIES.items():
+        if a == c or body.inertia[a][c] != 0.0:
+            inertia[a][c] = inertia[c][a] = value(f"{body.name}.inertia.{key}", body.inertia[a][c])
+    trace = inertia[0][0] + inertia[1][1] + inertia[2][2]
+    return [[0.5 * trace - inertia[a][c] if a == c else -inertia[a][c] for c in range(3)] for a in range(3)]
