@@ -32,6 +32,8 @@ from .locations import example_spec
 from .path import DesiredPath, SampledTrajectory, TrajectoryPath
 from .physical import parameter_names, parameter_values
 from .result import Result
+from .sensing import check_measurable, make_estimator
+from .sensing import resolve as resolve_sensing
 from .settings import Gains
 from .simulation import Scenario, setup_default, simulate
 from .spec import MAX_ITERATIONS, RECOVERIES, Spec, integral_gain_problem, load_spec
@@ -63,6 +65,8 @@ class Crane:
         self.scenario = Scenario.from_model(model)
         self._path: DesiredPath | None = None
         self._start: Equilibrium | None = None
+        if spec.sensing is not None:  # a [sensing] that measures too little is refused here (SpecError)
+            check_measurable(model, spec.sensing, source=str(source or spec.name))
 
     # --- construction -----------------------------------------------------------------------------
     @classmethod
@@ -154,6 +158,18 @@ class Crane:
             raise ValueError(f"ki: {problem}")
         return gains
 
+    def sensing(self, sensing=None):
+        """The sensing a run uses (acroboter.spec.Sensing, or None: the plant's state): None, the spec's
+        section; False, none; a mapping of overrides onto the spec's section (or, without one, the
+        groups 'positions', 'axes', 'lengths' measuring every coordinate exactly): `noise` and
+        `quantization` ({group: value}), `delay_periods`, `seed`, `velocity_filter_s`,
+        `projection_iterations`, `groups`. A bad value, or groups that measure too little for the
+        constraints to determine the rest, is a SpecError naming the field (docs/sensing.md)."""
+        chosen = resolve_sensing(self.spec, sensing, source=str(self.source or self.name))
+        if chosen is not None and chosen is not self.spec.sensing:
+            check_measurable(self.model, chosen, source=str(self.source or self.name))
+        return chosen
+
     def method_name(self, method: str, iterations: int | None = None) -> str:
         """'mlm', 'penalty', 'iterative-N'; 'iterative' takes `iterations` (default the spec's first)."""
         if method == "iterative":
@@ -191,7 +207,7 @@ class Crane:
     def simulate(self, method: str = "penalty", duration: float | None = None,
                  trajectory: Trajectory | None = None, iterations: int | None = None,
                  warm_up: int = WARM_UP_STEPS, progress: Callable[[int], object] | None = None,
-                 plant_params: Mapping[str, float] | None = None, **overrides) -> Result:
+                 plant_params: Mapping[str, float] | None = None, sensing=None, **overrides) -> Result:
         """Closed loop from the static start: the controller at the spec's rate, the plant's RK4 between.
 
         `plant_params` (name -> value, e.g. {"SU.mass": 8.8}; the names: `plant_parameters()`) make the
@@ -203,9 +219,14 @@ class Crane:
         point more than 0.5 m off, no consistent cable state) stops there and says so
         (`result.diverged_at`); a method that cannot handle the crane at all raises
         SingularSystemError (e.g. MLM with redundant constraints). `progress(n)` is called every
-        control step (e.g. a tqdm bar's update)."""
+        control step (e.g. a tqdm bar's update).
+
+        `sensing`: what the controller measures instead of reading the plant's state (docs/sensing.md):
+        None, the spec's [sensing] section (none without one); False, none; a mapping of overrides
+        ({"noise": {"positions": 2e-4}, "delay_periods": 1, "seed": 3, ...}, see `sensing()`)."""
         name = self.method_name(method, iterations)
         gains = self.gains(**overrides)
+        chosen = self.sensing(sensing)
         path = self.desired(trajectory, duration)
         duration = _duration(path, duration)
         plant = setup_default(self.model, path, plant_params)
@@ -217,7 +238,7 @@ class Crane:
         controller.reset()  # the run starts with the integral action's z = 0
         run = simulate(self.model, path, controller, plant, start.q, duration,
                        self.spec.controller.rate_hz, self.spec.simulation.step, progress=progress,
-                       allow_divergence=True)
+                       allow_divergence=True, sensor=make_estimator(self.model, path, chosen))
         return Result(run, self.layout, self.scenario, self.name)
 
 

@@ -55,6 +55,17 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         "e.g. SU.mass=8.8; repeatable; names: gravity.z, <body>.mass, <body>.inertia.xx, "
                         "<body>.damping.translational, <body>.points.<point>.x, <cable>.length, "
                         "<cable>.winch.reflected_inertia (docs/model.md, 'A plant that differs from the model')")
+    p.add_argument("--sensing-noise", action="append", default=[], metavar="GROUP=STD",
+                   help="the controller measures instead of reading the plant's state: Gaussian noise (standard "
+                        "deviation, m or unitless) of a sensing group, e.g. positions=0.0002; repeatable; groups: the "
+                        "spec's [sensing] ones, else positions, axes, lengths (docs/sensing.md)")
+    p.add_argument("--sensing-quantization", action="append", default=[], metavar="GROUP=STEP",
+                   help="quantisation step of a sensing group (m or unitless), e.g. lengths=0.0001; repeatable")
+    p.add_argument("--sensing-delay", default=None, metavar="N",
+                   help="measurement delay in whole control periods (default: the spec's, else 0)")
+    p.add_argument("--sensing-seed", default=None, metavar="N", help="seed of the measurement noise (default: spec, 0)")
+    p.add_argument("--no-sensing", action="store_true",
+                   help="ignore the spec's [sensing] section: the controller reads the plant's state")
     p.add_argument("--duration", type=positive(1e6), default=None, help="simulated seconds (default: the whole path)")
     p.add_argument("--out", type=Path, default=Path("results"), help="output folder (default: %(default)s)")
     p.add_argument("--state", action="store_true",
@@ -81,6 +92,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         if name.strip() in args.plant_params:
             p.error(f"--plant-param {name.strip()} given twice")
         args.plant_params[name.strip()] = value
+    args.sensing = _sensing_overrides(p, args)
     if args.iterations is not None:
         try:
             args.iterations = [int(v) for v in args.iterations.split(",")]
@@ -94,6 +106,40 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     except ValueError as err:
         p.error(str(err))
     return args
+
+
+def _sensing_overrides(p: argparse.ArgumentParser, args: argparse.Namespace):
+    """The --sensing-* options as Crane.simulate(sensing=...) takes them (None: the spec's section,
+    False: none). Values are checked by the sensing model itself (a SpecError naming the field, exit 2)."""
+    given = args.sensing_noise or args.sensing_quantization or args.sensing_delay is not None \
+        or args.sensing_seed is not None
+    if args.no_sensing:
+        if given:
+            p.error("--no-sensing goes with no other --sensing-* option")
+        return False
+    if not given:
+        return None
+    overrides: dict = {}
+    for option, key in ((args.sensing_noise, "noise"), (args.sensing_quantization, "quantization")):
+        for item in option:
+            name, sep, text = item.partition("=")
+            try:
+                value = float(text)
+            except ValueError:
+                value = math.nan
+            if not sep or not name.strip() or math.isnan(value):
+                p.error(f"--sensing-{key} takes GROUP=VALUE with a number, e.g. positions=0.0002, found '{item}'")
+            overrides.setdefault(key, {})[name.strip()] = value
+    for text, key in ((args.sensing_delay, "delay_periods"), (args.sensing_seed, "seed")):
+        if text is not None:
+            try:
+                overrides[key] = int(text)
+            except ValueError:
+                try:
+                    overrides[key] = float(text)  # refused with the field's name: an integer is expected
+                except ValueError:
+                    p.error(f"--sensing-{key.split('_')[0]} takes a whole number, found '{text}'")
+    return overrides
 
 
 def expand_methods(requested: list[str] | None, iterations: list[int]) -> list[str]:
@@ -184,6 +230,7 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
         crane = Crane.from_toml(args.spec, cache_dir=args.cache_dir)
         spec = crane.spec
         with_parameters(spec, args.plant_params)  # names and values checked before any work (exit 2)
+        sensing = crane.sensing(args.sensing)  # SpecError naming the field (exit 2), before any work
         methods = expand_methods(args.method, args.iterations or spec.controller.penalty.iterations)
         try:
             gains = crane.gains(**overrides)
@@ -210,7 +257,7 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
                 bar.set_postfix_str(method)
                 try:
                     r = crane.simulate(method, duration=duration, progress=bar.update,
-                                       plant_params=args.plant_params, **overrides)
+                                       plant_params=args.plant_params, sensing=sensing or False, **overrides)
                 except (SingularSystemError, RecoveryError, SimulationError) as err:
                     # This method cannot handle this system (e.g. MLM and redundant constraints), or
                     # failed at its first step: say why, and go on with the others.
@@ -240,6 +287,7 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
         print("error: no method could run on this spec (see the warnings above); nothing was written",
               file=sys.stderr)
         return 3
+    args.sensing_used = sensing
     out: Path = staging  # published into args.out at the end, in one go
     paper = is_paper_crane(spec)
     for name, r in results.items():
@@ -260,6 +308,10 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
           f"start tensions {np.array2string(start.inputs, precision=4)}")
     if args.plant_params:
         print("plant differs from the model: " + ", ".join(f"{k}={v:g}" for k, v in args.plant_params.items()))
+    if sensing is not None:
+        print("controller measures (docs/sensing.md): " + "; ".join(
+            f"{g.name} noise {g.noise:g}" + (f" step {g.quantization:g}" if g.quantization else "")
+            for g in sensing.groups) + f"; delay {sensing.delay_periods} period(s), seed {sensing.seed}")
     print(format_table(summaries, paper=paper))
     for w in warnings:
         print(f"warning: {w}")
@@ -298,6 +350,8 @@ def provenance(args: argparse.Namespace, spec, gains, methods: list[str], durati
         "gains": asdict(gains),
         # the plant's physical parameters other than the spec's (acroboter.physical), {} for none
         "plant_params": dict(getattr(args, "plant_params", {})),
+        # what the controller measured instead of the plant's state (docs/sensing.md), None for the state
+        "sensing": sensing.model_dump(mode="json") if (sensing := getattr(args, "sensing_used", None)) else None,
         "methods": methods,
         "duration_s": duration,
         "rate_hz": spec.controller.rate_hz,

@@ -104,6 +104,7 @@ def simulate(
     progress=None,
     energy: bool = False,
     allow_divergence: bool = False,
+    sensor=None,
 ) -> RunResult:
     """Run the closed loop from rest at q0 for `duration` seconds.
 
@@ -119,6 +120,9 @@ def simulate(
     point strays more than DIVERGENCE_LIMIT_M from the path. That raises
     SimulationError, or with allow_divergence returns the run up to that instant with
     `diverged_at` and `divergence` set.
+
+    `sensor` (acroboter.sensing.Estimator, reset here to q0): the controller reads its estimate from
+    measurements instead of the plant's state; the records stay the plant's (docs/sensing.md).
     """
     lay = model.layout
     n = lay.n
@@ -165,6 +169,8 @@ def simulate(
     position_rows = Scenario.from_model(model).position_rows
     clock = time.perf_counter
     diverged_at = divergence = None
+    if sensor is not None:
+        sensor.reset(q0)
     wall0 = clock()
     for k in range(samples):
         t = rec_t[k]
@@ -175,7 +181,11 @@ def simulate(
         q, qd = x[:n], x[n : 2 * n]
         t0 = clock()
         try:
-            u = controller.compute(q, qd, t)  # evaluates the path itself: the timed step is all of it
+            if sensor is None:
+                u = controller.compute(q, qd, t)  # evaluates the path itself: the timed step is all of it
+            else:  # measurement, projection and velocity estimate are part of the timed step
+                u = controller.compute(*sensor.estimate(q, t), t)
+                sensor.applied(controller.qdd)  # the filter's prediction over the next period
         except SingularSystemError as err:
             if k == 0:
                 raise  # not a divergence: the method cannot handle this system at all
@@ -190,6 +200,8 @@ def simulate(
         rec_limit[k] = controller.limit_state
         rec_saturated[k] = controller.saturation()  # a report on the step, after its timing
         rec_impact[k] = plant.impact_energy
+        if sensor is not None:  # the records are the plant's, not the estimate the controller loaded
+            model.q[:], model.qd[:] = q, qd
         sigma_fn.call()  # at the state and signals the controller just loaded
         phi_fn.call()
         rec_sigma[k], rec_phi[k] = sigma_out, phi_out

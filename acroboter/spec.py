@@ -322,6 +322,47 @@ class Simulation(_Strict):
     baumgarte_omega: Positive
 
 
+# Measurement instead of state (docs/sensing.md): which coordinates the controller's sensors measure.
+MAX_SENSING_DELAY = 1000  # control periods
+SENSING_VECTORS = ("r", "u", "v", "w")
+
+
+class SensingGroup(_Strict):
+    name: Name
+    # "<body>" (r, u, v, w), "<body>.<r|u|v|w>", "<body>.<r|u|v|w>_<x|y|z>", "<winch cable>.length"
+    coordinates: Annotated[list[str], Field(min_length=1)]
+    noise: NonNegative = 0.0  # standard deviation of the Gaussian noise, m or unitless
+    quantization: Positive | None = None  # step of the quantiser, m or unitless; absent: no quantisation
+
+
+class Sensing(_Strict):
+    groups: Annotated[list[SensingGroup], Field(min_length=1)]
+    delay_periods: Annotated[int, Field(ge=0, le=MAX_SENSING_DELAY)] = 0  # whole control periods
+    seed: Annotated[int, Field(ge=0)] = 0
+    velocity_filter_s: Annotated[float, Field(gt=0, le=100.0)] = 0.02  # time constant of the velocity estimate, s
+    projection_iterations: Annotated[int, Field(ge=1, le=50)] = 3  # Gauss–Newton steps onto φ(q) = 0
+    # Carry the delayed estimate forward to the control instant with the commanded accelerations.
+    predict_delay: bool = True
+
+
+def sensing_coordinates(spec: Spec, selector: str) -> list[str] | None:
+    """The coordinate names (acroboter.layout's) a sensing selector stands for; None if it names none."""
+    bodies = {b.name for b in spec.bodies}
+    winches = {c.name for c in spec.cables if c.winch is not None}
+    head, _, tail = selector.partition(".")
+    if head in bodies:
+        if not tail:
+            return [f"{head}.{vec}_{c}" for vec in SENSING_VECTORS for c in "xyz"]
+        if tail in SENSING_VECTORS:
+            return [f"{head}.{tail}_{c}" for c in "xyz"]
+        if len(tail) == 3 and tail[0] in SENSING_VECTORS and tail[1:] in ("_x", "_y", "_z"):
+            return [f"{head}.{tail}"]
+        return None
+    if head in winches and tail == "length":
+        return [selector]
+    return None
+
+
 class Spec(_Strict):
     name: Name
     description: str = ""
@@ -334,6 +375,7 @@ class Spec(_Strict):
     path: PathSpec
     controller: Controller
     simulation: Simulation
+    sensing: Sensing | None = None  # absent: the controller reads the plant's state
 
     # --- what the generated code depends on -------------------------------------------------
     def model_dict(self) -> dict:
@@ -539,6 +581,36 @@ def _check_references(spec: Spec) -> list[tuple[str, str]]:
     c = spec.controller
     if (problem := integral_gain_problem(c.kp, c.kd, c.ki)) is not None:
         problems.append(("controller.ki", problem))
+    if spec.sensing is not None:
+        problems += sensing_problems(spec, spec.sensing)
+    return problems
+
+
+def sensing_problems(spec: Spec, sensing: Sensing) -> list[tuple[str, str]]:
+    """Names in a sensing section: known selectors, each coordinate and each group name once."""
+    problems: list[tuple[str, str]] = []
+    seen: dict[str, str] = {}
+    names: set[str] = set()
+    for i, group in enumerate(sensing.groups):
+        where = f"sensing.groups[{i}] ({group.name})"
+        if group.name in names:
+            problems.append((f"{where}.name", f"expected a group name used once, found '{group.name}' again"))
+        names.add(group.name)
+        for j, selector in enumerate(group.coordinates):
+            found = sensing_coordinates(spec, selector)
+            if found is None:
+                problems.append((f"{where}.coordinates[{j}]", "expected '<body>', '<body>.r|u|v|w', "
+                                 "'<body>.r_x' … or '<winch cable>.length' (bodies: "
+                                 f"{_listing(b.name for b in spec.bodies)}; winch cables: "
+                                 f"{_listing(c.name for c in spec.cables if c.winch is not None)}), "
+                                 f"found '{selector}'"))
+                continue
+            for name in found:
+                if name in seen:
+                    problems.append((f"{where}.coordinates[{j}]", f"expected each coordinate in one group, found "
+                                     f"{name} also in group '{seen[name]}'"))
+                    break
+                seen[name] = group.name
     return problems
 
 

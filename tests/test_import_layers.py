@@ -17,7 +17,7 @@ LAYERS = [
     ("codegen", {"codegen"}),  # the subpackage acroboter.codegen
     ("bindings", {"build", "compiled"}),
     ("store", {"cache", "casadi_backend"}),  # the only runtime modules that may call the code generator
-    ("control", {"path", "recovery", "distribution", "controllers", "plant", "statics"}),
+    ("control", {"path", "recovery", "distribution", "controllers", "plant", "statics", "sensing"}),
     ("simulation", {"simulation", "feasibility", "result"}),
     ("api", {"crane"}),
 ]
