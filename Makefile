@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 # Inside the checkout the cache of compiled libraries is build/cache/ (installed: the per-user cache).
 export ACROBOTER_CACHE_DIR := $(CURDIR)/build/cache
 
-.PHONY: run test setup build generate check-generated bench study sweep clean
+.PHONY: run test setup build generate check-generated bench study sweep robustness clean
 
 $(STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
@@ -45,6 +45,10 @@ study: build
 
 sweep: build
 	$(PY) -m acroboter sweep
+
+# Monte Carlo over plants that differ from the model (Dask, local cluster): docs/robustness.md.
+robustness: build
+	$(PY) -m acroboter robustness
 
 clean:
 	rm -rf build results

@@ -209,6 +209,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: cannot time the input limits on {args.limits_spec}: {err}", file=sys.stderr)
         return 3
     print(format_limits_table(limits))
+    plant_step = bench_plant_step(crane, start.q, start.inputs)
+    print(f"plant RK4 step (one ctypes call): spec's numbers folded in {plant_step['folded_us']:.2f} us, physical "
+          f"parameters as an input {plant_step['parametric_us']:.2f} us (x{plant_step['ratio']:.2f}, quietest of "
+          f"{plant_step['passes']} interleaved passes)")
     args.out.mkdir(parents=True, exist_ok=True)
     doc = {
         "spec": spec.name,
@@ -218,10 +222,37 @@ def main(argv: list[str] | None = None) -> int:
         "model_terms_us": model_terms_us,
         "methods": results,
         "limits": limits,
+        "plant_step": plant_step,
     }
     (args.out / "bench.json").write_text(json.dumps(doc, indent=2) + "\n")
     print(f"written {args.out / 'bench.json'}")
     return 0
+
+
+def bench_plant_step(crane, q0: np.ndarray, u0: np.ndarray, passes: int = 15, calls: int = 2000) -> dict:
+    """The plant's step with the spec's numbers folded in (a plant without plant_params) against the
+    parametric one (a plant given one of them at the spec's own value), the same library and state."""
+    from .plant import Plant
+
+    sim = crane.spec.simulation
+    values = crane.plant_parameters()
+    mass = next(name for name in values if name.endswith(".mass"))
+    plants = {"folded": Plant(crane.model, crane.path, sim.baumgarte_zeta, sim.baumgarte_omega),
+              "parametric": Plant(crane.model, crane.path, sim.baumgarte_zeta, sim.baumgarte_omega,
+                                  {mass: values[mass]})}
+    best = {}
+    for plant in plants.values():
+        plant.probe(plant.initial_state(q0), u0, 0.0)  # loads state, input and stage signals
+    clock = time.perf_counter
+    for _ in range(passes):  # interleaved: a slow stretch of the machine hits both alike
+        for name, plant in plants.items():
+            call = plant._step.call
+            t0 = clock()
+            for _ in range(calls):
+                call()
+            best[name] = min(best.get(name, np.inf), (clock() - t0) / calls)
+    return {"folded_us": 1e6 * best["folded"], "parametric_us": 1e6 * best["parametric"],
+            "ratio": best["parametric"] / best["folded"], "passes": passes}
 
 
 def bench_limits(spec_path: Path, methods: list[str], repeats: int) -> dict:

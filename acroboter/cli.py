@@ -4,6 +4,7 @@
     acroboter bench        control-step timings: compiled C against the casadi.Function path
     acroboter study        redundancy and non-collocation study over the example cranes
     acroboter sweep        penalty-number sweep on a Dask cluster (pip install 'acroboter[dask]')
+    acroboter robustness   Monte Carlo over plant parameters: every method, with and without ki, on Dask
     acroboter generate     write a spec's C (generated/ in a checkout)
     acroboter check        regenerate into a temporary folder and compare with generated/
     acroboter build        compile the example specs' libraries into the cache
@@ -27,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str, tuple[str, ...]]] = {
     "bench": ("acroboter.bench", "main", ()),
     "study": ("acroboter.study", "main", ()),
     "sweep": ("acroboter.sweep", "main", ()),
+    "robustness": ("acroboter.robustness", "main", ()),
     "generate": ("acroboter.codegen_cli", "main", ("generate",)),
     "check": ("acroboter.codegen_cli", "main", ("check",)),
     "build": ("acroboter.codegen_cli", "build_main", ()),

@@ -181,3 +181,107 @@ def case_label(case: dict) -> str:
         if case.get("kappa") is not None:
             label += f" κ={case['kappa']:g}"
     return label
+
+
+# ---------------------------------------------------------------------------------------------------
+# The robustness Monte Carlo (acroboter.robustness): rows of acroboter.robustness_grid.COLUMNS_HEAD
+
+
+def robustness_figures(out: Path, rows: list[dict], bins: int = 10, worst: dict | None = None) -> list[Path]:
+    """CDF of the max position error per method (left ki = 0, right with ki), the success rate at the
+    paper's bounds against the tracked body's relative mass error (binned), and, given `worst` (method ->
+    {ki: Result}), the worst sample's position and yaw errors over time."""
+    import numpy as np
+
+    from .robustness_grid import POSITION_BOUND_MM, SETTLE_S, YAW_BOUND_DEG
+
+    plt = _pyplot()
+    methods = list(dict.fromkeys(r["method"] for r in rows if r["method"] is not None))  # None: a crashed task
+    kis = sorted({r["ki"] for r in rows if r["ki"] is not None})
+    colors = {m: plt.cm.tab10(i % 10) for i, m in enumerate(methods)}
+    written = []
+
+    from matplotlib.ticker import LogFormatterSciNotation, NullFormatter
+
+    settled = any(r.get("max_position_error_settled_mm") is not None for r in rows)
+    panels = [("max_position_error_mm", "max position error over the run [mm]")]
+    if settled:
+        panels.append(("max_position_error_settled_mm", f"max position error from t = {SETTLE_S:g} s on [mm]"))
+    fig, axes = plt.subplots(len(panels), len(kis), figsize=(5.5 * len(kis), 3.6 * len(panels) + 0.4), sharey=True,
+                             squeeze=False, layout="constrained")
+    for pi, (key, xlabel) in enumerate(panels):
+        for ax, ki in zip(axes[pi], kis, strict=True):
+            for m in methods:
+                sel = [r for r in rows if r["method"] == m and r["ki"] == ki]
+                err = np.sort([r[key] if r["status"] == "ok" and r[key] is not None else np.inf for r in sel])
+                ax.step(err, np.arange(1, len(err) + 1) / len(err), where="post", color=colors[m], label=m,
+                        ls="--" if m.startswith("iterative") else "-")
+            ax.axvline(POSITION_BOUND_MM, color="k", ls=":", lw=1, label=f"paper's bound {POSITION_BOUND_MM} mm")
+            ax.set_xscale("log")
+            ax.xaxis.set_major_formatter(LogFormatterSciNotation())
+            ax.xaxis.set_minor_formatter(NullFormatter())
+            ax.set_xlabel(xlabel)
+            if pi == 0:
+                ax.set_title(f"ki = {ki:g}" + (" (PD law)" if ki == 0 else " (integral action)"))
+            ax.grid(alpha=0.3, which="both")
+        axes[pi, 0].set_ylabel("fraction of samples ≤ error")
+    axes[0, 0].legend(fontsize=8)
+    fig.suptitle(f"Position error over {len({r['sample'] for r in rows})} plant samples (CDF; runs that did not "
+                 "finish off the right edge)", fontsize=10)
+    fig.savefig(out / "robustness_cdf.png", dpi=110)
+    plt.close(fig)
+    written.append(out / "robustness_cdf.png")
+
+    errs = np.array([r["tracked_mass_error"] for r in rows])
+    edges = np.linspace(errs.min(), errs.max(), bins + 1) if len(rows) else np.array([0.0, 1.0])
+    mids = 50 * (edges[:-1] + edges[1:])  # percent
+    kinds = [("success", "over the whole run")] + ([("success_settled", f"from t = {SETTLE_S:g} s on")]
+                                                   if settled else [])
+    fig, axes = plt.subplots(1, len(kinds), figsize=(6.5 * len(kinds), 5.0), sharey=True, squeeze=False,
+                             layout="constrained")
+    for ax, (key, when) in zip(axes[0], kinds, strict=True):
+        for m in methods:
+            for ki in kis:
+                rate = []
+                for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+                    sel = [r for r in rows if r["method"] == m and r["ki"] == ki
+                           and lo <= r["tracked_mass_error"] <= hi]
+                    rate.append(100 * np.mean([bool(r[key]) for r in sel]) if sel else np.nan)
+                ax.plot(mids, rate, marker="o", color=colors[m], ls="-" if ki == 0 else "--",
+                        label=f"{m}, ki = {ki:g}")
+        ax.set_xlabel("plant's SU mass against the model's [%] (bin centres)")
+        ax.set_title(f"within {POSITION_BOUND_MM} mm and {YAW_BOUND_DEG}° {when}", fontsize=10)
+        ax.set_ylim(-3, 103)
+        ax.grid(alpha=0.3)
+    axes[0, 0].set_ylabel("success rate [%]")
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=5, fontsize=7, frameon=False)
+    fig.suptitle("Success at the paper's bounds against the SU mass mismatch (the CC hangs on the main cable: "
+                 "its mass barely matters)", fontsize=10)
+    fig.savefig(out / "robustness_success.png", dpi=110)
+    plt.close(fig)
+    written.append(out / "robustness_success.png")
+
+    if worst:
+        fig, axes = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True, layout="constrained")
+        for m, by_ki in worst["results"].items():
+            for ki, res in by_ki.items():
+                style = {"color": colors.get(m, "k"), "ls": "-" if ki == 0 else "--", "lw": 1.0,
+                         "label": f"{m}, ki = {ki:g}"}
+                axes[0].semilogy(res.time, np.maximum(res.position_error_mm, 1e-6), **style)
+                if res.yaw_error_deg is not None:
+                    axes[1].plot(res.time, np.abs(res.yaw_error_deg), **style)
+        axes[0].axhline(POSITION_BOUND_MM, color="k", ls=":", lw=1)
+        axes[0].set_ylabel("|r_SU − r_d| [mm]")
+        axes[1].set_ylabel("|yaw error| [deg]")
+        axes[1].set_xlabel("t [s]")
+        for ax in axes:
+            ax.grid(alpha=0.3, which="both")
+        axes[0].legend(fontsize=7, ncol=2)
+        fig.suptitle(f"Worst sample ({worst['sample']}: SU mass {100 * worst['tracked_mass_error']:+.1f} %, "
+                     f"SU + CC {100 * worst['mass_error']:+.1f} %), re-run",
+                     fontsize=10)
+        fig.savefig(out / "robustness_worst.png", dpi=110)
+        plt.close(fig)
+        written.append(out / "robustness_worst.png")
+    return written
