@@ -136,3 +136,14 @@ def progress_disabled(quiet: bool = False) -> bool | None:
     if quiet or logging.getLogger("acroboter").getEffectiveLevel() > logging.INFO:
         return True
     return None
+
+
+def name_value(item: str) -> tuple[str, float] | None:
+    """'NAME=NUMBER' (an option such as --plant-param SU.mass=8.8) as (name, number); None when there
+    is no '=', no name or no number. The caller judges the number (finite, sign)."""
+    name, sep, text = item.partition("=")
+    try:
+        value = float(text)
+    except ValueError:
+        return None
+    return (name.strip(), value) if sep and name.strip() else None

@@ -25,6 +25,7 @@ import threading
 import time
 from dataclasses import dataclass
 
+from .entry import name_value
 from .grid import GridError, MissingLibraryError, setup_text, status_of, worker_name
 
 DEFAULT_METHODS = ("mlm", "penalty", "iterative-3", "iterative-4", "iterative-5")
@@ -170,15 +171,11 @@ def parse_sensing(noise: list[str], delay: int | None, seed: int | None) -> dict
     """The --sensing-* options as `Crane.simulate(sensing=...)` overrides (checked again there, by the spec)."""
     sensing: dict = {}
     for item in noise:
-        name, sep, text = item.partition("=")
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
-        if not sep or not name.strip() or not math.isfinite(value) or value < 0:
+        pair = name_value(item)
+        if pair is None or not math.isfinite(pair[1]) or pair[1] < 0:
             raise ValueError(f"--sensing-noise takes GROUP=STD with a number ≥ 0 (e.g. positions=0.0002), "
                              f"found '{item}'")
-        sensing.setdefault("noise", {})[name.strip()] = value
+        sensing.setdefault("noise", {})[pair[0]] = pair[1]
     if delay is not None:
         sensing["delay_periods"] = delay
     if seed is not None:

@@ -18,7 +18,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from .entry import guarded, number, positive, progress_disabled
+from .entry import guarded, name_value, number, positive, progress_disabled
 from .interrupts import deferred_interrupt
 from .locations import example_spec
 from .spec import MAX_CONTROL_STEPS, MAX_ITERATIONS
@@ -82,16 +82,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         p.error(f"cannot use --out {args.out}: {err.strerror or err}")
     args.plant_params = {}
     for item in args.plant_param:
-        name, sep, text = item.partition("=")
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
-        if not sep or not name.strip() or not math.isfinite(value):
+        pair = name_value(item)
+        if pair is None or not math.isfinite(pair[1]):
             p.error(f"--plant-param takes NAME=VALUE with a finite number, e.g. SU.mass=8.8, found '{item}'")
-        if name.strip() in args.plant_params:
-            p.error(f"--plant-param {name.strip()} given twice")
-        args.plant_params[name.strip()] = value
+        name, value = pair
+        if name in args.plant_params:
+            p.error(f"--plant-param {name} given twice")
+        args.plant_params[name] = value
     args.sensing = _sensing_overrides(p, args)
     if args.iterations is not None:
         try:
@@ -122,14 +119,10 @@ def _sensing_overrides(p: argparse.ArgumentParser, args: argparse.Namespace):
     overrides: dict = {}
     for option, key in ((args.sensing_noise, "noise"), (args.sensing_quantization, "quantization")):
         for item in option:
-            name, sep, text = item.partition("=")
-            try:
-                value = float(text)
-            except ValueError:
-                value = math.nan
-            if not sep or not name.strip() or math.isnan(value):
+            pair = name_value(item)
+            if pair is None or math.isnan(pair[1]):
                 p.error(f"--sensing-{key} takes GROUP=VALUE with a number, e.g. positions=0.0002, found '{item}'")
-            overrides.setdefault(key, {})[name.strip()] = value
+            overrides.setdefault(key, {})[pair[0]] = pair[1]
     for text, key in ((args.sensing_delay, "delay_periods"), (args.sensing_seed, "seed")):
         if text is not None:
             try:
