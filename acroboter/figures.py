@@ -14,32 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .report import PAPER_MATLAB_US, realized_yaw
-from .simulation import RunResult, Scenario
+from .report import PAPER_MATLAB_US
+from .simulation import RunResult, Scenario, position_error_mm, tilt_deg, yaw_error_deg
 
 # The files write_figures writes, in this order (run.py's FIGURES lists the same names).
 FIGURE_NAMES = ("path_3d.png", "tracking_errors.png", "servo_errors.png", "inputs.png", "control_step_time.png")
 DPI = 110
-
-
-def position_error_mm(result: RunResult, scenario: Scenario) -> np.ndarray:
-    """|tracked point − r_d| per instant, mm (as summarize's max_position_error_mm)."""
-    return 1e3 * np.linalg.norm(result.sigma[:, scenario.position_rows], axis=1)
-
-
-def yaw_error_deg(result: RunResult, scenario: Scenario) -> np.ndarray | None:
-    """Realized minus desired yaw, wrapped to (−180, 180] deg (as summarize's max_yaw_error_deg);
-    None when the crane has no yaw task."""
-    if scenario.yaw_body_offset is None:
-        return None
-    err = np.angle(np.exp(1j * (realized_yaw(result, scenario) - result.desired[:, 3])))
-    return np.degrees(err)
-
-
-def tilt_deg(result: RunResult, scenario: Scenario) -> np.ndarray:
-    """Angle of the tracked body's w axis from the vertical, deg (as summarize's max_tilt_deg)."""
-    w = result.q[:, scenario.tilt_body_offset + 9 : scenario.tilt_body_offset + 12]
-    return np.degrees(np.arccos(np.clip(w[:, 2] / np.linalg.norm(w, axis=1), -1.0, 1.0)))
 
 
 def magnification(results: dict[str, RunResult], scenario: Scenario, share: float = 0.15) -> int:

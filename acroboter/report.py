@@ -5,20 +5,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
-
 from .simulation import RunResult, Scenario
 
 # Mean control-step time in MATLAB R2019b on an i7-8700 (paper, section 4), in microseconds.
 PAPER_MATLAB_US = {"mlm": 309.06, "penalty": 304.78, "iterative-3": 384.28, "iterative-4": 385.41,
                    "iterative-5": 410.62}
-
-
-def realized_yaw(result: RunResult, scenario: Scenario) -> np.ndarray:
-    """Yaw of the task's yaw body from atan2(u_y, u_x), unwrapped (radians)."""
-    offset = scenario.yaw_body_offset if scenario.yaw_body_offset is not None else scenario.tilt_body_offset
-    u_axis = result.q[:, offset + 3 : offset + 6]
-    return np.unwrap(np.arctan2(u_axis[:, 1], u_axis[:, 0]))
 
 
 def write_summary(path: Path, spec_name: str, summaries: dict, duration: float, warnings: list[str],

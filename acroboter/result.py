@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from .layout import Layout
-from .simulation import RunResult, Scenario, summarize
+from .simulation import RunResult, Scenario, position_error_mm, realized_yaw, summarize, tilt_deg
 
 
 def _unit_suffix(unit: str) -> str:
@@ -81,16 +81,12 @@ class Result:
     @property
     def position_error_mm(self) -> np.ndarray:
         """|realized − desired position| of the tracked point, mm."""
-        return 1e3 * np.linalg.norm(self.run.sigma[:, self.scenario.position_rows], axis=1)
+        return position_error_mm(self.run, self.scenario)
 
     @property
     def yaw_deg(self) -> np.ndarray:
         """Yaw of the task's yaw body (unwrapped), deg."""
-        offset = self.scenario.yaw_body_offset
-        if offset is None:
-            offset = self.scenario.tilt_body_offset
-        axis = self.run.q[:, offset + 3 : offset + 6]
-        return np.degrees(np.unwrap(np.arctan2(axis[:, 1], axis[:, 0])))
+        return np.degrees(realized_yaw(self.run, self.scenario))
 
     @property
     def desired_yaw_deg(self) -> np.ndarray:
@@ -101,14 +97,14 @@ class Result:
         """Realized − desired yaw, wrapped to ±180 deg (None: the crane has no yaw task)."""
         if self.scenario.yaw_body_offset is None:
             return None
+        # Through yaw_deg (the CSV's column), so that the two columns agree to the bit as recorded.
         err = np.radians(self.yaw_deg) - self.run.desired[:, 3]
         return np.degrees(np.angle(np.exp(1j * err)))
 
     @property
     def tilt_deg(self) -> np.ndarray:
         """Angle of the tracked body's w axis from the vertical, deg."""
-        w = self.run.q[:, self.scenario.tilt_body_offset + 9 : self.scenario.tilt_body_offset + 12]
-        return np.degrees(np.arccos(np.clip(w[:, 2] / np.linalg.norm(w, axis=1), -1.0, 1.0)))
+        return tilt_deg(self.run, self.scenario)
 
     @property
     def cable_tension(self) -> np.ndarray:

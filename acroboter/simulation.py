@@ -254,9 +254,37 @@ def simulate(
     return result
 
 
+# --- the tracking figures per instant: the summary, the figures and Result read the same ones ----------
+
+
+def position_error_mm(result: RunResult, scenario: Scenario) -> np.ndarray:
+    """|tracked point − r_d| per instant, mm."""
+    return 1e3 * np.linalg.norm(result.sigma[:, scenario.position_rows], axis=1)
+
+
+def realized_yaw(result: RunResult, scenario: Scenario) -> np.ndarray:
+    """Yaw of the task's yaw body (else the tracked body) from atan2(u_y, u_x), unwrapped, rad."""
+    offset = scenario.yaw_body_offset if scenario.yaw_body_offset is not None else scenario.tilt_body_offset
+    u_axis = result.q[:, offset + 3 : offset + 6]
+    return np.unwrap(np.arctan2(u_axis[:, 1], u_axis[:, 0]))
+
+
+def yaw_error_deg(result: RunResult, scenario: Scenario) -> np.ndarray | None:
+    """Realized minus desired yaw, wrapped to (−180, 180] deg; None when the crane has no yaw task."""
+    if scenario.yaw_body_offset is None:
+        return None
+    return np.degrees(np.angle(np.exp(1j * (realized_yaw(result, scenario) - result.desired[:, 3]))))
+
+
+def tilt_deg(result: RunResult, scenario: Scenario) -> np.ndarray:
+    """Angle of the tracked body's w axis from the vertical, deg."""
+    w_axis = result.q[:, scenario.tilt_body_offset + 9 : scenario.tilt_body_offset + 12]
+    return np.degrees(np.arccos(np.clip(w_axis[:, 2] / np.linalg.norm(w_axis, axis=1), -1.0, 1.0)))
+
+
 def summarize(result: RunResult, scenario: Scenario, layout) -> dict:
     """The per-method figures of summary.json (see the README, `python -m acroboter.run`)."""
-    pos_err = np.linalg.norm(result.sigma[:, scenario.position_rows], axis=1)
+    pos_err = np.linalg.norm(result.sigma[:, scenario.position_rows], axis=1)  # m (position_error_mm ÷ 1e3)
     summary = {
         "max_position_error_mm": 1e3 * float(pos_err.max()),
         "rms_position_error_mm": 1e3 * float(np.sqrt(np.mean(pos_err**2))),
@@ -267,15 +295,14 @@ def summarize(result: RunResult, scenario: Scenario, layout) -> dict:
         summary["max_position_error_before_divergence_mm"] = summary["max_position_error_mm"]
         summary["max_position_error_mm"] = summary["rms_position_error_mm"] = None
     if scenario.yaw_body_offset is not None:
+        # From the wrapped atan2, not yaw_error_deg's unwrapped yaw: the same angle, but the summary's
+        # figures are kept to the bit as they have been recorded.
         u_axis = result.q[:, scenario.yaw_body_offset + 3 : scenario.yaw_body_offset + 6]
-        yaw = np.arctan2(u_axis[:, 1], u_axis[:, 0])
-        err = np.angle(np.exp(1j * (yaw - result.desired[:, 3])))
+        err = np.angle(np.exp(1j * (np.arctan2(u_axis[:, 1], u_axis[:, 0]) - result.desired[:, 3])))
         summary["max_yaw_error_deg"] = float(np.degrees(np.abs(err).max()))
     else:
         summary["max_yaw_error_deg"] = None
-    w_axis = result.q[:, scenario.tilt_body_offset + 9 : scenario.tilt_body_offset + 12]
-    tilt = np.arccos(np.clip(w_axis[:, 2] / np.linalg.norm(w_axis, axis=1), -1.0, 1.0))
-    summary["max_tilt_deg"] = float(np.degrees(tilt.max()))
+    summary["max_tilt_deg"] = float(tilt_deg(result, scenario).max())
     summary["max_constraint_violation"] = constraint_violation(result, layout)
     winch = result.u[:, scenario.winch_inputs] * np.array(scenario.winch_gains)  # tension = gain · u
     summary["min_winch_tension_N"] = float(winch.min()) if winch.size else None
