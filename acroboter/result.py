@@ -145,7 +145,8 @@ class Result:
         return self._summary
 
     def columns(self, state: bool = False) -> dict[str, np.ndarray]:
-        """Named columns with their units in the name (the CSV's header); state=True adds q and q̇."""
+        """Named columns with their units in the name (the CSV's header): the tracking figures, inputs,
+        cables, the moving anchors and the pose q; state=True adds q̇."""
         cols: dict[str, np.ndarray] = {"t_s": self.time}
         for axis, i in zip("xyz", range(3), strict=True):
             cols[f"{axis}_m"] = self.position[:, i]
@@ -167,12 +168,16 @@ class Result:
             cols[f"cable_{cable}_tension_N"] = self.run.cable_tension[:, c]
             cols[f"cable_{cable}_slack"] = (self.run.cable_active[:, c] == 0).astype(np.int8)
         cols["saturated"] = self.run.saturated.astype(np.int8)
+        # The pose (q) and the moving anchors always: enough to draw the crane at every instant.
+        for name, j in self.layout.anchor_signal.items():
+            for c, axis in enumerate("xyz"):
+                cols[f"anchor_{name}_{axis}_m"] = self.run.anchors[:, j + c]
+        for i, name in enumerate(self.coordinates):
+            unit = "_m" if ".r_" in name or name.endswith(".length") else ""
+            cols[f"q_{name}{unit}"] = self.run.q[:, i]
         if state:
             for i, name in enumerate(self.coordinates):
-                unit = "_m" if ".r_" in name else ""
-                cols[f"q_{name}{unit}"] = self.run.q[:, i]
-            for i, name in enumerate(self.coordinates):
-                unit = "_m_per_s" if ".r_" in name else "_per_s"
+                unit = "_m_per_s" if ".r_" in name or name.endswith(".length") else "_per_s"
                 cols[f"qd_{name}{unit}"] = self.run.qd[:, i]
         return cols
 

@@ -69,7 +69,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--duration", type=positive(1e6), default=None, help="simulated seconds (default: the whole path)")
     p.add_argument("--out", type=Path, default=Path("results"), help="output folder (default: %(default)s)")
     p.add_argument("--state", action="store_true",
-                   help="add the natural coordinates q and their rates q̇ to each CSV (one column each)")
+                   help="add the rates q̇ of the natural coordinates to each CSV (q is always there)")
     p.add_argument("--cache-dir", type=Path, default=None,
                    help="where compiled models are cached (default: $ACROBOTER_CACHE_DIR, else the per-user cache)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")

@@ -52,6 +52,9 @@ class RunResult:
     control_period: float = 0.0  # s
     # The plant's physical parameters other than the spec's (acroboter.physical); {}: the model's crane.
     plant_params: dict[str, float] = field(default_factory=dict)
+    # Per instant: the moving anchors' positions (m), 3 columns per anchor in layout order
+    # (layout.anchor_signal), so that a run can be drawn without its path.
+    anchors: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
 
 # A run that strays this far from the path (m) has diverged: nothing useful follows.
@@ -155,6 +158,7 @@ def simulate(
     rec_u = np.zeros((samples, lay.l))
     rec_sigma, rec_phi = np.zeros((samples, lay.k)), np.zeros((samples, lay.m))
     rec_des = np.zeros((samples, 4))
+    rec_anchor = np.zeros((samples, lay.path_signal))  # the signals before x_d are the moving anchors'
     rec_energy = np.zeros((samples, 4)) if energy else None
     n_cables = len(plant.cable_names)
     rec_tension, rec_active = np.zeros((samples, n_cables)), np.ones((samples, n_cables), dtype=np.int8)
@@ -206,6 +210,7 @@ def simulate(
         phi_fn.call()
         rec_sigma[k], rec_phi[k] = sigma_out, phi_out
         rec_des[k] = row[p : p + 4]
+        rec_anchor[k] = row[:p]
         if energy:
             rec_energy[k, 0] = plant.mechanical_energy(q, qd)
             rec_energy[k, 1:] = x[2 * n :]
@@ -237,6 +242,7 @@ def simulate(
         kept = slice(0, k)  # the instants before it went wrong
         rec_t, rec_q, rec_qd, rec_u = rec_t[kept], rec_q[kept], rec_qd[kept], rec_u[kept]
         rec_sigma, rec_phi, rec_des, step_s = rec_sigma[kept], rec_phi[kept], rec_des[kept], step_s[kept]
+        rec_anchor = rec_anchor[kept]
         rec_tension, rec_active = rec_tension[kept], rec_active[kept]
         rec_limit, rec_impact, rec_saturated = rec_limit[kept], rec_impact[kept], rec_saturated[kept]
         if energy:
@@ -246,7 +252,7 @@ def simulate(
                        cable_tension=rec_tension, cable_active=rec_active,
                        cable_transitions=plant.transitions.copy(), impact_energy=rec_impact,
                        limit_state=rec_limit, saturated=rec_saturated, control_period=period,
-                       plant_params=dict(getattr(plant, "parameters", {})))
+                       plant_params=dict(getattr(plant, "parameters", {})), anchors=rec_anchor)
     if energy:
         names = ("mechanical", "work_inputs", "work_anchors", "dissipated")
         result.energy = {name: rec_energy[:, i].copy() for i, name in enumerate(names)}
