@@ -13,11 +13,11 @@ PACKAGE = Path(__file__).resolve().parent.parent / "acroboter"
 
 # Lowest first. A module may import its own layer and the layers below, never above.
 LAYERS = [
-    ("model", {"spec", "layout", "interrupts", "fingerprint", "settings", "locations", "physical"}),
+    ("model", {"spec", "layout", "interrupts", "fingerprint", "settings", "locations", "physical", "mjcf_model"}),
     ("codegen", {"codegen"}),  # the subpackage acroboter.codegen
     ("bindings", {"build", "compiled"}),
     ("store", {"cache", "casadi_backend"}),  # the only runtime modules that may call the code generator
-    ("control", {"path", "recovery", "distribution", "controllers", "plant", "statics", "sensing"}),
+    ("control", {"path", "recovery", "distribution", "controllers", "plant", "mujoco_plant", "statics", "sensing"}),
     ("simulation", {"simulation", "feasibility", "result"}),
     ("api", {"crane"}),
 ]
