@@ -207,8 +207,13 @@ class Crane:
     def simulate(self, method: str = "penalty", duration: float | None = None,
                  trajectory: Trajectory | None = None, iterations: int | None = None,
                  warm_up: int = WARM_UP_STEPS, progress: Callable[[int], object] | None = None,
-                 plant_params: Mapping[str, float] | None = None, sensing=None, **overrides) -> Result:
+                 plant_params: Mapping[str, float] | None = None, sensing=None, plant: str = "own",
+                 mujoco_timestep: float | None = None, **overrides) -> Result:
         """Closed loop from the static start: the controller at the spec's rate, the plant's RK4 between.
+
+        `plant`: "own" (the project's Baumgarte RK4 plant) or "mujoco" (MuJoCo on the spec's MJCF
+        model, docs/mujoco.md, at `mujoco_timestep` seconds, default 1e-4; the controller still runs
+        at the spec's rate with the input held in between).
 
         `plant_params` (name -> value, e.g. {"SU.mass": 8.8}; the names: `plant_parameters()`) make the
         plant's crane differ from the controller's model, which keeps the spec's numbers; checked
@@ -229,14 +234,14 @@ class Crane:
         chosen = self.sensing(sensing)
         path = self.desired(trajectory, duration)
         duration = _duration(path, duration)
-        plant = setup_default(self.model, path, plant_params)
+        engine = setup_default(self.model, path, plant_params, plant, mujoco_timestep)
         start = self.equilibrium(trajectory, duration)
         controller = make_controller(name, self.model, path, gains)
         rest = np.zeros(self.layout.n)
         for _ in range(warm_up):  # steady-state step times: the first calls page code in
             controller.compute(start.q, rest, 0.0)
         controller.reset()  # the run starts with the integral action's z = 0
-        run = simulate(self.model, path, controller, plant, start.q, duration,
+        run = simulate(self.model, path, controller, engine, start.q, duration,
                        self.spec.controller.rate_hz, self.spec.simulation.step, progress=progress,
                        allow_divergence=True, sensor=make_estimator(self.model, path, chosen))
         return Result(run, self.layout, self.scenario, self.name)

@@ -17,7 +17,7 @@ PACKAGE_DIR = Path(__file__).resolve().parent
 # to the package: the same bytes in a checkout and in an installed wheel give the same hash.
 CODEGEN_SOURCES = (
     "codegen/symbolic.py", "codegen/structured.py", "codegen/plant.py", "codegen/generate.py", "spec.py",
-    "layout.py", "fingerprint.py", "physical.py",
+    "layout.py", "fingerprint.py", "physical.py", "mjcf_model.py",
 )
 
 

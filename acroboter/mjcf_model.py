@@ -37,12 +37,13 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from .layout import build_layout, nominal_coordinates
-from .spec import BodyThrust, BodyTorque, Spec, WinchTension
+from .spec import BodyThrust, BodyTorque, Spec, SpecError, WinchTension
 
 # The constraint and integration settings the agreement with the project's plant was measured at
 # (docs/mujoco.md): RK4, a Newton solver run to round-off, and cable limits as stiff as MuJoCo allows
 # at the time step (a time constant of two steps, critically damped, impedance near 1).
 DEFAULT_TIMESTEP = 1e-4  # s
+MAX_TIMESTEP = 0.01  # s: beyond this the cables' constraint time constant is too soft to call them cables
 SOLVER_TOLERANCE = 1e-12
 SOLVER_ITERATIONS = 100
 CABLE_SOLREF = (2 * DEFAULT_TIMESTEP, 1.0)  # MuJoCo raises a time constant below 2·timestep to 2·timestep
@@ -59,8 +60,8 @@ DRUM_MASS = 1e-9
 AXIS_VECTOR = {"u": (1.0, 0.0, 0.0), "v": (0.0, 1.0, 0.0), "w": (0.0, 0.0, 1.0)}
 
 
-class MjcfError(ValueError):
-    """A spec MuJoCo cannot represent as it stands (the message names the part and the fix)."""
+class MjcfError(SpecError):
+    """A valid spec that MuJoCo cannot represent as it stands (names the part and the fix; exit 2)."""
 
 
 def _num(x: float) -> str:
@@ -100,38 +101,21 @@ def joint_layout(spec: Spec) -> dict[str, str]:
     return {b.name: "free" if b.damping.translational == b.damping.rotational else "slide+ball" for b in spec.bodies}
 
 
-def check_representable(spec: Spec) -> None:
-    """Refuse what would give a wrong or degenerate MuJoCo model, naming the part and the fix."""
+def check_representable(spec: Spec, source: str = "") -> None:
+    """What the spec's own validation leaves to MuJoCo: every cable spans a distance at qpos0 (the
+    initial configuration), or MuJoCo's tendon has no direction there."""
     layout = build_layout(spec)
-    q0 = nominal_coordinates(spec, layout)
-    points = _world_points(spec, layout, q0)
-    bodies = {b.name for b in spec.bodies}
+    points = _world_points(spec, layout, nominal_coordinates(spec, layout))
+    problems = []
     for i, cable in enumerate(spec.cables):
         a, b = cable.ends
-        if a == b:
-            raise MjcfError(f"cables[{i}] ({cable.name}): both ends are the same point '{a}': a cable needs two "
-                            "different ends")
-        for end in (a, b):
-            body = end.split(".", 1)[0] if "." in end else None
-            if body is not None and (body not in bodies or end.split(".", 1)[1] not in spec.body(body).points):
-                raise MjcfError(f"cables[{i}] ({cable.name}): end '{end}' is no point of a body: name a body point "
-                                "as 'body.point' or an anchor")
         span = float(np.linalg.norm(points[a] - points[b]))
         if span < 1e-9:
-            raise MjcfError(f"cables[{i}] ({cable.name}): its ends '{a}' and '{b}' are at the same place in the "
-                            "initial configuration: move a body point or the initial positions apart")
-    for i, act in enumerate(spec.actuators):
-        where = f"actuators[{i}] ({act.name})"
-        if isinstance(act, WinchTension):
-            cable = next((c for c in spec.cables if c.name == act.cable), None)
-            if cable is None or cable.winch is None:
-                raise MjcfError(f"{where}: cable '{act.cable}' is no winch cable of the spec: a winch tension acts "
-                                "on a cable with a `winch` table")
-        elif isinstance(act, BodyTorque | BodyThrust):
-            if act.body not in bodies:
-                raise MjcfError(f"{where}: body '{act.body}' is not in the spec: name one of {sorted(bodies)}")
-        if not math.isfinite(act.gain) or act.gain == 0:
-            raise MjcfError(f"{where}: gain {act.gain!r} is no actuator gain: give a finite nonzero number")
+            problems.append((f"cables[{i}] ({cable.name}).ends", f"expected ends apart in the initial configuration "
+                             f"(MuJoCo's tendon needs a direction), found '{a}' and '{b}' {span:.3g} m apart: move "
+                             "a body point or an initial position"))
+    if problems:
+        raise MjcfError(source or spec.name, problems)
 
 
 def _world_points(spec: Spec, layout, q: np.ndarray) -> dict[str, np.ndarray]:
@@ -147,9 +131,9 @@ def _world_points(spec: Spec, layout, q: np.ndarray) -> dict[str, np.ndarray]:
 def mjcf_xml(spec: Spec, timestep: float = DEFAULT_TIMESTEP) -> str:
     """The MJCF model of `spec` (see the module's docstring); `timestep` sets MuJoCo's step and the
     cables' constraint time constant (two steps)."""
+    if not (math.isfinite(timestep) and 0 < timestep <= MAX_TIMESTEP):
+        raise ValueError(f"MuJoCo time step: expected a number of seconds in (0, {MAX_TIMESTEP:g}], found {timestep!r}")
     check_representable(spec)
-    if not (math.isfinite(timestep) and timestep > 0):
-        raise MjcfError(f"timestep: expected a positive number of seconds, found {timestep!r}")
     layout = build_layout(spec)
     q0 = nominal_coordinates(spec, layout)
     joints = joint_layout(spec)

@@ -66,6 +66,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--sensing-seed", default=None, metavar="N", help="seed of the measurement noise (default: spec, 0)")
     p.add_argument("--no-sensing", action="store_true",
                    help="ignore the spec's [sensing] section: the controller reads the plant's state")
+    p.add_argument("--plant", choices=["own", "mujoco"], default="own",
+                   help="the crane the controllers drive: own (the project's Baumgarte RK4 plant) or mujoco (MuJoCo "
+                        "on the spec's MJCF model, docs/mujoco.md) (default: %(default)s)")
+    p.add_argument("--mujoco-timestep", type=number(0.0, 0.01, low_open=True), default=None, metavar="S",
+                   help="MuJoCo's time step with --plant mujoco, dividing the spec's plant step (default: 0.0001)")
+    p.add_argument("--view", action="store_true",
+                   help="after the run, replay it in MuJoCo's interactive viewer (needs a display)")
     p.add_argument("--duration", type=positive(1e6), default=None, help="simulated seconds (default: the whole path)")
     p.add_argument("--out", type=Path, default=Path("results"), help="output folder (default: %(default)s)")
     p.add_argument("--state", action="store_true",
@@ -75,6 +82,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar (the same as `acroboter -q run`)")
     args = p.parse_args(argv)
+    if args.mujoco_timestep is not None and args.plant != "mujoco":
+        p.error("--mujoco-timestep needs --plant mujoco")
+    if args.view:
+        from .viewer import display_problem
+
+        args.view_problem = display_problem()
     try:
         if args.out.exists() and not args.out.is_dir():
             p.error(f"--out {args.out} is a file, not a folder")
@@ -188,6 +201,9 @@ def main(argv: list[str] | None = None) -> int:
     via_cli = Path(sys.argv[0]).name in ("acroboter", "__main__.py")
     prefix = ["acroboter", "run"] if via_cli else ["python", "-m", "acroboter.run"]
     args.command_line = [*prefix, *(sys.argv[1:] if argv is None else argv)]
+    if getattr(args, "view_problem", None):  # before any work: the run would end in a window that cannot open
+        print(f"error: {args.view_problem}", file=sys.stderr)
+        return 3
     try:
         staging = _staging_folder(args.out)
     except OSError as err:
@@ -250,7 +266,8 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
                 bar.set_postfix_str(method)
                 try:
                     r = crane.simulate(method, duration=duration, progress=bar.update,
-                                       plant_params=args.plant_params, sensing=sensing or False, **overrides)
+                                       plant_params=args.plant_params, sensing=sensing or False, plant=args.plant,
+                                       mujoco_timestep=args.mujoco_timestep, **overrides)
                 except (SingularSystemError, RecoveryError, SimulationError) as err:
                     # This method cannot handle this system (e.g. MLM and redundant constraints), or
                     # failed at its first step: say why, and go on with the others.
@@ -297,7 +314,10 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
                       input_labels, lay.servo_constraints, input_limits=spec.input_limits()[:2], paper=paper)
     _publish(staging, args.out)
     # Printed once the results are in place: a table on screen always has its files.
-    print(f"spec {spec.name}: {duration:g} s at {rate:g} Hz, plant RK4 h = {step * 1e3:g} ms; "
+    engine = plant_provenance(args, spec)
+    plant_text = (f"plant RK4 h = {step * 1e3:g} ms" if engine["engine"] == "own" else
+                  f"plant MuJoCo {engine['mujoco_version']} RK4 h = {engine['step_s'] * 1e3:g} ms")
+    print(f"spec {spec.name}: {duration:g} s at {rate:g} Hz, {plant_text}; "
           f"start tensions {np.array2string(start.inputs, precision=4)}")
     if args.plant_params:
         print("plant differs from the model: " + ", ".join(f"{k}={v:g}" for k, v in args.plant_params.items()))
@@ -309,6 +329,10 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
     for w in warnings:
         print(f"warning: {w}")
     print(f"results in {args.out}/")
+    if args.view:
+        from .viewer import replay
+
+        replay(crane.model, crane.path, results)
     saturated = [m for m, s in summaries.items() if s.get("saturated")]
     if feasibility.feasible is False or saturated:
         if feasibility.feasible is False:
@@ -340,7 +364,10 @@ def provenance(args: argparse.Namespace, spec, gains, methods: list[str], durati
         "spec_file": str(args.spec),
         "spec_sha256": hashlib.sha256(Path(args.spec).read_bytes()).hexdigest(),
         "spec_model_hash": spec.model_hash(),
+        # the spec itself: the folder can be re-run or drawn after the file has moved or changed
+        "spec_toml": Path(args.spec).read_text(),
         "gains": asdict(gains),
+        "plant": plant_provenance(args, spec),
         # the plant's physical parameters other than the spec's (acroboter.physical), {} for none
         "plant_params": dict(getattr(args, "plant_params", {})),
         # what the controller measured instead of the plant's state (docs/sensing.md), None for the state
@@ -355,6 +382,18 @@ def provenance(args: argparse.Namespace, spec, gains, methods: list[str], durati
         "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "command_line": args.command_line,
     }
+
+
+def plant_provenance(args: argparse.Namespace, spec) -> dict:
+    """Which engine simulated the crane, and at what step."""
+    if getattr(args, "plant", "own") != "mujoco":
+        return {"engine": "own", "integrator": "RK4 with Baumgarte stabilisation", "step_s": spec.simulation.step}
+    from importlib import metadata
+
+    from .mjcf_model import DEFAULT_TIMESTEP
+
+    return {"engine": "mujoco", "mujoco_version": metadata.version("mujoco"), "integrator": "RK4",
+            "step_s": args.mujoco_timestep or DEFAULT_TIMESTEP, "model": "acroboter.mjcf_model (docs/mujoco.md)"}
 
 
 def is_paper_crane(spec) -> bool:

@@ -368,9 +368,31 @@ def constraint_violation(result: RunResult, layout) -> float:
     return float(max(rigid, stretched))
 
 
-def setup_default(model: CompiledModel, path: DesiredPath, plant_params=None):
+PLANTS = ("own", "mujoco")  # the project's Baumgarte RK4 plant, or MuJoCo on the spec's MJCF model
+
+
+def setup_default(model: CompiledModel, path: DesiredPath, plant_params=None, plant: str = "own",
+                  mujoco_timestep: float | None = None):
     """Plant for a spec's simulation section; `plant_params` (name -> value, acroboter.physical)
-    make its crane differ from the controller's model."""
+    make its crane differ from the controller's model. plant="mujoco": MuJoCo on the spec's MJCF
+    model (acroboter.mujoco_plant) at `mujoco_timestep` (default: the MJCF's), which must divide the
+    spec's plant step."""
     sim = model.spec.simulation
-    return Plant(model, path, sim.baumgarte_zeta, sim.baumgarte_omega, plant_params)
+    if plant == "own":
+        if mujoco_timestep is not None:
+            raise ValueError("mujoco_timestep: only the MuJoCo plant has a time step of its own (plant='mujoco')")
+        return Plant(model, path, sim.baumgarte_zeta, sim.baumgarte_omega, plant_params)
+    if plant != "mujoco":
+        raise ValueError(f"plant: expected one of {', '.join(PLANTS)}, found {plant!r}")
+    from .mjcf_model import DEFAULT_TIMESTEP, MAX_TIMESTEP
+    from .mujoco_plant import MujocoPlant
+
+    dt = DEFAULT_TIMESTEP if mujoco_timestep is None else mujoco_timestep
+    if isinstance(dt, bool) or not isinstance(dt, int | float) or not (math.isfinite(dt) and 0 < dt <= MAX_TIMESTEP):
+        raise ValueError(f"mujoco_timestep: expected a number of seconds in (0, {MAX_TIMESTEP:g}], found {dt!r}")
+    ratio = sim.step / dt
+    if round(ratio) < 1 or not math.isclose(round(ratio) * dt, sim.step, rel_tol=1e-9):
+        raise ValueError(f"mujoco_timestep {dt:g} s must divide the spec's plant step simulation.step = "
+                         f"{sim.step:g} s: give e.g. {sim.step / max(1, math.ceil(ratio)):g} s")
+    return MujocoPlant(model, path, plant_params, timestep=float(dt))
 

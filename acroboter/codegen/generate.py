@@ -18,6 +18,7 @@ import casadi as ca
 
 from ..fingerprint import codegen_hash, file_digest, manifest_hash
 from ..interrupts import deferred_interrupt
+from ..mjcf_model import mjcf_xml
 from ..spec import Spec
 from . import plant, structured
 from .symbolic import SymbolicModel, build_symbolic_model
@@ -166,7 +167,7 @@ class GenerationContext:
         }
 
     def write(self, out_dir: Path) -> list[Path]:
-        """Write one C file per function, the metadata C file and manifest.json into out_dir.
+        """Write one C file per function, the metadata C file, the MJCF model and manifest.json into out_dir.
 
         The manifest lists every other file with its SHA-256: the numeric side refuses a folder whose
         files do not match (acroboter.compiled), so a hand edit or a half-written file is never used.
@@ -190,6 +191,10 @@ class GenerationContext:
             + f'const char* {self.spec.name}_manifest_hash(void) {{ return "{manifest_hash(doc)}"; }}\n'
         )
         written.append(meta)
+        # The same crane for MuJoCo (acroboter.mjcf_model): checked in and hashed like the C.
+        mjcf = out_dir / f"{self.spec.name}.xml"
+        mjcf.write_text(mjcf_xml(self.spec))
+        written.append(mjcf)
         manifest = out_dir / "manifest.json"
         doc["files"] = {path.name: file_digest(path) for path in written}
         manifest.write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
