@@ -9,6 +9,8 @@
     acroboter check        regenerate into a temporary folder and compare with generated/
     acroboter build        compile the example specs' libraries into the cache
     acroboter export-step  one method's complete control step as embedded C
+    acroboter animate      a video (MP4, GIF) of one method's run from its results folder
+    acroboter mjcf         a spec's MJCF model for MuJoCo
 
 `acroboter <command> --help` lists each command's options. -q shows warnings and errors only (no
 progress bars), -v adds debugging detail (cache paths, library paths). Exit codes: 0 done, 2 bad
@@ -33,6 +35,8 @@ COMMANDS: dict[str, tuple[str, str, tuple[str, ...]]] = {
     "check": ("acroboter.codegen_cli", "main", ("check",)),
     "build": ("acroboter.codegen_cli", "build_main", ()),
     "export-step": ("acroboter.codegen_cli", "export_step_main", ()),
+    "animate": ("acroboter.animate", "main", ()),
+    "mjcf": ("acroboter.mjcf", "main", ()),
 }
 
 

@@ -1,0 +1,166 @@
+"""`acroboter animate`: the video decodes with the promised frames, what it draws is the crane that q and
+the spec describe (checked against independent formulas), slack cables look slack, bad input exits 2."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from acroboter import animate
+from acroboter.run import main as run_main
+from acroboter.spec import load_spec
+
+DURATION = 1.0
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    out = tmp_path_factory.mktemp("run")
+    assert run_main(["--method", "penalty", "--duration", str(DURATION), "--out", str(out), "--no-plots", "-q"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def loaded(results):
+    return animate.load(results)
+
+
+def _columns(path):
+    with path.open() as f:
+        rows = list(csv.reader(f))
+    return rows[0], rows[1:]
+
+
+def test_mp4_decodes_with_one_frame_per_instant(results, tmp_path):
+    import imageio.v2 as imageio
+
+    out = tmp_path / "a.mp4"
+    assert animate.main([str(results), "--out", str(out), "--fps", "10", "--size", "321x240",
+                         "--renderer", "matplotlib", "-q"]) == 0
+    reader = imageio.get_reader(out)
+    frames = [f for f in reader]
+    assert len(frames) == int(DURATION * 10) + 1  # t = 0, 0.1, ..., 1.0
+    assert frames[0].shape == (240, 322, 3)  # an odd width grows by one pixel (yuv420p)
+    assert frames[-1].std() > 10  # something drawn, not a blank frame
+    assert not list(tmp_path.glob(".*partial*"))
+
+
+def test_default_output_and_gif(results):
+    assert animate.main([str(results), "--gif", str(results / "a.gif"), "--gif-width", "200", "--fps", "5",
+                         "--renderer", "matplotlib", "-q"]) == 0
+    assert (results / "animation_penalty.mp4").stat().st_size > 0
+    from PIL import Image
+
+    with Image.open(results / "a.gif") as gif:
+        assert gif.n_frames == int(DURATION * 8 / 2.5) + 1 and gif.size[0] == 200
+
+
+def test_frame_rows_follow_the_clock():
+    t = np.arange(0, 2751) / 50.0  # the 55 s scenario at 50 Hz
+    rows = animate.frame_rows(t, 25.0, 1.0)
+    assert len(rows) == 1376 and rows[1] == 2 and rows[-1] == 2750
+    fast = animate.frame_rows(t, 8.0, 2.5)
+    assert len(fast) == 177 and fast[1] == 16
+
+
+def test_cable_ends_are_the_body_points_of_q(results, loaded):
+    """Independently of build_scene: p = r + ξ1 u + ξ2 v + ξ3 w from the CSV's q columns and the spec file."""
+    spec = load_spec(json.loads((results / "summary.json").read_text())["provenance"]["spec_file"])
+    header, rows = _columns(results / "penalty.csv")
+    row = len(rows) // 2
+    value = dict(zip(header, (float(v) for v in rows[row]), strict=True))
+
+    def point(end):
+        if "." not in end:
+            a = spec.anchor(end)
+            return np.array([value.get(f"anchor_{end}_{x}_m", a.position[k]) for k, x in enumerate("xyz")])
+        body, name = end.split(".")
+        xi = spec.body(body).point(name)
+        return np.array([value[f"q_{body}.r_{x}_m"] + sum(xi[k] * value[f"q_{body}.{e}_{x}"]
+                                                          for k, e in enumerate("uvw")) for x in "xyz"])
+
+    scene = loaded.scene
+    for c, cable in enumerate(spec.cables):
+        a, b = point(cable.ends[0]), point(cable.ends[1])
+        np.testing.assert_allclose(scene.ends[row, c], [a, b], atol=1e-12)
+        if cable.winch is not None:
+            assert not value[f"cable_{cable.name}_slack"]
+            assert abs(np.linalg.norm(b - a) - value[f"q_{cable.name}.length_m"]) < 1e-6
+        else:
+            assert abs(np.linalg.norm(b - a) - cable.length) < 1e-6
+    # what the artists were given at that row is that geometry
+    frames = animate.MatplotlibFrames(scene, "penalty", (320, 240))
+    frames.update(row)
+    for c, line in enumerate(frames.cable_lines):
+        np.testing.assert_allclose(np.array(line.get_data_3d()).T, scene.ends[row, c], atol=1e-12)
+    su = frames.axis_lines["SU"]
+    r = np.array([value[f"q_SU.r_{x}_m"] for x in "xyz"])
+    tip = np.array(su[2].get_data_3d())[:, 1]  # w, drawn from r
+    np.testing.assert_allclose(tip - r, scene.axis_length["SU"] * np.array([value[f"q_SU.w_{x}"] for x in "xyz"]),
+                               atol=1e-12)
+    assert scene.ceiling_z == max(float(np.max(a[:, 2])) for a in scene.anchors.values())
+
+
+def test_a_slack_cable_is_drawn_dashed_and_grey(results, tmp_path):
+    folder = tmp_path / "slack"
+    shutil.copytree(results, folder)
+    header, rows = _columns(folder / "penalty.csv")
+    col = header.index("cable_L2_slack")
+    rows[3][col] = "1"
+    with (folder / "penalty.csv").open("w", newline="") as f:
+        csv.writer(f).writerows([header, *rows])
+    scene = animate.load(folder).scene
+    frames = animate.MatplotlibFrames(scene, "penalty", (320, 240))
+    c = scene.cables.index("L2")
+    frames.update(3)
+    line = frames.cable_lines[c]
+    assert line.get_linestyle() == "--" and line.get_color() == animate.SLACK_COLOUR
+    assert frames.cable_lines[c - 1].get_linestyle() == "-"
+    frames.update(4)  # taut again: solid and coloured by its tension
+    assert line.get_linestyle() == "-" and line.get_color() != animate.SLACK_COLOUR
+    before = frames.render(3)
+    assert before.shape == (240, 320, 3)
+
+
+def test_the_spec_is_taken_from_the_provenance_text(results, tmp_path):
+    """A folder that carries the spec's TOML needs no path: the recorded one may be gone."""
+    folder = tmp_path / "moved"
+    shutil.copytree(results, folder)
+    summary = json.loads((folder / "summary.json").read_text())
+    prov = summary["provenance"]
+    text = prov.pop("spec_toml", None) or open(prov["spec_file"], encoding="utf-8").read()
+    prov["spec_file"] = str(tmp_path / "gone.toml")
+    summary["spec"] = "not-an-example"
+    (folder / "summary.json").write_text(json.dumps(summary))
+    with pytest.raises(animate.AnimationInputError, match="--spec FILE"):
+        animate.load(folder)
+    prov["spec_toml"] = text
+    (folder / "summary.json").write_text(json.dumps(summary))
+    assert animate.load(folder).spec.model_hash() == prov["spec_model_hash"]
+
+
+def _fails(argv, capsys, *fragments):
+    assert animate.main(argv) == 2
+    err = capsys.readouterr().err
+    for fragment in fragments:
+        assert fragment in err, err
+    return err
+
+
+def test_bad_input_exits_2(results, tmp_path, capsys):
+    _fails([str(tmp_path / "nowhere"), "-q"], capsys, "nothing at", "results folder")
+    _fails([str(results), "--method", "mlm", "-q"], capsys, "--method mlm", "penalty")
+    folder = tmp_path / "old"
+    shutil.copytree(results, folder)
+    header, rows = _columns(folder / "penalty.csv")
+    keep = [i for i, h in enumerate(header) if not h.startswith("q_")]
+    with (folder / "penalty.csv").open("w", newline="") as f:
+        csv.writer(f).writerows([[r[i] for i in keep] for r in [header, *rows]])
+    _fails([str(folder), "-q"], capsys, "no column q_", "re-run `acroboter run`")
+    with pytest.raises(SystemExit) as info:
+        animate.main([str(results), "--size", "big"])
+    assert info.value.code == 2
