@@ -89,6 +89,9 @@ class SimulationError(RuntimeError):
 TENSION_TOL_REL = 1e-9
 # A slack cable goes taut when its gap exceeds this (m); the crossing is located to the same tolerance.
 GAP_TOL = 1e-12
+# A cable whose ends start closer than its length by more than this (m) starts slack (Plant.initial_state);
+# the static start's cables are at their lengths to round-off.
+START_SLACK_GAP = 1e-9
 # A slack cable at contact counts as stretched by an impulse when its gap grows faster than this (m/s),
 # and as accelerated into stretch when its gap's acceleration exceeds GAP_ACC_TOL (m/s²).
 GAP_RATE_TOL = 1e-10
@@ -201,17 +204,21 @@ class Plant:
         self._active[:] = value
 
     def initial_state(self, q0: np.ndarray, qd0: np.ndarray | None = None) -> np.ndarray:
-        """x at rest (or at qd0); resets the cables to taut and the event records."""
+        """x at rest (or at qd0); resets the event records. Every cable starts taut but one whose ends
+        are closer than its length (by more than START_SLACK_GAP): that one starts slack, and pulls
+        only once its ends reach its length (taut, a Baumgarte term would push them apart)."""
         x = np.zeros(self.state_size)
         x[: self.n] = q0
         if qd0 is not None:
             x[self.n : 2 * self.n] = qd0
         self._active[:] = 1.0
-        self.start_active[:] = 1.0
         self.start_tension[:] = 0.0
         self.impact_energy = 0.0
         self.transitions[:] = 0
         self.events = []
+        _, gap, _ = self._contact_state(x, 0.0)
+        self._active[gap < -START_SLACK_GAP] = 0.0
+        self.start_active[:] = self._active
         return x
 
     def stage_table(self, t0: float, h: float, steps: int) -> StageTable:
