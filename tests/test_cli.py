@@ -77,6 +77,10 @@ def test_csv_columns_and_rows(short_run):
     for c in cables:
         expected += [f"cable_{c}_tension_N", f"cable_{c}_slack"]
     expected += ["saturated"]
+    expected += [f"anchor_climbing_unit_{axis}_m" for axis in "xyz"]
+    expected += [f"q_{body}.{vec}_{axis}{'_m' if vec == 'r' else ''}" for body in ("CC", "SU") for vec in "ruvw"
+                 for axis in "xyz"]
+    expected += [f"q_{c}.length_m" for c in ("L1", "L2", "L3")]
     assert header == expected
     assert len(rows) == 1 + 51  # 1 s at 50 Hz, both ends
     first = dict(zip(header, map(float, rows[1]), strict=True))
@@ -85,6 +89,8 @@ def test_csv_columns_and_rows(short_run):
     assert first["tension_1_N"] == pytest.approx(26.75, abs=0.01)
     assert first["cable_L1_tension_N"] == pytest.approx(26.75, abs=0.01)  # the plant's cable pulls with tension_1
     assert all(first[f"cable_{c}_slack"] == 0 for c in cables) and first["saturated"] == 0
+    assert (first["anchor_climbing_unit_x_m"], first["anchor_climbing_unit_z_m"]) == (0.0, 3.0)  # the spec's start
+    assert first["q_SU.r_z_m"] == first["z_m"]  # the tracked point is the SU's centre
 
 
 def test_help_lists_the_options():
