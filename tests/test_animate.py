@@ -164,3 +164,93 @@ def test_bad_input_exits_2(results, tmp_path, capsys):
     with pytest.raises(SystemExit) as info:
         animate.main([str(results), "--size", "big"])
     assert info.value.code == 2
+
+
+# --- the MuJoCo renderer ----------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def gl():
+    """The MUJOCO_GL value that gives an OpenGL context here (EGL through Mesa on CI), else skip."""
+    backend, why = animate.probe_gl()
+    if backend is None:
+        pytest.skip(f"MuJoCo's offscreen renderer cannot run here: {why}")
+    return backend
+
+
+@pytest.fixture(scope="module")
+def results_2s(tmp_path_factory):
+    out = tmp_path_factory.mktemp("run2")
+    assert run_main(["--method", "penalty", "--duration", "2", "--out", str(out), "--no-plots", "-q"]) == 0
+    return out
+
+
+def test_mujoco_mp4_decodes_with_one_frame_per_instant(gl, results_2s, tmp_path, monkeypatch):
+    import imageio.v2 as imageio
+
+    monkeypatch.setenv("MUJOCO_GL", gl)
+    out = tmp_path / "m.mp4"
+    assert animate.main([str(results_2s), "--out", str(out), "--fps", "10", "--size", "320x240",
+                         "--renderer", "mujoco", "--gif", str(tmp_path / "m.gif"), "--gif-width", "160", "-q"]) == 0
+    frames = [f for f in imageio.get_reader(out)]  # not list(): the reader's len() is inf
+    assert len(frames) == 21 and frames[0].shape == (240, 320, 3)
+    assert frames[-1].std() > 10
+    band = round(240 * 0.05)  # below the clock: the crane itself moved between the first and the last frame
+    assert np.abs(frames[0][band:].astype(int) - frames[-1][band:].astype(int)).max() > 60
+    from PIL import Image
+
+    with Image.open(tmp_path / "m.gif") as gif:
+        assert gif.n_frames == int(2 * 8 / 2.5) + 1 and gif.size == (160, 120)
+
+
+def _project(frames, point):
+    """Pixel (column, row) of a world point, from the camera's pose alone (a pinhole with MuJoCo's fovy)."""
+    cam = frames.camera
+    a, e = np.radians(cam.azimuth), np.radians(cam.elevation)
+    forward = np.array([np.cos(a) * np.cos(e), np.sin(a) * np.cos(e), np.sin(e)])
+    right = np.cross(forward, [0, 0, 1])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    p = np.asarray(point) - (np.array(cam.lookat) - cam.distance * forward)
+    width, height = frames.size
+    f = height / 2 / np.tan(np.radians(frames.model.vis.global_.fovy) / 2)
+    return np.array([width / 2 + f * (p @ right) / (p @ forward), height / 2 - f * (p @ up) / (p @ forward)])
+
+
+def test_mujoco_draws_a_slack_cable_where_the_cable_is(gl, results_2s, monkeypatch):
+    """The same instant with cable L2 taut and then slack: the image changes only along L2 as an independent
+    pinhole projects its recorded ends, and the taut tendon has the colormap's colour of its tension."""
+    from matplotlib import colormaps
+
+    monkeypatch.setenv("MUJOCO_GL", gl)
+    scene = animate.load(results_2s).scene
+    row, c = len(scene.t) // 2, scene.cables.index("L2")
+    assert not scene.slack[row, c]
+    frames = animate.MujocoFrames(scene, animate.spec_of_run(json.loads((results_2s / "summary.json").read_text()),
+                                                             results_2s), "penalty", (480, 360))
+    try:
+        taut = frames.render(row).astype(int)
+        lo, hi = scene.tension_range
+        expected = colormaps["viridis"]((scene.tension[row, c] - lo) / (hi - lo))
+        np.testing.assert_allclose(frames.model.tendon_rgba[frames.tendons[c]], expected, atol=1e-6)
+        scene.slack[row, c] = True
+        slack = frames.render(row).astype(int)
+    finally:
+        frames.close()
+    changed = np.argwhere(np.abs(taut - slack).max(axis=2) > 20)[:, ::-1]  # (column, row) pixels
+    assert len(changed) > 15
+    a, b = (_project(frames, p) for p in scene.ends[row, c])
+    along = np.clip((changed - a) @ (b - a) / ((b - a) @ (b - a)), 0, 1)
+    distance = np.linalg.norm(changed - (a + along[:, None] * (b - a)), axis=1)
+    assert distance.max() < 4, distance.max()
+
+
+def test_renderer_choice_without_gl(results, tmp_path, monkeypatch, capsys, caplog):
+    monkeypatch.setattr(animate, "probe_gl", lambda: (None, "MUJOCO_GL=egl: no EGL device"))
+    assert animate.main([str(results), "--renderer", "mujoco", "--out", str(tmp_path / "x.mp4")]) == 3
+    err = capsys.readouterr().err
+    assert "MUJOCO_GL=egl" in err and "MUJOCO_GL=osmesa" in err and "--renderer matplotlib" in err
+    assert not (tmp_path / "x.mp4").exists()
+    with caplog.at_level("INFO", logger="acroboter"):
+        assert animate.main([str(results), "--out", str(tmp_path / "y.mp4"), "--fps", "4", "--size", "160x120"]) == 0
+    assert any("renderer: matplotlib" in r.getMessage() and "no EGL device" in r.getMessage() for r in caplog.records)
