@@ -278,3 +278,30 @@ def test_view_without_a_display_says_so_before_any_work(tmp_path):
     assert proc.returncode == 3
     assert "needs a display" in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "v").exists()
+
+
+def test_view_replays_the_run_in_mujocos_viewer_on_a_virtual_display(tmp_path):
+    """Where Xvfb is installed (not on CI's machine: skipped there): the viewer opens and replays."""
+    import os
+    import shutil
+    import signal
+    import time
+
+    if shutil.which("xvfb-run") is None:
+        pytest.skip("xvfb-run is not installed (apt-get install xvfb): no display to open the viewer on")
+    out = tmp_path / "viewed"
+    proc = subprocess.Popen(["xvfb-run", "-a", "-s", "-screen 0 1024x768x24", sys.executable, "-m", "acroboter.run",
+                             "--method", "mlm", "--duration", "1", "--view", "--out", str(out), "-q"],
+                            stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, start_new_session=True)
+    try:
+        deadline, seen = time.monotonic() + 120, ""
+        while time.monotonic() < deadline and "viewer: mlm" not in seen:
+            line = proc.stderr.readline()
+            if not line and proc.poll() is not None:
+                break
+            seen += line
+        assert "viewer: mlm (1.0 s)" in seen, seen
+        assert (out / "mlm.csv").is_file()  # the results were written before the window opened
+    finally:
+        os.killpg(proc.pid, signal.SIGTERM)  # the viewer stays open until its window is closed
+        proc.wait(timeout=30)
