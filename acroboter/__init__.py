@@ -49,6 +49,8 @@ _EXPORTS = {
     "SimulationError": "acroboter.plant",
     "SingularSystemError": "acroboter.controllers",
     "PlantParameterError": "acroboter.physical",
+    "mjcf_xml": "acroboter.mjcf_model",
+    "MujocoPlant": "acroboter.mujoco_plant",
 }
 
 __all__ = ["__version__", *sorted(_EXPORTS)]

@@ -125,6 +125,15 @@ class Crane:
             return self._start
         return solve_equilibrium(self.model, self.desired(trajectory, duration))
 
+    def mjcf(self, timestep: float | None = None, plant_params: Mapping[str, float] | None = None) -> str:
+        """The crane's MJCF model for MuJoCo (docs/mujoco.md): mujoco.MjModel.from_xml_string(crane.mjcf());
+        `plant_params` as in simulate(), `timestep` MuJoCo's step (default 1e-4 s)."""
+        from .mjcf_model import DEFAULT_TIMESTEP, mjcf_xml
+        from .physical import with_parameters
+
+        spec = with_parameters(self.spec, plant_params or {})
+        return mjcf_xml(spec, DEFAULT_TIMESTEP if timestep is None else timestep)
+
     def plant_parameters(self) -> dict[str, float]:
         """The physical parameters a plant may differ in (`simulate(plant_params=...)`), with the spec's
         values: gravity.x/y/z, <body>.mass, <body>.inertia.xx …, <body>.damping.translational/rotational,

@@ -65,6 +65,16 @@ def test_checked_in_mjcf_is_what_the_writer_makes_and_loads(path):
             assert model.tendon_limited[t] and model.tendon_range[t, 1] == cable.length
 
 
+def test_the_library_face_gives_the_same_xml(cranes):
+    import acroboter
+
+    crane = cranes["acroboter"]
+    assert crane.mjcf() == acroboter.mjcf_xml(crane.spec) == (ROOT / "generated/acroboter/acroboter.xml").read_text()
+    heavier = mujoco.MjModel.from_xml_string(crane.mjcf(timestep=5e-4, plant_params={"SU.mass": 8.8}))
+    assert heavier.opt.timestep == 5e-4
+    assert heavier.body_mass[mujoco.mj_name2id(heavier, mujoco.mjtObj.mjOBJ_BODY, "SU")] == 8.8
+
+
 def test_mjcf_command_writes_a_loadable_file_and_refuses_bad_specs(tmp_path):
     out = tmp_path / "crane.xml"
     ok = subprocess.run([sys.executable, "-m", "acroboter.mjcf", str(SPECS[0]), "-o", str(out)],
