@@ -11,6 +11,9 @@ import numpy as np
 import pytest
 
 from acroboter import animate
+from acroboter.animation.matplotlib_frames import MatplotlibFrames
+from acroboter.animation.mujoco_frames import MujocoFrames, probe_gl
+from acroboter.animation.scene import SLACK_COLOUR, AnimationInputError, frame_rows, load, spec_of_run
 from acroboter.run import main as run_main
 from acroboter.spec import load_spec
 
@@ -26,7 +29,7 @@ def results(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def loaded(results):
-    return animate.load(results)
+    return load(results)
 
 
 def _columns(path):
@@ -61,9 +64,9 @@ def test_default_output_and_gif(results):
 
 def test_frame_rows_follow_the_clock():
     t = np.arange(0, 2751) / 50.0  # the 55 s scenario at 50 Hz
-    rows = animate.frame_rows(t, 25.0, 1.0)
+    rows = frame_rows(t, 25.0, 1.0)
     assert len(rows) == 1376 and rows[1] == 2 and rows[-1] == 2750
-    fast = animate.frame_rows(t, 8.0, 2.5)
+    fast = frame_rows(t, 8.0, 2.5)
     assert len(fast) == 177 and fast[1] == 16
 
 
@@ -93,7 +96,7 @@ def test_cable_ends_are_the_body_points_of_q(results, loaded):
         else:
             assert abs(np.linalg.norm(b - a) - cable.length) < 1e-6
     # what the artists were given at that row is that geometry
-    frames = animate.MatplotlibFrames(scene, "penalty", (320, 240))
+    frames = MatplotlibFrames(scene, "penalty", (320, 240))
     frames.update(row)
     for c, line in enumerate(frames.cable_lines):
         np.testing.assert_allclose(np.array(line.get_data_3d()).T, scene.ends[row, c], atol=1e-12)
@@ -113,15 +116,15 @@ def test_a_slack_cable_is_drawn_dashed_and_grey(results, tmp_path):
     rows[3][col] = "1"
     with (folder / "penalty.csv").open("w", newline="") as f:
         csv.writer(f).writerows([header, *rows])
-    scene = animate.load(folder).scene
-    frames = animate.MatplotlibFrames(scene, "penalty", (320, 240))
+    scene = load(folder).scene
+    frames = MatplotlibFrames(scene, "penalty", (320, 240))
     c = scene.cables.index("L2")
     frames.update(3)
     line = frames.cable_lines[c]
-    assert line.get_linestyle() == "--" and line.get_color() == animate.SLACK_COLOUR
+    assert line.get_linestyle() == "--" and line.get_color() == SLACK_COLOUR
     assert frames.cable_lines[c - 1].get_linestyle() == "-"
     frames.update(4)  # taut again: solid and coloured by its tension
-    assert line.get_linestyle() == "-" and line.get_color() != animate.SLACK_COLOUR
+    assert line.get_linestyle() == "-" and line.get_color() != SLACK_COLOUR
     before = frames.render(3)
     assert before.shape == (240, 320, 3)
 
@@ -136,11 +139,11 @@ def test_the_spec_is_taken_from_the_provenance_text(results, tmp_path):
     prov["spec_file"] = str(tmp_path / "gone.toml")
     summary["spec"] = "not-an-example"
     (folder / "summary.json").write_text(json.dumps(summary))
-    with pytest.raises(animate.AnimationInputError, match="--spec FILE"):
-        animate.load(folder)
+    with pytest.raises(AnimationInputError, match="--spec FILE"):
+        load(folder)
     prov["spec_toml"] = text
     (folder / "summary.json").write_text(json.dumps(summary))
-    assert animate.load(folder).spec.model_hash() == prov["spec_model_hash"]
+    assert load(folder).spec.model_hash() == prov["spec_model_hash"]
 
 
 def _fails(argv, capsys, *fragments):
@@ -172,7 +175,7 @@ def test_bad_input_exits_2(results, tmp_path, capsys):
 @pytest.fixture(scope="module")
 def gl():
     """The MUJOCO_GL value that gives an OpenGL context here (EGL through Mesa on CI), else skip."""
-    backend, why = animate.probe_gl()
+    backend, why = probe_gl()
     if backend is None:
         pytest.skip(f"MuJoCo's offscreen renderer cannot run here: {why}")
     return backend
@@ -223,11 +226,11 @@ def test_mujoco_draws_a_slack_cable_where_the_cable_is(gl, results_2s, monkeypat
     from matplotlib import colormaps
 
     monkeypatch.setenv("MUJOCO_GL", gl)
-    scene = animate.load(results_2s).scene
+    scene = load(results_2s).scene
     row, c = len(scene.t) // 2, scene.cables.index("L2")
     assert not scene.slack[row, c]
-    frames = animate.MujocoFrames(scene, animate.spec_of_run(json.loads((results_2s / "summary.json").read_text()),
-                                                             results_2s), "penalty", (480, 360))
+    frames = MujocoFrames(scene, spec_of_run(json.loads((results_2s / "summary.json").read_text()), results_2s),
+                          "penalty", (480, 360))
     try:
         taut = frames.render(row).astype(int)
         lo, hi = scene.tension_range
@@ -246,6 +249,7 @@ def test_mujoco_draws_a_slack_cable_where_the_cable_is(gl, results_2s, monkeypat
 
 
 def test_renderer_choice_without_gl(results, tmp_path, monkeypatch, capsys, caplog):
+    # patched where choose_renderer looks it up
     monkeypatch.setattr(animate, "probe_gl", lambda: (None, "MUJOCO_GL=egl: no EGL device"))
     assert animate.main([str(results), "--renderer", "mujoco", "--out", str(tmp_path / "x.mp4")]) == 3
     err = capsys.readouterr().err
