@@ -112,6 +112,8 @@ class MujocoPlant:
         self._last_active = np.ones(nc)
         self._limit_type = int(mujoco.mjtConstraint.mjCNSTR_LIMIT_TENDON)
         self._velocity = np.zeros(6)
+        limits = np.array([a.resolved_limits() for a in self.physical_spec.actuators], dtype=float).reshape(-1, 2)
+        self._ctrl_low, self._ctrl_high = limits[:, 0].copy(), limits[:, 1].copy()
 
     # --- state --------------------------------------------------------------------------------
     def initial_state(self, q0: np.ndarray, qd0: np.ndarray | None = None) -> np.ndarray:
@@ -203,6 +205,7 @@ class MujocoPlant:
         count = round(duration / self.timestep)
         if count < 1 or not math.isclose(count * self.timestep, duration, rel_tol=1e-9):
             raise SimulationError(f"MuJoCo's time step {self.timestep:g} s must divide the plant step {h:g} s")
+        self._check_limits(u, start)
         d.ctrl[:] = u
         mj.mj_forward(m, d)
         self._read_tensions()
@@ -228,6 +231,19 @@ class MujocoPlant:
         self._read_tensions()
 
     # --- internals ------------------------------------------------------------------------------
+    def _check_limits(self, u: np.ndarray, t: float) -> None:
+        """MuJoCo clips ctrl to ctrlrange without a word: an input beyond the spec's limits is an error
+        here instead (the controllers keep within them; round-off of 1e-9 relative is let through)."""
+        low, high = self._ctrl_low, self._ctrl_high
+        slack = 1e-9 * np.maximum(1.0, np.abs(u))
+        beyond = (u < low - slack) | (u > high + slack)
+        if beyond.any():
+            i = int(np.argmax(beyond))
+            name = self.layout.inputs[i]
+            raise SimulationError(f"at t = {t:.3f} s input {name} = {u[i]:.6g} {self.layout.input_units[i]} is beyond "
+                                  f"its limits [{low[i]:g}, {high[i]:g}], which MuJoCo would clip: keep inputs within "
+                                  "the spec's actuators[].limits")
+
     def _prescribe(self, row: np.ndarray) -> None:
         ns = self.layout.n_signals
         d = self.mj_data

@@ -265,6 +265,20 @@ def test_mujoco_timestep_must_divide_the_plant_step(cranes):
         crane.simulate("mlm", duration=0.1, plant="bullet")
 
 
+def test_an_input_beyond_its_limits_is_refused_not_clipped(cranes):
+    from acroboter.plant import SimulationError
+
+    crane = cranes["acroboter"]
+    start = crane.equilibrium()
+    plant = MujocoPlant(crane.model, crane.path)
+    x = plant.initial_state(start.q)
+    pushing = start.inputs.copy()
+    pushing[0] = -5.0  # a winch that pushes: MuJoCo's ctrlrange [0, inf] would clip it to 0 silently
+    h = crane.spec.simulation.step
+    with pytest.raises(SimulationError, match=r"tension_1 = -5 N is beyond its limits \[0, inf\]"):
+        plant.advance(x, pushing, h, plant.stage_table(0.0, h, 10), 0, 10)
+
+
 def test_run_with_the_mujoco_plant_writes_the_same_folder(tmp_path):
     out = tmp_path / "mj"
     proc = subprocess.run([sys.executable, "-m", "acroboter.run", "--plant", "mujoco", "--method", "penalty",
