@@ -125,14 +125,23 @@ class Crane:
             return self._start
         return solve_equilibrium(self.model, self.desired(trajectory, duration))
 
-    def mjcf(self, timestep: float | None = None, plant_params: Mapping[str, float] | None = None) -> str:
+    def mjcf(self, timestep: float | None = None, plant_params: Mapping[str, float] | None = None,
+             pose: str = "spec") -> str:
         """The crane's MJCF model for MuJoCo (docs/mujoco.md): mujoco.MjModel.from_xml_string(crane.mjcf());
-        `plant_params` as in simulate(), `timestep` MuJoCo's step (default 1e-4 s)."""
+        `plant_params` as in simulate(), `timestep` MuJoCo's step (default 1e-4 s); pose="static": the
+        reference pose is the static equilibrium, with a keyframe `static_start` of the inputs holding it
+        (pose="spec": the spec's initial configuration, the XML of generated/)."""
         from .mjcf_model import DEFAULT_TIMESTEP, mjcf_xml
         from .physical import with_parameters
 
+        if pose not in ("spec", "static"):
+            raise ValueError(f"pose: expected 'spec' or 'static', found {pose!r}")
         spec = with_parameters(self.spec, plant_params or {})
-        return mjcf_xml(spec, DEFAULT_TIMESTEP if timestep is None else timestep)
+        start = None
+        if pose == "static":
+            equilibrium = self.equilibrium()
+            start = (equilibrium.q, equilibrium.inputs)
+        return mjcf_xml(spec, DEFAULT_TIMESTEP if timestep is None else timestep, start)
 
     def plant_parameters(self) -> dict[str, float]:
         """The physical parameters a plant may differ in (`simulate(plant_params=...)`), with the spec's

@@ -128,14 +128,18 @@ def _world_points(spec: Spec, layout, q: np.ndarray) -> dict[str, np.ndarray]:
     return points
 
 
-def mjcf_xml(spec: Spec, timestep: float = DEFAULT_TIMESTEP) -> str:
+def mjcf_xml(spec: Spec, timestep: float = DEFAULT_TIMESTEP, start: tuple[np.ndarray, np.ndarray] | None = None) -> str:
     """The MJCF model of `spec` (see the module's docstring); `timestep` sets MuJoCo's step and the
-    cables' constraint time constant (two steps)."""
+    cables' constraint time constant (two steps). The model's reference pose (qpos0) is the spec's
+    initial configuration, or with `start` = (q, u) (natural coordinates and inputs, e.g. the static
+    equilibrium) that pose, with a keyframe `static_start` holding u as ctrl."""
     if not (math.isfinite(timestep) and 0 < timestep <= MAX_TIMESTEP):
         raise ValueError(f"MuJoCo time step: expected a number of seconds in (0, {MAX_TIMESTEP:g}], found {timestep!r}")
     check_representable(spec)
     layout = build_layout(spec)
-    q0 = nominal_coordinates(spec, layout)
+    q0 = nominal_coordinates(spec, layout) if start is None else np.asarray(start[0], dtype=float)
+    if q0.shape != (layout.n,) or not np.isfinite(q0).all():
+        raise ValueError(f"start: expected {layout.n} finite coordinates, found shape {q0.shape}")
     joints = joint_layout(spec)
     solref = _vec((2 * timestep, CABLE_SOLREF[1]))
     solimp = _vec(CABLE_SOLIMP)
@@ -243,6 +247,11 @@ def mjcf_xml(spec: Spec, timestep: float = DEFAULT_TIMESTEP) -> str:
             gear = [0.0, 0.0, 0.0] + [act.gain * c for c in AXIS_VECTOR[act.axis]]
             w(f"    <general{_attrs(name=act.name, site=f'{act.name}.site', gear=_vec(gear), **limited)}/>")
     w("  </actuator>")
+    if start is not None:  # the pose is qpos0 already; the key adds the inputs that hold it
+        u = np.asarray(start[1], dtype=float)
+        if u.shape != (len(spec.actuators),) or not np.isfinite(u).all():
+            raise ValueError(f"start: expected {len(spec.actuators)} finite inputs, found shape {u.shape}")
+        w(f'  <keyframe><key name="static_start" ctrl="{_vec(u)}"/></keyframe>')
     w("</mujoco>")
     return "\n".join(out) + "\n"
 

@@ -170,9 +170,12 @@ FIGURES = ("path_3d.png", "tracking_errors.png", "servo_errors.png", "inputs.png
 
 
 def _is_run_file(path: Path) -> bool:
+    """A file of an earlier run in --out: its summary, figures, method CSVs, and the animations
+    `acroboter animate` wrote there by default (they show the earlier run)."""
     stem = path.stem
     method = stem in ("mlm", "penalty") or (stem.startswith("iterative-") and stem[10:].isdigit())
-    return path.name == "summary.json" or path.name in FIGURES or (path.suffix == ".csv" and method)
+    animation = stem.startswith("animation_") and path.suffix in (".mp4", ".gif")
+    return path.name == "summary.json" or path.name in FIGURES or (path.suffix == ".csv" and method) or animation
 
 
 def _staging_folder(out: Path) -> Path:
@@ -204,6 +207,7 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "view_problem", None):  # before any work: the run would end in a window that cannot open
         print(f"error: {args.view_problem}", file=sys.stderr)
         return 3
+    existed = args.out.exists()
     try:
         staging = _staging_folder(args.out)
     except OSError as err:
@@ -212,10 +216,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return _run(args, staging)
     except KeyboardInterrupt:
-        print(f"interrupted: no results written (the earlier ones in {args.out} are as they were)", file=sys.stderr)
+        earlier = f"the earlier ones in {args.out} are as they were" if existed else f"{args.out} was not created"
+        print(f"interrupted: no results written ({earlier})", file=sys.stderr)
         return 130
     finally:
         shutil.rmtree(staging, ignore_errors=True)  # gone already when the results were published
+        if not existed and args.out.is_dir() and not any(args.out.iterdir()):
+            args.out.rmdir()  # a run that wrote nothing leaves no empty folder it made
 
 
 def _run(args: argparse.Namespace, staging: Path) -> int:
@@ -230,6 +237,7 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
     from .plant import SimulationError
     from .recovery import RecoveryError
     from .report import format_table, write_figures, write_summary
+    from .simulation import check_mujoco_timestep
     from .spec import SpecError
     from .statics import EquilibriumError
 
@@ -239,6 +247,12 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
         crane = Crane.from_toml(args.spec, cache_dir=args.cache_dir)
         spec = crane.spec
         with_parameters(spec, args.plant_params)  # names and values checked before any work (exit 2)
+        if args.mujoco_timestep is not None:
+            try:
+                check_mujoco_timestep(spec.simulation.step, args.mujoco_timestep)
+            except ValueError as err:
+                print(f"error: --{str(err).replace('_', '-', 1)}", file=sys.stderr)
+                return 2
         sensing = crane.sensing(args.sensing)  # SpecError naming the field (exit 2), before any work
         methods = expand_methods(args.method, args.iterations or spec.controller.penalty.iterations)
         try:
@@ -326,6 +340,9 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
             f"{g.name} noise {g.noise:g}" + (f" step {g.quantization:g}" if g.quantization else "")
             for g in sensing.groups) + f"; delay {sensing.delay_periods} period(s), seed {sensing.seed}")
     print(format_table(summaries, paper=paper))
+    if engine["engine"] == "mujoco":
+        print("step times with --plant mujoco are of a cold cache (MuJoCo works 4 ms between two control steps): "
+              "time the controllers on the own plant or with `acroboter bench` (docs/mujoco.md)")
     for w in warnings:
         print(f"warning: {w}")
     print(f"results in {args.out}/")

@@ -371,6 +371,24 @@ def constraint_violation(result: RunResult, layout) -> float:
 PLANTS = ("own", "mujoco")  # the project's Baumgarte RK4 plant, or MuJoCo on the spec's MJCF model
 
 
+def check_mujoco_timestep(plant_step: float, dt) -> float:
+    """MuJoCo's step: a number of seconds in (0, MAX_TIMESTEP] that divides the spec's plant step
+    (ValueError naming a step that does, otherwise)."""
+    from .mjcf_model import MAX_TIMESTEP
+
+    if isinstance(dt, bool) or not isinstance(dt, int | float) or not (math.isfinite(dt) and 0 < dt <= MAX_TIMESTEP):
+        raise ValueError(f"mujoco_timestep: expected a number of seconds in (0, {MAX_TIMESTEP:g}], found {dt!r}")
+    count = plant_step / dt
+    if round(count) >= 1 and math.isclose(round(count) * dt, plant_step, rel_tol=1e-9):
+        return float(dt)
+    for k in range(max(1, math.ceil(count)), 100_000):  # the largest step below dt that prints exactly
+        text = f"{plant_step / k:.6g}"
+        if math.isclose(float(text) * k, plant_step, rel_tol=1e-12):
+            break
+    raise ValueError(f"mujoco_timestep {dt:g} s must divide the spec's plant step simulation.step = {plant_step:g} s "
+                     f"(MuJoCo steps {count:.4g} times per plant step): give e.g. {text} s")
+
+
 def setup_default(model: CompiledModel, path: DesiredPath, plant_params=None, plant: str = "own",
                   mujoco_timestep: float | None = None):
     """Plant for a spec's simulation section; `plant_params` (name -> value, acroboter.physical)
@@ -384,15 +402,9 @@ def setup_default(model: CompiledModel, path: DesiredPath, plant_params=None, pl
         return Plant(model, path, sim.baumgarte_zeta, sim.baumgarte_omega, plant_params)
     if plant != "mujoco":
         raise ValueError(f"plant: expected one of {', '.join(PLANTS)}, found {plant!r}")
-    from .mjcf_model import DEFAULT_TIMESTEP, MAX_TIMESTEP
+    from .mjcf_model import DEFAULT_TIMESTEP
     from .mujoco_plant import MujocoPlant
 
-    dt = DEFAULT_TIMESTEP if mujoco_timestep is None else mujoco_timestep
-    if isinstance(dt, bool) or not isinstance(dt, int | float) or not (math.isfinite(dt) and 0 < dt <= MAX_TIMESTEP):
-        raise ValueError(f"mujoco_timestep: expected a number of seconds in (0, {MAX_TIMESTEP:g}], found {dt!r}")
-    ratio = sim.step / dt
-    if round(ratio) < 1 or not math.isclose(round(ratio) * dt, sim.step, rel_tol=1e-9):
-        raise ValueError(f"mujoco_timestep {dt:g} s must divide the spec's plant step simulation.step = "
-                         f"{sim.step:g} s: give e.g. {sim.step / max(1, math.ceil(ratio)):g} s")
+    dt = check_mujoco_timestep(sim.step, DEFAULT_TIMESTEP if mujoco_timestep is None else mujoco_timestep)
     return MujocoPlant(model, path, plant_params, timestep=float(dt))
 

@@ -8,19 +8,29 @@ them; close the window to go on. Without a display `display_problem()` says why,
 from __future__ import annotations
 
 import os
+import subprocess
 import sys
 import time
 
+FIX = ("leave out --view (the results folder has the figures), make a video with `acroboter animate "
+       "RESULTS_DIR`, or run under a desktop or `xvfb-run`")
+
 
 def display_problem() -> str | None:
-    """Why no window can open here (None: a display is there)."""
-    if sys.platform in ("darwin", "win32"):
-        return None
-    if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
-        return None
-    return ("--view opens MuJoCo's interactive viewer, which needs a display, and neither DISPLAY nor "
-            "WAYLAND_DISPLAY is set here: leave out --view (the results folder has the figures), make a "
-            "video with `acroboter animate RESULTS_DIR`, or run under a desktop or `xvfb-run`")
+    """Why no window can open here (None: a display is there): no DISPLAY or WAYLAND_DISPLAY, or one
+    that GLFW (the viewer's windowing library) cannot open, tried in a subprocess."""
+    if sys.platform not in ("darwin", "win32") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        return ("--view opens MuJoCo's interactive viewer, which needs a display, and neither DISPLAY nor "
+                f"WAYLAND_DISPLAY is set here: {FIX}")
+    probe = "import glfw, sys; ok = glfw.init(); glfw.terminate(); sys.exit(0 if ok else 1)"
+    try:
+        done = subprocess.run([sys.executable, "-c", probe], capture_output=True, timeout=30)
+    except subprocess.TimeoutExpired:
+        done = None
+    if done is None or done.returncode != 0:
+        shown = os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") or "the desktop"
+        return f"--view opens MuJoCo's interactive viewer, but GLFW could not open a window on {shown}: {FIX}"
+    return None
 
 
 def replay(model, path, results: dict, speed: float = 1.0) -> None:

@@ -98,6 +98,43 @@ def test_mjcf_command_writes_a_loadable_file_and_refuses_bad_specs(tmp_path):
         assert not (tmp_path / "x.xml").exists()
 
 
+def test_mjcf_command_writes_the_static_start_with_a_keyframe_that_holds_it(tmp_path):
+    out = tmp_path / "static.xml"
+    proc = subprocess.run([sys.executable, "-m", "acroboter.mjcf", str(SPECS[0]), "-o", str(out), "-q"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert out.stat().st_mode & 0o777 == 0o666 & ~_umask()  # an ordinary new file, not mkstemp's 0600
+    model = mujoco.MjModel.from_xml_path(str(out))
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("static_start").id)
+    mujoco.mj_forward(model, data)
+    su = model.body("SU").id
+    before = data.xpos[su].copy()
+    mujoco.mj_step(model, data, 10_000)  # 1 s in MuJoCo alone, the keyframe's inputs held
+    assert np.abs(data.xpos[su] - before).max() < 1e-6
+    spec = subprocess.run([sys.executable, "-m", "acroboter.mjcf", str(SPECS[0]), "--pose", "spec", "-o", "-"],
+                          capture_output=True, text=True, timeout=300)
+    assert spec.stdout == (ROOT / "generated" / "acroboter" / "acroboter.xml").read_text()
+
+
+def _umask() -> int:
+    import os
+
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+@pytest.mark.parametrize("target, message", [
+    ("/nonexistent-folder/x.xml", "does not exist"),
+    ("/dev/null", "is not a regular file"),
+])
+def test_mjcf_command_refuses_outputs_it_cannot_write_before_any_work(target, message):
+    proc = subprocess.run([sys.executable, "-m", "acroboter.mjcf", str(SPECS[0]), "-o", target],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and message in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+
+
 def test_a_fixed_cable_whose_ends_meet_is_refused():
     spec = load_spec(SPECS[0])
     anchor = spec.anchors[0]
@@ -257,8 +294,9 @@ def test_closed_loop_on_mujoco_tracks_the_default_scenario_as_on_the_own_plant(c
 
 def test_mujoco_timestep_must_divide_the_plant_step(cranes):
     crane = cranes["acroboter"]
-    with pytest.raises(ValueError, match="must divide"):
+    with pytest.raises(ValueError, match=r"must divide .* give e.g. 0.00025 s"):
         crane.simulate("mlm", duration=0.1, plant="mujoco", mujoco_timestep=3e-4)
+    assert crane.simulate("mlm", duration=0.02, plant="mujoco", mujoco_timestep=2.5e-4).diverged_at is None
     with pytest.raises(ValueError, match="only the MuJoCo plant"):
         crane.simulate("mlm", duration=0.1, mujoco_timestep=1e-4)
     with pytest.raises(ValueError, match="plant: expected"):
@@ -279,8 +317,18 @@ def test_an_input_beyond_its_limits_is_refused_not_clipped(cranes):
         plant.advance(x, pushing, h, plant.stage_table(0.0, h, 10), 0, 10)
 
 
+def test_a_mujoco_step_that_does_not_divide_is_refused_before_any_work(tmp_path):
+    out = tmp_path / "never"
+    proc = subprocess.run([sys.executable, "-m", "acroboter.run", "--plant", "mujoco", "--mujoco-timestep", "0.0003",
+                           "--out", str(out)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "give e.g. 0.00025 s" in proc.stderr, proc.stderr
+    assert not out.exists()
+
+
 def test_run_with_the_mujoco_plant_writes_the_same_folder(tmp_path):
     out = tmp_path / "mj"
+    out.mkdir()
+    (out / "animation_penalty.mp4").write_bytes(b"an earlier run's video")  # stale once the run is replaced
     proc = subprocess.run([sys.executable, "-m", "acroboter.run", "--plant", "mujoco", "--method", "penalty",
                            "--duration", "2", "--out", str(out), "-q"], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
@@ -291,16 +339,21 @@ def test_run_with_the_mujoco_plant_writes_the_same_folder(tmp_path):
     assert summary["provenance"]["plant"]["engine"] == "mujoco"
     assert summary["provenance"]["plant"]["mujoco_version"] == mujoco.__version__
     assert {"penalty.csv", "summary.json", "tracking_errors.png", "path_3d.png"} <= {p.name for p in out.iterdir()}
+    assert not (out / "animation_penalty.mp4").exists()
+    assert "cold cache" in proc.stdout  # the step times are not the controllers' warm ones
 
 
-def test_view_without_a_display_says_so_before_any_work(tmp_path):
+@pytest.mark.parametrize("display, message", [(None, "needs a display"), (":987", "GLFW could not open a window")])
+def test_view_without_a_display_says_so_before_any_work(tmp_path, display, message):
     import os
 
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    if display:
+        env["DISPLAY"] = display  # set, but no X server answers there (ssh without forwarding)
     proc = subprocess.run([sys.executable, "-m", "acroboter.run", "--view", "--out", str(tmp_path / "v")],
                           capture_output=True, text=True, timeout=120, env=env)
     assert proc.returncode == 3
-    assert "needs a display" in proc.stderr and "Traceback" not in proc.stderr
+    assert message in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
     assert not (tmp_path / "v").exists()
 
 
