@@ -22,6 +22,7 @@ import argparse
 import logging
 import os
 import sys
+import tempfile
 import time
 from functools import partial
 from pathlib import Path
@@ -29,10 +30,17 @@ from pathlib import Path
 from .animation import matplotlib_frames, mujoco_frames
 from .animation.encode import write_complete, write_gif, write_mp4
 from .animation.mujoco_frames import GL_FIX, RendererUnavailable, mujoco_ready, probe_gl
-from .animation.scene import AnimationInputError, frame_rows, load
+from .animation.scene import AnimationInputError, diverged_note, frame_rows, load
 from .entry import guarded, positive, whole
 
 log = logging.getLogger("acroboter")
+
+GIF_WIDTH_MAX = 1920  # write_gif holds every frame (W x H bytes each) until it saves: 1920x1440 is 2.8 MB a frame
+NOTE_SECONDS = 2.0  # a diverged method's note stays on the video's last 2 s
+
+
+def _frames(count: int) -> str:
+    return f"{count} frame{'' if count == 1 else 's'}"
 
 
 def choose_renderer(requested: str, spec):
@@ -77,9 +85,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("results", type=Path, metavar="RESULTS_DIR", help="a folder written by `acroboter run --out`")
     p.add_argument("--method", default=None, help="the method to show (default: the first in summary.json that ran)")
     p.add_argument("--out", type=Path, default=None, metavar="FILE.mp4",
-                   help="the MP4 to write (default: RESULTS_DIR/animation_<method>.mp4)")
+                   help="the MP4 to write, or an existing folder for FOLDER/animation_<method>.mp4 "
+                        "(default: RESULTS_DIR/animation_<method>.mp4)")
     p.add_argument("--gif", type=Path, default=None, metavar="FILE.gif",
-                   help="also write a GIF for a README (--gif-fps, --gif-speed, --gif-width; default: none)")
+                   help="also write a GIF for a README, or into an existing folder as FOLDER/animation_<method>.gif "
+                        "(--gif-fps, --gif-speed, --gif-width; default: none)")
     p.add_argument("--no-mp4", action="store_true", help="write only the GIF (with --gif)")
     p.add_argument("--fps", type=positive(240), default=25.0, help="frames per second of the MP4 (default: 25)")
     p.add_argument("--speed", type=positive(1000), default=1.0,
@@ -89,8 +99,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--gif-fps", type=positive(50), default=8.0, help="frames per second of the GIF (default: 8)")
     p.add_argument("--gif-speed", type=positive(1000), default=2.5,
                    help="run seconds per GIF second (default: 2.5)")
-    p.add_argument("--gif-width", type=whole(64, 3840), default=480,
-                   help="GIF width in pixels, height in the MP4's proportion (default: 480)")
+    p.add_argument("--gif-width", type=whole(64, GIF_WIDTH_MAX), default=480,
+                   help=f"GIF width in pixels (at most {GIF_WIDTH_MAX}), height in the MP4's proportion (default: 480)")
     p.add_argument("--renderer", choices=("auto", "mujoco", "matplotlib"), default="auto",
                    help="auto: MuJoCo's offscreen renderer where it has an OpenGL context, else matplotlib "
                         "(default: auto)")
@@ -101,7 +111,40 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     args = p.parse_args(argv)
     if args.no_mp4 and args.gif is None:
         p.error("--no-mp4 leaves nothing to write: add --gif FILE")
+    if not args.no_mp4:  # the outputs' folders, before any work (the default: into RESULTS_DIR, when it is one)
+        if args.out is not None:
+            check_output(p, args.out, "--out", ".mp4", "for a GIF use --gif FILE.gif (with --no-mp4 for the GIF alone)")
+        elif args.results.is_dir():
+            _writable_folder(p, args.results, f"RESULTS_DIR {args.results} (where the MP4 goes by default)",
+                             "or give --out FILE.mp4 elsewhere")
+    if args.gif is not None:
+        check_output(p, args.gif, "--gif", ".gif", "for an MP4 use --out FILE.mp4")
     return args
+
+
+def _writable_folder(p: argparse.ArgumentParser, folder: Path, what: str, fix: str) -> None:
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as err:
+        p.error(f"cannot write into {what}: {err.strerror or err}; {fix}")
+
+
+def check_output(p: argparse.ArgumentParser, path: Path, option: str, suffix: str, other: str) -> None:
+    """An output (--out, --gif): an existing folder (it gets animation_<method><suffix>) or a file name ending in
+    `suffix` in an existing, writable folder, none created (parser.error: exit 2 before any work)."""
+    if path.is_dir():
+        _writable_folder(p, path, f"the folder {option} {path}", "give a folder you can write to")
+        return
+    if path.suffix.lower() != suffix:
+        p.error(f"{option} {path}: expected a file name ending in {suffix} or an existing folder, found "
+                f"{'no extension' if not path.suffix else repr(path.suffix)}; {other}")
+    folder = path.parent
+    if not folder.exists():
+        p.error(f"{option} {path}: the folder {folder} does not exist: create it, or give a path in an existing one")
+    if not folder.is_dir():
+        p.error(f"{option} {path}: {folder} is not a folder: give a path in an existing folder")
+    _writable_folder(p, folder, f"the folder {folder} of {option} {path}", "give a path in a folder you can write to")
 
 
 @guarded
@@ -129,26 +172,36 @@ def main(argv: list[str] | None = None) -> int:
 def _animate(args: argparse.Namespace) -> int:
     data = load(args.results, args.method, args.spec)
     name, frames = choose_renderer(args.renderer, data.spec)
+    note = diverged_note(data.scene)
+
+    def note_from(rows, fps: float) -> int | None:  # a diverged run's note on the video's last NOTE_SECONDS
+        return None if note is None else max(0, len(rows) - max(1, round(NOTE_SECONDS * fps)))
+
     written = []
     if not args.no_mp4:
-        out = args.out or args.results / f"animation_{data.method}.mp4"
+        out = args.out if args.out is not None else args.results
+        out = out / f"animation_{data.method}.mp4" if out.is_dir() else out
         rows = frame_rows(data.scene.t, args.fps, args.speed)
         start = time.perf_counter()
-        count = write_complete(write_mp4, frames(data.scene, data.spec, rows, args.size, data.method), out,
-                               args.fps, len(rows), args.quiet)
-        written.append(f"{out} ({count} frames, {args.size[0]}x{args.size[1]}, {time.perf_counter() - start:.1f} s)")
+        count = write_complete(write_mp4, frames(data.scene, data.spec, rows, args.size, data.method,
+                                                 note_from(rows, args.fps)), out, args.fps, len(rows), args.quiet)
+        written.append(f"{out} ({_frames(count)}, {args.size[0]}x{args.size[1]}, "
+                       f"{time.perf_counter() - start:.1f} s)")
     if args.gif is not None:
+        gif_out = args.gif / f"animation_{data.method}.gif" if args.gif.is_dir() else args.gif
         width = args.gif_width + args.gif_width % 2
         height = round(width * args.size[1] / args.size[0] / 2) * 2
         rows = frame_rows(data.scene.t, args.gif_fps, args.gif_speed)
         start = time.perf_counter()
         # one palette for either renderer's frames: the first frame's colours and the drawing's own, kept exact
         gif = partial(write_gif, keep=matplotlib_frames.drawing_colours())
-        count = write_complete(gif, frames(data.scene, data.spec, rows, (width, height), data.method), args.gif,
-                               args.gif_fps, len(rows), args.quiet)
-        written.append(f"{args.gif} ({count} frames, {width}x{height}, {args.gif.stat().st_size / 1e6:.2f} MB, "
+        count = write_complete(gif, frames(data.scene, data.spec, rows, (width, height), data.method,
+                                           note_from(rows, args.gif_fps)), gif_out, args.gif_fps, len(rows),
+                               args.quiet)
+        written.append(f"{gif_out} ({_frames(count)}, {width}x{height}, {gif_out.stat().st_size / 1e6:.2f} MB, "
                        f"{time.perf_counter() - start:.1f} s)")
-    log.info(f"{data.method} drawn with {name}: " + "; ".join(written))
+    stops = "" if note is None else f" (it {note}: the video stops there, short of the scenario's end)"
+    log.info(f"{data.method} drawn with {name}{stops}: " + "; ".join(written))
     return 0
 
 

@@ -258,3 +258,119 @@ def test_renderer_choice_without_gl(results, tmp_path, monkeypatch, capsys, capl
     with caplog.at_level("INFO", logger="acroboter"):
         assert animate.main([str(results), "--out", str(tmp_path / "y.mp4"), "--fps", "4", "--size", "160x120"]) == 0
     assert any("renderer: matplotlib" in r.getMessage() and "no EGL device" in r.getMessage() for r in caplog.records)
+
+
+# --- outputs checked before any work; a diverged run says so; the log line; the GIF's colours ----------------
+
+
+def _refused(argv, capsys, *fragments):
+    """Exit 2 from the command line's checks, before load() reads anything."""
+    with pytest.raises(SystemExit) as info:
+        animate.main(argv)
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    for fragment in fragments:
+        assert fragment in err, err
+    assert "internal error" not in err and "partial" not in err and "Traceback" not in err
+    return err
+
+
+def test_outputs_are_checked_before_any_work(results, tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(animate, "load", lambda *a: pytest.fail("the outputs were not checked before the work"))
+    r = str(results)
+    _refused([r, "--out", str(tmp_path / "video"), "-q"], capsys, "--out", "ending in .mp4", "no extension")
+    _refused([r, "--out", str(tmp_path / "a.gif"), "-q"], capsys, "'.gif'", "use --gif")
+    _refused([r, "--out", str(tmp_path / "a.avi"), "-q"], capsys, "'.avi'")
+    _refused([r, "--gif", str(tmp_path / "a.mp4"), "-q"], capsys, "--gif", "ending in .gif", "use --out")
+    _refused([r, "--out", "/proc/a.mp4", "-q"], capsys, "cannot write into the folder /proc", "--out /proc/a.mp4")
+    _refused([r, "--gif", "/proc/a.gif", "--no-mp4", "-q"], capsys, "--gif /proc/a.gif")
+    missing = tmp_path / "nonexist"
+    _refused([r, "--out", str(missing / "a.mp4"), "-q"], capsys, f"the folder {missing} does not exist")
+    _refused([r, "--gif", str(missing / "a.gif"), "--no-mp4", "-q"], capsys, f"the folder {missing} does not exist")
+    assert not missing.exists()  # no parent is created
+    _refused([r, "--gif", str(tmp_path / "a.gif"), "--gif-width", "3840", "-q"], capsys, "between 64 and 1920")
+
+
+def test_an_existing_folder_as_output_gets_the_default_name(results, tmp_path, caplog):
+    with caplog.at_level("INFO", logger="acroboter"):
+        assert animate.main([str(results), "--out", str(tmp_path), "--gif", str(tmp_path), "--fps", "0.5",
+                             "--gif-fps", "0.5", "--gif-width", "64", "--size", "96x72",
+                             "--renderer", "matplotlib"]) == 0
+    assert (tmp_path / "animation_penalty.mp4").stat().st_size > 0
+    assert (tmp_path / "animation_penalty.gif").stat().st_size > 0
+    line = next(r.getMessage() for r in caplog.records if "drawn with" in r.getMessage())
+    assert "(1 frame," in line and "frames" not in line and "diverged" not in line  # one frame: singular
+
+
+def _diverged_copy(results, tmp_path, at=0.9):
+    folder = tmp_path / "diverged"
+    shutil.copytree(results, folder)
+    summary = json.loads((folder / "summary.json").read_text())
+    summary["methods"]["penalty"]["diverged_at_s"] = at
+    (folder / "summary.json").write_text(json.dumps(summary))
+    return folder
+
+
+def test_a_diverged_run_says_so(results, tmp_path, caplog):
+    from acroboter.animation.matplotlib_frames import render_rows
+
+    folder = _diverged_copy(results, tmp_path)
+    with caplog.at_level("INFO", logger="acroboter"):
+        assert animate.main([str(folder), "--fps", "4", "--size", "160x120", "--renderer", "matplotlib"]) == 0
+    assert any("diverged at t = 0.90 s" in r.getMessage() and "stops there" in r.getMessage() for r in caplog.records)
+    data = load(folder)
+    assert data.scene.diverged_at == 0.9
+    assert load(results).scene.diverged_at is None
+    rows = frame_rows(data.scene.t, 10.0, 1.0)
+    frames = list(render_rows(data.scene, data.spec, rows, (320, 240), "penalty", note_from=len(rows) - 1))
+    plain = MatplotlibFrames(data.scene, "penalty", (320, 240)).render(int(rows[-1]))
+    assert np.array_equal(frames[0], MatplotlibFrames(data.scene, "penalty", (320, 240)).render(int(rows[0])))
+    changed = np.abs(frames[-1].astype(int) - plain.astype(int)).max(axis=2) > 60
+    assert changed.sum() > 50  # the note drawn on the last frame, not on the first
+    frames_obj = MatplotlibFrames(data.scene, "penalty", (320, 240))
+    assert frames_obj.note.get_text() == "diverged at t = 0.90 s"
+
+
+def test_mujoco_diverged_note_and_gif_colours(gl, results_2s, tmp_path, monkeypatch):
+    """The MuJoCo renderer draws the divergence note, and a tendon's colour in the decoded GIF is its
+    colormap's colour (the cables lit flat, a palette that keeps them): the main cable (~177 N) stays yellow."""
+    from matplotlib import colormaps
+    from PIL import Image
+
+    from acroboter.animation.mujoco_frames import render_rows
+
+    monkeypatch.setenv("MUJOCO_GL", gl)
+    folder = _diverged_copy(results_2s, tmp_path, at=1.9)
+    data = load(folder)
+    rows = frame_rows(data.scene.t, 10.0, 1.0)[-2:]
+    last = list(render_rows(data.scene, data.spec, rows, (320, 240), "penalty", note_from=1))
+    plain = list(render_rows(data.scene, data.spec, rows, (320, 240), "penalty"))
+    assert np.array_equal(last[0], plain[0])
+    assert (np.abs(last[1].astype(int) - plain[1].astype(int)).max(axis=2) > 60).sum() > 50
+
+    gif = tmp_path / "m.gif"
+    assert animate.main([str(results_2s), "--renderer", "mujoco", "--gif", str(gif), "--no-mp4", "-q"]) == 0
+    scene = load(results_2s).scene
+    gif_rows = frame_rows(scene.t, 8.0, 2.5)
+    frames = MujocoFrames(scene, data.spec, "penalty", (480, 360))  # the GIF's size: the same camera
+    try:
+        with Image.open(gif) as image:
+            k = image.n_frames // 2
+            image.seek(k)
+            decoded = np.asarray(image.convert("RGB")).astype(int)
+        row = int(gif_rows[k])
+        lo, hi = scene.tension_range
+        for c in range(len(scene.cables)):
+            if scene.slack[row, c]:
+                continue
+            expected = 255 * np.array(colormaps["viridis"]((scene.tension[row, c] - lo) / (hi - lo))[:3])
+            a, b = (_project(frames, p) for p in scene.ends[row, c])
+            best = []
+            for f in np.linspace(0.3, 0.7, 5):
+                x, y = np.round(a + f * (b - a)).astype(int)
+                window = decoded[y - 2 : y + 3, x - 2 : x + 3].reshape(-1, 3)
+                best.append(window[np.abs(window - expected).sum(axis=1).argmin()])
+            error = np.abs(np.median(best, axis=0) - expected).max()
+            assert error < 40, (scene.cables[c], expected, best)
+    finally:
+        frames.close()

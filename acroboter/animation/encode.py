@@ -58,8 +58,8 @@ def write_gif(frames: Iterator[np.ndarray], path: Path, fps: float, total: int, 
 
 
 def write_complete(writer, frames: Iterable[np.ndarray], path: Path, fps: float, total: int, quiet: bool) -> int:
-    """Write through a temporary name: an interrupted or failed render leaves no file that looks complete."""
-    path.parent.mkdir(parents=True, exist_ok=True)
+    """Write through a temporary name: an interrupted or failed render leaves no file that looks complete. The
+    folder must exist (the command line checks it before any work): none is created."""
     partial = path.with_name(f".{path.stem}.partial{path.suffix}")
     try:
         count = writer(frames, partial, fps, total, quiet)

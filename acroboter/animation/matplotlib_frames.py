@@ -11,7 +11,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from .scene import AXIS_COLOURS, COLORMAP, SLACK_COLOUR, TRACE_COLOUR, Scene, outline_xyz
+from .scene import AXIS_COLOURS, COLORMAP, SLACK_COLOUR, TRACE_COLOUR, Scene, diverged_note, outline_xyz
 
 BASE_WIDTH_IN = 6.4  # the figure's width in inches: --size sets the dpi, so the layout is the same at every size
 
@@ -89,6 +89,9 @@ class MatplotlibFrames:
         self.top_point = top.plot([], [], "o", color=TRACE_COLOUR, ms=3, animated=True)[0]
         self.clock = fig.text(0.02, 0.95, "", fontsize=9, family="monospace", animated=True)
         fig.text(0.98, 0.95, method, fontsize=9, ha="right", weight="bold")
+        # "diverged at t = 2.12 s" on a diverged method's last frames (render(..., note=True))
+        self.note = fig.text(0.31, 0.88, diverged_note(scene) or "", fontsize=10, ha="center", weight="bold",
+                             color=AXIS_COLOURS[0], animated=True)
         self.moving_artists = [self.trace, self.tracked, self.moving, *self.cable_lines, *self.outlines.values(),
                                *(a for lines in self.axis_lines.values() for a in lines)]
         self.canvas.draw()
@@ -125,8 +128,8 @@ class MatplotlibFrames:
         self.top_point.set_data(tr[-1:, 0], tr[-1:, 1])
         self.clock.set_text(f"t = {s.t[row]:6.2f} s")
 
-    def render(self, row: int) -> np.ndarray:
-        """The frame at `row` as an (H, W, 3) uint8 array."""
+    def render(self, row: int, note: bool = False) -> np.ndarray:
+        """The frame at `row` as an (H, W, 3) uint8 array; `note`: with the divergence note (if the run diverged)."""
         self.update(row)
         self.canvas.restore_region(self.background)
         for artist in self.moving_artists:
@@ -134,14 +137,18 @@ class MatplotlibFrames:
         self.top.draw_artist(self.top_trace)
         self.top.draw_artist(self.top_point)
         self.fig.draw_artist(self.clock)
+        if note and self.note.get_text():
+            self.fig.draw_artist(self.note)
         return np.asarray(self.canvas.buffer_rgba())[:, :, :3].copy()
 
 
-def render_rows(scene: Scene, spec, rows: np.ndarray, size: tuple[int, int], method: str) -> Iterator[np.ndarray]:
-    """The frames of `rows`, one at a time (the frame generator choose_renderer hands out)."""
+def render_rows(scene: Scene, spec, rows: np.ndarray, size: tuple[int, int], method: str,
+                note_from: int | None = None) -> Iterator[np.ndarray]:
+    """The frames of `rows`, one at a time (the frame generator choose_renderer hands out); frames from index
+    `note_from` on carry the divergence note (a diverged run's last frames)."""
     frames = MatplotlibFrames(scene, method, size)
-    for row in rows:
-        yield frames.render(int(row))
+    for k, row in enumerate(rows):
+        yield frames.render(int(row), note=note_from is not None and k >= note_from)
 
 
 def drawing_colours(samples: int = 48) -> list[tuple[int, int, int]]:

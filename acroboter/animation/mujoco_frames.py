@@ -17,7 +17,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from .scene import AXIS_COLOURS, COLORMAP, Scene, outline_xyz
+from .scene import AXIS_COLOURS, COLORMAP, Scene, diverged_note, outline_xyz
 
 
 class RendererUnavailable(Exception):
@@ -40,6 +40,8 @@ GL_FIX = ("MuJoCo's offscreen renderer needs an OpenGL context, and without a di
 SLACK_RGBA = (0.55, 0.55, 0.55, 0.45)  # a slack cable: grey, translucent and thinner
 TRACE_RGBA = (1.0, 0.498, 0.055, 1.0)  # TRACE_COLOUR
 AXIS_RGBA = tuple((*(int(c[i : i + 2], 16) / 255 for i in (1, 3, 5)), 1.0) for c in AXIS_COLOURS)
+NOTE_RGB = tuple(int(AXIS_COLOURS[0][i : i + 2], 16) for i in (1, 3, 5))  # the divergence note: the u axis' red
+CABLE_EMISSION = 0.4  # the cables' tendons lit flat (MuJoCo's emission): the colormap's colour, not shaded darker
 PANEL_RGB = (38, 38, 42)  # the colour bar's and the top view's background (MuJoCo's is black)
 BODY_ALPHA = 0.3  # the bodies' discs, see-through: the axes inside them show
 PATH_POINTS = 400  # the desired path and the trace are drawn through at most this many rows each
@@ -209,6 +211,8 @@ class MujocoFrames:
         shift = (1 - VIEW_SHARE) * distance * math.tan(math.radians(fovy) / 2) * width / height
         self.camera.lookat[:] = lookat + shift * right
         self.camera.distance, self.camera.azimuth, self.camera.elevation = distance, AZIMUTH, ELEVATION
+        # at least a pixel's radius at the look-at distance: thinner, a small image draws the cables dotted
+        self.cable_width = max(self.cable_width, distance * math.tan(math.radians(fovy) / 2) * 2 / height)
         self.eye = np.eye(3).reshape(-1)
         self._overlay_init()
 
@@ -229,14 +233,17 @@ class MujocoFrames:
                 m.tendon_rgba[tendon] = self.cmap(self.norm(s.tension[row, c]))
                 m.tendon_width[tendon] = self.cable_width
 
-    def render(self, row: int) -> np.ndarray:
-        """The frame at `row` as an (H, W, 3) uint8 array."""
+    def render(self, row: int, note: bool = False) -> np.ndarray:
+        """The frame at `row` as an (H, W, 3) uint8 array; `note`: with the divergence note (if the run diverged)."""
         mj, s = self.mj, self.scene
         self.update(row)
         r = self.renderer
         r.update_scene(self.data, camera=self.camera, scene_option=self.option)
         r.scene.flags[mj.mjtRndFlag.mjRND_SHADOW] = 0
         r.scene.flags[mj.mjtRndFlag.mjRND_REFLECTION] = 0
+        for g in r.scene.geoms[: r.scene.ngeom]:  # the cables lit flat: their colour is the colormap's, unshaded
+            if g.objtype == mj.mjtObj.mjOBJ_TENDON:
+                g.emission, g.specular = CABLE_EMISSION, 0.0
         line, arrow = mj.mjtGeom.mjGEOM_LINE, mj.mjtGeom.mjGEOM_ARROW
         d = s.desired[self.path_rows]
         for a, b in zip(d[:-1], d[1:], strict=True):
@@ -255,7 +262,7 @@ class MujocoFrames:
                 tip = centre + s.axis_length[body] * s.axes[body][row, k]
                 self._connect(arrow, self.arrow_width, centre, tip, colour)
         frame = r.render()
-        self._overlay(frame, row)
+        self._overlay(frame, row, note)
         return frame
 
     def _geom(self, kind, size, pos, rgba):
@@ -318,7 +325,7 @@ class MujocoFrames:
         self.trace_rgb = tuple(round(255 * c) for c in TRACE_RGBA[:3])
         self.trace_width = max(1, round(height / 360))
 
-    def _overlay(self, frame: np.ndarray, row: int) -> None:
+    def _overlay(self, frame: np.ndarray, row: int, note: bool = False) -> None:
         from PIL import Image, ImageDraw
 
         h, w = frame.shape[:2]
@@ -342,6 +349,15 @@ class MujocoFrames:
         draw.text((pad, pad), f"t = {self.scene.t[row]:6.2f} s", fill="white", font=self.font)
         draw.text((self.size[0] - pad, pad), self.method, fill="white", font=self.font, anchor="ra")
         frame[: self.band] = np.asarray(band)
+        text = diverged_note(self.scene)
+        if note and text:  # a diverged run's last frames: below the clock, over the crane's view
+            image = Image.fromarray(frame)
+            draw = ImageDraw.Draw(image)
+            at = (round(VIEW_SHARE * self.size[0] / 2), self.band + pad)
+            box = draw.textbbox(at, text, font=self.font, anchor="ma")
+            draw.rectangle((box[0] - pad, box[1] - pad, box[2] + pad, box[3] + pad), fill=PANEL_RGB)
+            draw.text(at, text, fill=NOTE_RGB, font=self.font, anchor="ma")
+            frame[:] = np.asarray(image)
 
     def close(self) -> None:
         if self.renderer is not None:
@@ -349,12 +365,14 @@ class MujocoFrames:
             self.renderer = None
 
 
-def render_rows(scene: Scene, spec, rows: np.ndarray, size: tuple[int, int], method: str) -> Iterator[np.ndarray]:
-    """The frames of `rows`, one at a time (the frame generator choose_renderer hands out); the GL context is
-    released when the generator ends or is closed."""
+def render_rows(scene: Scene, spec, rows: np.ndarray, size: tuple[int, int], method: str,
+                note_from: int | None = None) -> Iterator[np.ndarray]:
+    """The frames of `rows`, one at a time (the frame generator choose_renderer hands out); frames from index
+    `note_from` on carry the divergence note (a diverged run's last frames). The GL context is released when
+    the generator ends or is closed."""
     frames = MujocoFrames(scene, spec, method, size)
     try:
-        for row in rows:
-            yield frames.render(int(row))
+        for k, row in enumerate(rows):
+            yield frames.render(int(row), note=note_from is not None and k >= note_from)
     finally:
         frames.close()

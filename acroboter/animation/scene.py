@@ -154,6 +154,7 @@ class Scene:
     ceiling_z: float
     limits: np.ndarray  # (3, 2) fixed axes limits: the whole run fits, same scale on every axis
     tension_range: tuple[float, float]  # of the taut cables over the whole run
+    diverged_at: float | None = None  # the run time at which the method diverged (its CSV stops there)
 
 
 def body_point(centre: np.ndarray, axes: np.ndarray, xi) -> np.ndarray:
@@ -288,4 +289,13 @@ def load(folder: Path, method: str | None = None, spec_file: Path | None = None)
                                   f"({', '.join(ran) or 'none'}), found '{method}'")
     spec = spec_of_run(summary, folder, spec_file)
     path = folder / f"{method}.csv"
-    return Loaded(method, spec, build_scene(spec, read_columns(path), path))
+    scene = build_scene(spec, read_columns(path), path)
+    figures = (summary.get("methods") or {}).get(method)
+    diverged = figures.get("diverged_at_s") if isinstance(figures, dict) else None
+    scene.diverged_at = float(diverged) if isinstance(diverged, (int, float)) else None
+    return Loaded(method, spec, scene)
+
+
+def diverged_note(scene: Scene) -> str | None:
+    """What the last frames of a diverged method say (its video stops there, short of the scenario's end)."""
+    return None if scene.diverged_at is None else f"diverged at t = {scene.diverged_at:.2f} s"
