@@ -26,8 +26,15 @@ def test_zero_control_steps_is_an_input_error(tmp_path, duration):
     proc = run_cli("--duration", duration, "--out", str(tmp_path / "out"))
     assert proc.returncode == 2, proc.stdout + proc.stderr
     assert "0 control steps" in proc.stderr and "Traceback" not in proc.stderr
-    assert not (tmp_path / "out" / "summary.json").exists()
-    assert list((tmp_path / "out").iterdir()) == []  # nothing left behind, not even the staging folder
+    assert not (tmp_path / "out").exists()  # nothing left behind: not the staging folder, not the --out it made
+
+
+def test_a_failed_run_keeps_a_folder_the_user_made(tmp_path):
+    out = tmp_path / "mine"
+    out.mkdir()
+    proc = run_cli("--duration", "0.001", "--out", str(out))
+    assert proc.returncode == 2
+    assert out.is_dir() and list(out.iterdir()) == []  # the user's folder stays, empty as it was
 
 
 @pytest.mark.parametrize("args", [["--method", "iterative-100000000"], ["--iterations", "3,100000000"]])
