@@ -46,7 +46,9 @@ DEFAULT_TIMESTEP = 1e-4  # s
 MAX_TIMESTEP = 0.01  # s: beyond this the cables' constraint time constant is too soft to call them cables
 SOLVER_TOLERANCE = 1e-12
 SOLVER_ITERATIONS = 100
-CABLE_SOLREF = (2 * DEFAULT_TIMESTEP, 1.0)  # MuJoCo raises a time constant below 2·timestep to 2·timestep
+# The cable limits' solref is (2·timestep, CABLE_DAMPRATIO): MuJoCo raises a time constant below two steps
+# to two steps anyway.
+CABLE_DAMPRATIO = 1.0
 CABLE_SOLIMP = (0.9999, 0.9999, 0.001, 0.5, 2.0)
 # Cable that a drum holds beyond the start length (m): the routing tendon is exact while the paid-out
 # length stays below start + reserve (the plant checks that).
@@ -80,11 +82,6 @@ def _vec(values) -> str:
 
 def _attrs(**attrs) -> str:
     return "".join(f" {k.rstrip('_')}={quoteattr(str(v))}" for k, v in attrs.items() if v is not None)
-
-
-def site_name(end: str) -> str:
-    """The MJCF site of a cable end ('climbing_unit', 'CC.a1') or a body point."""
-    return end
 
 
 def drum_joint(cable: str) -> str:
@@ -141,7 +138,7 @@ def mjcf_xml(spec: Spec, timestep: float = DEFAULT_TIMESTEP, start: tuple[np.nda
     if q0.shape != (layout.n,) or not np.isfinite(q0).all():
         raise ValueError(f"start: expected {layout.n} finite coordinates, found shape {q0.shape}")
     joints = joint_layout(spec)
-    solref = _vec((2 * timestep, CABLE_SOLREF[1]))
+    solref = _vec((2 * timestep, CABLE_DAMPRATIO))
     solimp = _vec(CABLE_SOLIMP)
     ceiling = max([a.position[2] for a in spec.anchors] or [max(b.initial_position[2] for b in spec.bodies) + 1.0])
     weight = sum(b.mass for b in spec.bodies)
@@ -169,7 +166,7 @@ def mjcf_xml(spec: Spec, timestep: float = DEFAULT_TIMESTEP, start: tuple[np.nda
     w(f'    <geom name="ceiling" type="plane" pos="0 0 {_num(ceiling)}" size="3 3 0.01" rgba="0.8 0.8 0.85 0.3"/>')
     for anchor in spec.anchors:
         if not anchor.follows_path:
-            w(f"    <site{_attrs(name=site_name(anchor.name), pos=_vec(anchor.position), size='0.02')}/>")
+            w(f"    <site{_attrs(name=anchor.name, pos=_vec(anchor.position), size='0.02')}/>")
             _drums(w, spec, layout, q0, parent=anchor.name, first_end_at=np.array(anchor.position), indent="    ")
             continue
         # A moving anchor: slide joints along the axes it follows (prescribed by the plant).
@@ -179,7 +176,7 @@ def mjcf_xml(spec: Spec, timestep: float = DEFAULT_TIMESTEP, start: tuple[np.nda
             w(f"      <joint{_attrs(name=f'{anchor.name}.{axis}', type='slide', axis=direction)}"
               f"{_attrs(armature=_num(ANCHOR_ARMATURE), limited='false')}/>")
         w(f'      <inertial pos="0 0 0" mass="{_num(DRUM_MASS)}" diaginertia="{_vec([DRUM_MASS] * 3)}"/>')
-        w(f"      <site{_attrs(name=site_name(anchor.name), size='0.02')}/>")
+        w(f"      <site{_attrs(name=anchor.name, size='0.02')}/>")
         w(f'      <geom type="box" size="{_vec([2 * scale, 2 * scale, 0.5 * scale])}" rgba="0.4 0.4 0.45 1"/>')
         _drums(w, spec, layout, q0, parent=anchor.name, first_end_at=np.zeros(3), indent="      ")
         w("    </body>")
@@ -206,7 +203,7 @@ def mjcf_xml(spec: Spec, timestep: float = DEFAULT_TIMESTEP, start: tuple[np.nda
           f"{_attrs(rgba=colour)}/>")
         w(f"      <site{_attrs(name=f'{body.name}.com', pos='0 0 0')}/>")
         for name in sorted(body.points):
-            w(f"      <site{_attrs(name=site_name(f'{body.name}.{name}'), pos=_vec(body.point(name)))}/>")
+            w(f"      <site{_attrs(name=f'{body.name}.{name}', pos=_vec(body.point(name)))}/>")
         for act in spec.actuators:  # force and moment in the body's axes, at the thrust's point
             if isinstance(act, BodyThrust) and act.body == body.name:
                 w(f"      <site{_attrs(name=f'{act.name}.site', pos=_vec(act.point))}/>")
@@ -217,7 +214,7 @@ def mjcf_xml(spec: Spec, timestep: float = DEFAULT_TIMESTEP, start: tuple[np.nda
     w("  </worldbody>")
     w("  <tendon>")
     for cable in spec.cables:
-        a, b = (site_name(e) for e in cable.ends)
+        a, b = cable.ends  # the sites are named as the ends: 'climbing_unit', 'CC.a1'
         if cable.winch is None:
             w(f"    <spatial{_attrs(name=cable.name, limited='true', range=_vec([0.0, cable.length]))}"
               f"{_attrs(solreflimit=solref, solimplimit=solimp, width='0.004', rgba='0.1 0.1 0.1 1')}>")
