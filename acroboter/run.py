@@ -341,7 +341,7 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
             for g in sensing.groups) + f"; delay {sensing.delay_periods} period(s), seed {sensing.seed}")
     print(format_table(summaries, paper=paper))
     if engine["engine"] == "mujoco":
-        print("step times with --plant mujoco are of a cold cache (MuJoCo works 4 ms between two control steps): "
+        print("step times with --plant mujoco are of a cold cache (MuJoCo's steps run between two control steps): "
               "time the controllers on the own plant or with `acroboter bench` (docs/mujoco.md)")
     for w in warnings:
         print(f"warning: {w}")
