@@ -21,7 +21,7 @@ import numpy as np
 from .mjcf_model import DEFAULT_TIMESTEP, drum_joint, joint_layout, mjcf_xml, routing_tendon
 from .path import DesiredPath
 from .physical import with_parameters
-from .plant import SimulationError, StageTable
+from .plant import SimulationError, StageTable, stage_rows, stage_table
 
 # A cable is taut where its limit pulls (force above SLACK_FORCE_N, N) or where it is stretched to its
 # length within TAUT_GAP_M (m): MuJoCo adds a limit's row only once the cable is past its length, so at
@@ -83,7 +83,7 @@ class MujocoPlant:
                 jb = name2id(m, obj.mjOBJ_JOINT, f"{body.name}.rotation")
                 self._bodies.append(_Body(lay.body_offset[body.name], bid, False, m.jnt_qposadr[jx], m.jnt_dofadr[jx],
                                           m.jnt_qposadr[jb], m.jnt_dofadr[jb], m.body_pos[bid].copy(),
-                                          _matrix(m.body_quat[bid])))
+                                          _matrix(mujoco, m.body_quat[bid])))
         self._winches = []  # (coordinate index, qpos address, dof address, capacity)
         for cable in self.physical_spec.cables:
             if cable.winch is not None:
@@ -112,8 +112,7 @@ class MujocoPlant:
         self._last_active = np.ones(nc)
         self._limit_type = int(mujoco.mjtConstraint.mjCNSTR_LIMIT_TENDON)
         self._velocity = np.zeros(6)
-        limits = np.array([a.resolved_limits() for a in self.physical_spec.actuators], dtype=float).reshape(-1, 2)
-        self._ctrl_low, self._ctrl_high = limits[:, 0].copy(), limits[:, 1].copy()
+        self._ctrl_low, self._ctrl_high, _ = self.physical_spec.input_limits()
 
     # --- state --------------------------------------------------------------------------------
     def initial_state(self, q0: np.ndarray, qd0: np.ndarray | None = None) -> np.ndarray:
@@ -181,15 +180,10 @@ class MujocoPlant:
     def stage_rows(self, h: float, first_step: int, steps: int) -> StageTable:
         """The path's signals at the own plant's RK4 stage times (simulate reads the desired path and the
         anchors from it; MuJoCo's steps evaluate the path at their own times)."""
-        times = 0.5 * h * np.arange(2 * first_step, 2 * (first_step + steps) + 1)
-        table = np.ascontiguousarray(self.path.table(times)).view(StageTable)
-        table.t0 = float(first_step * h)
-        return table
+        return stage_rows(self.path, h, first_step, steps)
 
     def stage_table(self, t0: float, h: float, steps: int) -> StageTable:
-        table = np.ascontiguousarray(self.path.table(t0 + 0.5 * h * np.arange(2 * steps + 1))).view(StageTable)
-        table.t0 = float(t0)
-        return table
+        return stage_table(self.path, t0, h, steps)
 
     def advance(self, x: np.ndarray, u: np.ndarray, h: float, table: np.ndarray, first_step: int,
                 steps: int, t0: float | None = None) -> None:
@@ -278,10 +272,8 @@ class MujocoPlant:
                                       f"drum holds ({capacity:.3f} m): the crane has left any sensible motion")
 
 
-def _matrix(quat: np.ndarray) -> np.ndarray:
-    w, x, y, z = quat
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+def _matrix(mujoco, quat: np.ndarray) -> np.ndarray:
+    """The rotation matrix of a unit quaternion (w, x, y, z), by MuJoCo."""
+    out = np.zeros(9)
+    mujoco.mju_quat2Mat(out, np.asarray(quat, dtype=float))
+    return out.reshape(3, 3)

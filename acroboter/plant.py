@@ -115,6 +115,22 @@ class StageTable(np.ndarray):
         self.t0 = None  # a view or slice does not start where its parent does
 
 
+def stage_table(path: DesiredPath, t0: float, h: float, steps: int) -> StageTable:
+    """The path's signals at t0 + j·h/2 for j = 0..2·steps: RK4 step i reads rows 2i, 2i+1, 2i+2."""
+    table = np.ascontiguousarray(path.table(t0 + 0.5 * h * np.arange(2 * steps + 1))).view(StageTable)
+    table.t0 = float(t0)
+    return table
+
+
+def stage_rows(path: DesiredPath, h: float, first_step: int, steps: int) -> StageTable:
+    """The rows of stage_table(path, 0, h, ·) for RK4 steps first_step .. first_step + steps − 1, alone:
+    the same times to the bit (0.5·h·j for the same j), for a run evaluated in chunks."""
+    times = 0.5 * h * np.arange(2 * first_step, 2 * (first_step + steps) + 1)
+    table = np.ascontiguousarray(path.table(times)).view(StageTable)
+    table.t0 = float(first_step * h)
+    return table
+
+
 class Plant:
     def __init__(self, model, path: DesiredPath, zeta: float, omega: float, parameters=None):
         """The plant of `model`'s crane; `parameters` (name -> value, acroboter.physical) replace the
@@ -222,18 +238,10 @@ class Plant:
         return x
 
     def stage_table(self, t0: float, h: float, steps: int) -> StageTable:
-        """Signals at t0 + j·h/2 for j = 0..2·steps: RK4 step i reads rows 2i, 2i+1, 2i+2."""
-        table = np.ascontiguousarray(self.path.table(t0 + 0.5 * h * np.arange(2 * steps + 1))).view(StageTable)
-        table.t0 = float(t0)
-        return table
+        return stage_table(self.path, t0, h, steps)
 
     def stage_rows(self, h: float, first_step: int, steps: int) -> StageTable:
-        """The rows of stage_table(0, h, ·) for RK4 steps first_step .. first_step + steps − 1, alone:
-        the same times to the bit (0.5·h·j for the same j), for a run evaluated in chunks."""
-        times = 0.5 * h * np.arange(2 * first_step, 2 * (first_step + steps) + 1)
-        table = np.ascontiguousarray(self.path.table(times)).view(StageTable)
-        table.t0 = float(first_step * h)
-        return table
+        return stage_rows(self.path, h, first_step, steps)
 
     # --- stepping -----------------------------------------------------------------------------
     def advance(self, x: np.ndarray, u: np.ndarray, h: float, table: np.ndarray, first_step: int,
