@@ -22,7 +22,6 @@ import argparse
 import logging
 import os
 import sys
-import tempfile
 import time
 from functools import partial
 from pathlib import Path
@@ -31,7 +30,7 @@ from .animation import matplotlib_frames, mujoco_frames
 from .animation.encode import write_complete, write_gif, write_mp4
 from .animation.mujoco_frames import GL_FIX, RendererUnavailable, mujoco_ready, probe_gl
 from .animation.scene import AnimationInputError, diverged_note, frame_rows, load
-from .entry import guarded, positive, whole
+from .entry import file_write_problem, folder_write_problem, guarded, positive, whole
 
 log = logging.getLogger("acroboter")
 
@@ -114,37 +113,28 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     if not args.no_mp4:  # the outputs' folders, before any work (the default: into RESULTS_DIR, when it is one)
         if args.out is not None:
             check_output(p, args.out, "--out", ".mp4", "for a GIF use --gif FILE.gif (with --no-mp4 for the GIF alone)")
-        elif args.results.is_dir():
-            _writable_folder(p, args.results, f"RESULTS_DIR {args.results} (where the MP4 goes by default)",
-                             "or give --out FILE.mp4 elsewhere")
+        elif args.results.is_dir() and (problem := folder_write_problem(args.results)):
+            p.error(f"RESULTS_DIR {args.results} (where the MP4 goes by default): {problem}; or give --out FILE.mp4 "
+                    "elsewhere")
     if args.gif is not None:
         check_output(p, args.gif, "--gif", ".gif", "for an MP4 use --out FILE.mp4")
     return args
-
-
-def _writable_folder(p: argparse.ArgumentParser, folder: Path, what: str, fix: str) -> None:
-    try:
-        with tempfile.TemporaryFile(dir=folder):
-            pass
-    except OSError as err:
-        p.error(f"cannot write into {what}: {err.strerror or err}; {fix}")
 
 
 def check_output(p: argparse.ArgumentParser, path: Path, option: str, suffix: str, other: str) -> None:
     """An output (--out, --gif): an existing folder (it gets animation_<method><suffix>) or a file name ending in
     `suffix` in an existing, writable folder, none created (parser.error: exit 2 before any work)."""
     if path.is_dir():
-        _writable_folder(p, path, f"the folder {option} {path}", "give a folder you can write to")
+        problem = folder_write_problem(path)
+        if problem:
+            p.error(f"{option} {path}: {problem}; give a folder you can write to")
         return
     if path.suffix.lower() != suffix:
         p.error(f"{option} {path}: expected a file name ending in {suffix} or an existing folder, found "
                 f"{'no extension' if not path.suffix else repr(path.suffix)}; {other}")
-    folder = path.parent
-    if not folder.exists():
-        p.error(f"{option} {path}: the folder {folder} does not exist: create it, or give a path in an existing one")
-    if not folder.is_dir():
-        p.error(f"{option} {path}: {folder} is not a folder: give a path in an existing folder")
-    _writable_folder(p, folder, f"the folder {folder} of {option} {path}", "give a path in a folder you can write to")
+    problem = file_write_problem(path)
+    if problem:
+        p.error(f"{option} {path}: {problem}; give a path in an existing folder you can write to")
 
 
 @guarded

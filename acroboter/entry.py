@@ -128,6 +128,28 @@ def check_out_folder(parser: argparse.ArgumentParser, out: Path, option: str = "
         parser.error(f"cannot write into {option} {out}: {err.strerror or err}")
 
 
+def folder_write_problem(folder: Path) -> str | None:
+    """Why no file can be written into `folder` (None: one can), found without creating anything."""
+    if not folder.exists():
+        return f"the folder {folder} does not exist"
+    if not folder.is_dir():
+        return f"{folder} is not a folder"
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as err:
+        return f"cannot write into the folder {folder}: {err.strerror or err}"
+    return None
+
+
+def file_write_problem(path: Path) -> str | None:
+    """Why the file `path` (through a link: its target) cannot be written or replaced (None: it can)."""
+    target = path.resolve() if path.is_symlink() else path
+    if target.exists() and not target.is_file():
+        return f"{path} is not a regular file"
+    return folder_write_problem(target.parent)
+
+
 def progress_disabled(quiet: bool = False) -> bool | None:
     """tqdm's `disable`: off with --quiet or `acroboter -q`, else tqdm's own choice (None: off when
     stderr is not a terminal)."""

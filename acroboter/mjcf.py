@@ -19,7 +19,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from .entry import guarded, number
+from .entry import file_write_problem, guarded, number
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -58,9 +58,10 @@ def main(argv: list[str] | None = None) -> int:
         out = args.out if args.out is not None else Path(f"{spec.name}.xml")
         if out.is_dir():
             out = out / f"{spec.name}.xml"
-        problem = _unwritable(out)
+        problem = file_write_problem(out)
         if problem:
-            print(f"error: -o {args.out}: {problem}", file=sys.stderr)
+            print(f"error: -o {args.out}: {problem}: give a file in a folder you can write to, or - for stdout",
+                  file=sys.stderr)
             return 2
     start = None
     if args.pose == "static":
@@ -97,19 +98,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"wrote {out}: {model.nbody - 1} bodies, {model.njnt} joints, {model.ntendon} tendons, "
               f"{model.nu} actuators (MuJoCo {mujoco.__version__}, time step {model.opt.timestep:g} s)")
     return 0
-
-
-def _unwritable(out: Path) -> str | None:
-    """Why the XML cannot be written to `out` (None: it can)."""
-    target = out.resolve() if out.is_symlink() else out
-    if target.exists() and not target.is_file():
-        return "is not a regular file (use -o - to write to stdout)"
-    folder = target.parent
-    if not folder.is_dir():
-        return f"the folder {folder} does not exist"
-    if not os.access(folder, os.W_OK | os.X_OK):
-        return f"the folder {folder} is not writable"
-    return None
 
 
 if __name__ == "__main__":
