@@ -388,12 +388,10 @@ def test_a_heavier_load_on_mujoco_sags_as_on_the_own_plant(cranes):
     """SU and CC 10 % heavier in MuJoCo's crane than in the controller's model (plant_params write the
     XML from the perturbed spec), a 4 s hold at the start: the same steady sag as the own plant's,
     which tests/test_plant_mismatch.py derives (38.5 mm, Δm_SU g / (m_eff k_P²))."""
-    import acroboter
-    from acroboter.statics import start_targets
+    from test_plant_mismatch import hold as hold_at_start  # the hold that test derives the sag for
 
     crane = cranes["acroboter"]
-    point, _ = start_targets(crane.model)
-    hold = acroboter.SampledTrajectory([0.0, 4.0], [point, point], np.zeros((2, 3)), np.zeros((2, 3)))
+    hold = hold_at_start(crane, 4.0)
     heavier = {"SU.mass": 1.1 * crane.spec.body("SU").mass, "CC.mass": 1.1 * crane.spec.body("CC").mass}
     runs = {plant: crane.simulate("penalty", trajectory=hold, duration=4.0, warm_up=0, plant_params=heavier,
                                   plant=plant) for plant in ("own", "mujoco")}
