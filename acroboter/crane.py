@@ -29,6 +29,7 @@ from .compiled import CompiledModel
 from .controllers import make_controller
 from .feasibility import Feasibility, check_path
 from .locations import example_spec
+from .open_loop import held_path, simulate_open_loop
 from .path import DesiredPath, SampledTrajectory, TrajectoryPath
 from .physical import parameter_names, parameter_values
 from .result import Result
@@ -262,6 +263,36 @@ class Crane:
         run = simulate(self.model, path, controller, engine, start.q, duration,
                        self.spec.controller.rate_hz, self.spec.simulation.step, progress=progress,
                        allow_divergence=True, sensor=make_estimator(self.model, path, chosen))
+        return Result(run, self.layout, self.scenario, self.name)
+
+    def simulate_open_loop(self, inputs, duration: float, trajectory: Trajectory | None = None,
+                           plant: str = "own", plant_params: Mapping[str, float] | None = None,
+                           mujoco_timestep: float | None = None, qd0=None,
+                           progress: Callable[[int], object] | None = None) -> Result:
+        """The plant driven open loop from the static start (docs/plant.md).
+
+        `inputs`: a function t -> u (one value per input, `crane.inputs`, in N or N·m) evaluated at each
+        control instant and held for the control period, or an array with one row per control
+        instant. The spec's input limits are not applied (they are what the user asks): the summary's
+        `inputs_outside_limits` lists the instants outside them. The moving anchors follow
+        `trajectory`, by default held where the spec's path starts (the climbing unit at rest).
+        `qd0`: initial velocities (default at rest). `plant`, `plant_params`, `mujoco_timestep` as in
+        `simulate`. A broken plant invariant (a slack cable stretched, a taut one pushing, energy not
+        balanced) or a state that leaves any sensible motion ends the run there (`result.diverged_at`,
+        the reason in `result.summary()` and `result.run.divergence`). Tracking figures are taken
+        against the path the anchors follow."""
+        if not (isinstance(duration, numbers.Real) and math.isfinite(duration) and duration > 0):
+            raise ValueError(f"duration: expected a positive number of seconds, found {duration!r}")
+        path = (held_path(self.spec, self.layout, self.path, float(duration)) if trajectory is None
+                else self.desired(trajectory, duration))
+        if qd0 is not None:
+            qd0 = np.asarray(qd0, dtype=float)
+            if qd0.shape != (self.layout.n,) or not np.isfinite(qd0).all():
+                raise ValueError(f"qd0: expected {self.layout.n} finite velocities (crane.coordinates' order)")
+        engine = setup_default(self.model, path, plant_params, plant, mujoco_timestep)
+        start = self.equilibrium(trajectory, duration)
+        run = simulate_open_loop(self.model, path, engine, start.q, inputs, float(duration),
+                                 self.spec.controller.rate_hz, self.spec.simulation.step, qd0=qd0, progress=progress)
         return Result(run, self.layout, self.scenario, self.name)
 
 

@@ -113,6 +113,23 @@ class MujocoPlant:
         self._limit_type = int(mujoco.mjtConstraint.mjCNSTR_LIMIT_TENDON)
         self._velocity = np.zeros(6)
         self._ctrl_low, self._ctrl_high, _ = self.physical_spec.input_limits()
+        self.cable_gap = np.zeros(nc)  # m, > 0 stretched: tendon length − its limit, end of the last advance
+        self.limits_enforced = True
+
+    def set_cable_dampratio(self, ratio: float) -> None:
+        """The damping ratio of the cables' soft limits (the MJCF's is CABLE_DAMPRATIO, critical). At
+        critical damping a snap of a light drum bounces (restitution > 0: a 0.05 kg drum snapping at
+        ~1 m/s bounces 6 mm off its cable); overdamped (2) it stays, as the own plant's inelastic
+        impact (restitution 0) does. The time constant (two steps) is kept."""
+        if not (math.isfinite(ratio) and ratio > 0):
+            raise ValueError(f"cable damping ratio: expected a positive number, found {ratio}")
+        self.mj_model.tendon_solref_lim[self._cable_tendon, 1] = ratio
+
+    def release_limits(self) -> None:
+        """Take inputs beyond the spec's limits as they are (open loop: what the user asks), with
+        MuJoCo's ctrlrange clamp off, instead of refusing them."""
+        self.limits_enforced = False
+        self.mj_model.opt.disableflags |= int(self._mj.mjtDisableBit.mjDSBL_CLAMPCTRL)
 
     # --- state --------------------------------------------------------------------------------
     def initial_state(self, q0: np.ndarray, qd0: np.ndarray | None = None) -> np.ndarray:
@@ -127,6 +144,7 @@ class MujocoPlant:
         self.start_active[:] = 1.0
         self._last_active[:] = 1.0
         self.transitions[:] = 0
+        self._update_gap()
         return x
 
     def set_state(self, q: np.ndarray, qd: np.ndarray, t: float) -> None:
@@ -199,7 +217,8 @@ class MujocoPlant:
         count = round(duration / self.timestep)
         if count < 1 or not math.isclose(count * self.timestep, duration, rel_tol=1e-9):
             raise SimulationError(f"MuJoCo's time step {self.timestep:g} s must divide the plant step {h:g} s")
-        self._check_limits(u, start)
+        if self.limits_enforced:
+            self._check_limits(u, start)
         d.ctrl[:] = u
         mj.mj_forward(m, d)
         self._read_tensions()
@@ -261,8 +280,13 @@ class MujocoPlant:
         self.transitions += self.start_active != self._last_active
         self._last_active[:] = self.start_active
 
+    def _update_gap(self) -> None:
+        tendons = self._cable_tendon
+        self.cable_gap[:] = self.mj_data.ten_length[tendons] - self.mj_model.tendon_range[tendons, 1]
+
     def _check(self, t: float) -> None:
         d = self.mj_data
+        self._update_gap()
         if not (np.isfinite(d.qpos).all() and np.isfinite(d.qvel).all()):
             raise SimulationError(f"MuJoCo's state became non-finite at t = {t:.3f} s")
         for index, qpos, _, capacity in self._winches:

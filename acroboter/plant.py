@@ -32,10 +32,14 @@ two float comparisons. Otherwise (rare; numpy):
   dip would be shallower than GAP_TOL (too shallow to locate its return) is taken taut there too,
   with its tiny rate projected out (the energy that return's impact would take, into impact_energy).
 - Slack → taut inside the step: a slack cable that ends the step stretched has its crossing located
-  (scan for a point below −GAP_TOL, then Illinois regula falsi on the gap; each evaluation one RK4
-  step of a fraction θ of the step with the path's signals at t, t + θh/2, t + θh) to |gap| ≤
-  GAP_TOL. The state is advanced there and an inelastic impact (restitution 0) is applied with the
-  new active set A (the rigid rows, the taut cables and the cable(s) at contact): Λ solves
+  by Illinois regula falsi (each evaluation one RK4 step of a fraction θ of the step with the path's
+  signals at t, t + θh/2, t + θh) to |gap| ≤ GAP_TOL: on the gap g(θ) when the cable starts below
+  contact, on the secant slope (g(θ) − g(0))/θ when it starts at contact and separates first (that
+  slope starts at the separation rate and ends positive, so the return is bracketed however shallow
+  and short the dip: the scan for a point below −GAP_TOL that preceded it missed dips of a few
+  picometres and microseconds, and the cable ended the step stretched, issue 18). The state is
+  advanced there and an inelastic impact (restitution 0) is applied with the new active set A (the
+  rigid rows, the taut cables and the cable(s) at contact): Λ solves
   (φ_A M⁻¹ φ_Aᵀ) Λ = φ_A q̇⁻ + φ_t,A and q̇⁺ = q̇⁻ − M⁻¹ φ_Aᵀ Λ, which leaves φ̇_A = 0. A with every
   taut cable's impulse pulling and no slack cable at contact left being stretched is found among
   all sets of the cables at contact (velocity-level complementarity): a cable whose impulse would
@@ -45,15 +49,20 @@ two float comparisons. Otherwise (rare; numpy):
 - Energy: the impulse acts in no time (q and the integrated works do not jump); the kinetic energy
   changes by T⁺ − T⁻, ≤ 0 for fixed anchors (an inelastic collision), accumulated in
   `impact_energy`, so that ΔT + ΔU = W_u + W_anchor − E_d + impact_energy holds across the
-  transitions to the integrator's accuracy (tests/test_unilateral.py).
+  transitions to the integrator's accuracy (tests/test_unilateral.py, tests/test_plant_fuzz.py).
+- Invariants, checked in every run (InvariantError, a SimulationError naming the time, the cable and
+  the figures; a run reports it as a divergence): after every substep with an event, no slack cable
+  is stretched beyond STRETCH_TOL and no taut cable pushes beyond PUSH_TOL_REL × the weight (a
+  substep without an event meets both by the two comparisons above); at the end of every advance
+  (each control period) and after every substep with an event, |energy balance residual| ≤
+  ENERGY_TOL_REL × (weight × longest cable + peak kinetic energy). `cable_gap` and
+  `energy_residual` hold the last figures (the run's records and CSV carry them).
 Why: an inextensible cable that goes taut stops the relative motion along it at once; resolving
 that as an impulse at the located instant keeps the constraint exact (no stiff spring, no
 penetration) and the integration between events is the unchanged smooth RK4.
 
 Limits: slack onset at step granularity (above); re-tension located to ~1e-12 m in gap; a gap that
-goes positive and back within one substep is not seen; a slack cable whose gap comes up so smoothly
-from contact that no point below −GAP_TOL brackets it ends that step stretched by a little (seen
-≤ 2e-10 m) and is taken up by the next step's force-level decision; a cable whose row is dependent
+goes positive and back within one substep is not seen; a cable whose row is dependent
 (left out of the plant, acroboter.codegen.structured.independent_rows) is never switched and reports
 tension 0. Stage signals at fractional times come from `path` (a hand-made table is taken to follow
 `path` when an event happens). No consistent state within max_events_per_step events raises
@@ -85,6 +94,11 @@ class SimulationError(RuntimeError):
     pass
 
 
+class InvariantError(SimulationError):
+    """A physical invariant of the plant broke (a slack cable stretched, a taut one pushing, energy
+    created or lost without a cause): the message names the time, the cable and the figures."""
+
+
 # A taut cable goes slack when its start-of-step tension is below −TENSION_TOL_REL × (total weight).
 TENSION_TOL_REL = 1e-9
 # A slack cable goes taut when its gap exceeds this (m); the crossing is located to the same tolerance.
@@ -96,6 +110,19 @@ START_SLACK_GAP = 1e-9
 # and as accelerated into stretch when its gap's acceleration exceeds GAP_ACC_TOL (m/s²).
 GAP_RATE_TOL = 1e-10
 GAP_ACC_TOL = 1e-7
+# The earliest fraction of a step at which a return to contact is located (below it: at the start).
+THETA_MIN = 1e-9
+# A change of a gap smaller than this (m) within a step is not told from round-off (|d| − L of ~1 m).
+GAP_RESOLUTION = 1e-13
+# Invariants checked in every run (InvariantError beyond them): no slack cable ends a substep stretched
+# by more than STRETCH_TOL (m); no taut cable starts a substep pushing by more than PUSH_TOL_REL × the
+# bodies' weight (N); |energy residual| stays within ENERGY_TOL_REL × the crane's energy scale (J):
+# weight × the longest cable (at the start) + the largest kinetic energy seen so far. Seen: stretch 0,
+# push 0 (the resolved steps meet GAP_TOL and TENSION_TOL_REL), residual ≤ 1e-4 J against a bound of
+# 2.6e-3 J on the default crane (docs/plant.md).
+STRETCH_TOL = 1e-9
+PUSH_TOL_REL = 1e-6
+ENERGY_TOL_REL = 1e-5
 
 
 @dataclass(frozen=True)
@@ -184,6 +211,8 @@ class Plant:
         physical = self.physical_spec
         weight = sum(b.mass for b in physical.bodies) * float(np.linalg.norm(physical.gravity))
         self.tension_tol = TENSION_TOL_REL * max(1.0, weight)
+        self.push_tol = PUSH_TOL_REL * max(1.0, weight)
+        self._weight = weight
         self.gap_tol = GAP_TOL
         self._stage_scratch = np.zeros(9 * self.ns)
         self._minv: np.ndarray | None = None
@@ -194,6 +223,9 @@ class Plant:
         self.impact_energy = 0.0  # J, Σ (T⁺ − T⁻) over the impacts
         self.transitions = np.zeros(nc, dtype=np.int64)
         self.events: list[CableEvent] = []
+        self.cable_gap = np.zeros(nc)  # m, |p_a − p_b| − L of every cable at the end of the last advance
+        self.energy_residual = 0.0  # J, at the end of the last advance (see energy_balance)
+        self._energy_start, self._potential_scale, self._peak_kinetic = 0.0, 1.0, 0.0
 
     def _parameter_vector(self, model) -> np.ndarray:
         """The `plant_params` input: the physical spec's values in the order the library takes them
@@ -235,7 +267,22 @@ class Plant:
         _, gap, _ = self._contact_state(x, 0.0)
         self._active[gap < -START_SLACK_GAP] = 0.0
         self.start_active[:] = self._active
+        self.cable_gap[:] = gap
+        n = self.n
+        lengths = [self._length(c, x[:n]) for c in range(len(self.cable_names))]
+        self._potential_scale = self._weight * max(lengths, default=1.0)
+        self._peak_kinetic = 0.0
+        self._energy_start = self.mechanical_energy(x[:n], x[n : 2 * n])
+        self.energy_residual = 0.0
         return x
+
+    def consistent_velocity(self, q: np.ndarray, qd: np.ndarray, t: float = 0.0) -> np.ndarray:
+        """qd projected (in the mass matrix's metric) onto φ̇ = 0 over the rigid rows and every cable,
+        taut: the nearest velocity a start with every cable taut can have. Resets the event records."""
+        x = self.initial_state(q, qd)
+        self._project_rates(x, self._terms_at(x, t), list(self._modelled))
+        self.initial_state(q)
+        return x[self.n : 2 * self.n].copy()
 
     def stage_table(self, t0: float, h: float, steps: int) -> StageTable:
         return stage_table(self.path, t0, h, steps)
@@ -273,6 +320,43 @@ class Plant:
             state[:] = out
         point(stage_input, self._stage.ctypes.data)  # never leave a pointer into `table` behind
         x[:] = state
+        self.cable_gap[:] = self._gap
+        self._check_energy(x, t0 + (first_step + steps) * h)
+
+    def energy_balance(self, x: np.ndarray) -> float:
+        """The residual of the energy balance at x (J): T + U − (T + U)₀ − (W_u + W_anchor − E_d +
+        impact_energy), ≈ 0 to the integrator's accuracy when nothing is lost or created."""
+        n = self.n
+        self.model.q[:] = x[:n]
+        self.model.qd[:] = x[n : 2 * n]
+        self._energy.call()
+        out = self._energy.outputs
+        kinetic = float(out["kinetic"][0])
+        self._peak_kinetic = max(self._peak_kinetic, kinetic)
+        mechanical = kinetic + float(out["potential"][0])
+        return mechanical - self._energy_start - (x[2 * n] + x[2 * n + 1] - x[2 * n + 2] + self.impact_energy)
+
+    @property
+    def energy_bound(self) -> float:
+        """|energy residual| allowed (J): ENERGY_TOL_REL × (weight × longest cable + peak kinetic energy)."""
+        return ENERGY_TOL_REL * (self._potential_scale + self._peak_kinetic)
+
+    def _check_energy(self, x: np.ndarray, t: float) -> None:
+        self.energy_residual = residual = self.energy_balance(x)
+        if not abs(residual) <= self.energy_bound:
+            raise InvariantError(
+                f"at t = {t:.6f} s the plant's energy balance is off by {residual:+.3e} J (bound "
+                f"{self.energy_bound:.3e} J: {ENERGY_TOL_REL:g} of the crane's energy scale): energy was "
+                "created or lost without a cause; report the inputs that led here")
+
+    def _check_cables(self, t: float) -> None:
+        """After a resolved substep: no slack cable is stretched beyond STRETCH_TOL (self._gap is the
+        substep's end), none taut pushes beyond push_tol (start_tension is its start)."""
+        for c in self._modelled:
+            if self._active[c] == 0.0 and self._gap[c] > STRETCH_TOL:
+                raise InvariantError(
+                    f"at t = {t:.6f} s cable '{self.cable_names[c]}' is slack but stretched by {self._gap[c]:.3e} m "
+                    f"(tolerance {STRETCH_TOL:g} m): the plant lost a re-tension; report the inputs that led here")
 
     def step(self, x: np.ndarray, t: float, u: np.ndarray, h: float) -> None:
         """One RK4 step of x (in place) from t to t + h (convenience; evaluates the path here)."""
@@ -355,6 +439,8 @@ class Plant:
             if located is None:  # no slack cable crosses into stretch inside the step
                 self._x[:] = self._x_next
                 self._settings[0] = h
+                self._check_cables(t + h)
+                self._check_energy(self._x, t + h)
                 return
             theta, x_event, gap = located
             t_event = start_t + theta * rest
@@ -368,6 +454,9 @@ class Plant:
             self._x[:] = x_event
             if 1.0 - tau <= 1e-12:  # the crossing was at the end of the substep
                 self._settings[0] = h
+                self._gap[:] = gap  # the end's gaps (the impact moved no position)
+                self._check_cables(t + h)
+                self._check_energy(self._x, t + h)
                 return
         raise SimulationError(
             f"more than {self.max_events_per_step} cable events in the plant step at t = {t:.6f} s "
@@ -446,6 +535,11 @@ class Plant:
                 first = False
         self._point_step(t, h, address)
         self._step.call()
+        for c in self._modelled:
+            if self._active[c] == 1.0 and self._tension[c] < -self.push_tol:
+                raise InvariantError(
+                    f"at t = {t:.6f} s cable '{self.cable_names[c]}' is taut but pushes with {-self._tension[c]:.3e} N "
+                    f"(tolerance {self.push_tol:.2e} N): no taut/slack set of the cables is consistent here")
 
     def _project_rates(self, x: np.ndarray, terms: dict, taut: list[int]) -> float:
         """q̇ ← q̇ − M⁻¹φ_Aᵀ(φ_A M⁻¹φ_Aᵀ)⁻¹ φ̇_A over the rigid rows and the `taut` cables (x in
@@ -520,51 +614,62 @@ class Plant:
         return self._gap
 
     def _first_crossing(self, x_start, t: float, h: float, cable: int, address: int | None) -> float | None:
-        """The θ in (0, 1] where the slack `cable`'s gap comes up through 0 (to GAP_TOL) in the step of
-        length h from x_start, None if it never is below −GAP_TOL before it is stretched (it is at
-        contact all along: that is the next step's force-level decision, see _settle). A cable at
-        contact at θ = 0 that separates and comes back is found by scanning the step in eighths, and
-        the part before the first stretched point again, for a point below −GAP_TOL."""
+        """The θ in (0, 1] where the slack `cable`'s gap g(θ) comes up through its contact level in the
+        step of length h from x_start (to GAP_TOL), None if it does not come up inside the step.
+
+        A cable below contact at the start (g(0) < −GAP_TOL) is bracketed by [0, 1] on g itself. A
+        cable at contact at the start (|g(0)| ≤ GAP_TOL) that separates and comes back is located on
+        the secant slope f(θ) = (g(θ) − g(0))/θ instead: f starts at the separation rate (× h, < 0)
+        and ends at g(1) − g(0) > 0, so its root, the return, is bracketed however shallow the dip
+        (g itself may never go below −GAP_TOL in a micro-second dip: scanning g for such a point
+        missed returns and let the cable end the step stretched, the cascade of issue 18). The lower
+        end of the bracket is the first θ of THETA_MIN, 10 THETA_MIN, ... at which g has moved by more
+        than GAP_RESOLUTION from g(0) (below that its change is round-off, of either sign). If it has
+        moved up there, the cable is coming up from the start: that θ is returned (the impact there
+        takes it taut, or leaves it slack if its impulse would push)."""
         gap_tol = self.gap_tol
 
         def g(theta: float) -> float:
             return float(self._gaps_after(x_start, t, theta * h, address if theta == 1.0 else None)[cable])
 
-        lo, g_lo = 0.0, g(0.0)
-        hi, g_hi = 1.0, g(1.0)
-        for _ in range(12):  # a bracket with g(lo) < −GAP_TOL < GAP_TOL < g(hi)
-            if g_lo < -gap_tol:
-                break
-            for j in range(1, 9):
-                theta = lo + (hi - lo) * j / 8.0
-                value = g(theta)
-                if value < -gap_tol:  # a dip: the crossing is after it
-                    lo, g_lo = theta, value
-                    break
-                if value > gap_tol:  # stretched already: any dip is before, look closer there
-                    hi, g_hi = theta, value
-                    break
+        g0, g1 = g(0.0), g(1.0)
+        if g0 < -gap_tol:
+            f, lo, hi, f_lo, f_hi, offset = g, 0.0, 1.0, g0, g1, 0.0
         else:
-            return None
+            if g1 - g0 <= gap_tol:  # not coming up beyond where it started: no crossing in this step
+                return None
+
+            def f(theta: float) -> float:
+                return (g(theta) - g0) / theta
+
+            lo, hi, f_hi, offset = THETA_MIN, 1.0, g1 - g0, g0
+            while True:
+                f_lo = f(lo)
+                if abs(f_lo) * lo > GAP_RESOLUTION or lo >= 0.1:
+                    break
+                lo *= 10.0
+            if f_lo >= 0.0:
+                return lo
         side = 0
         theta = hi
         for _ in range(200):  # Illinois regula falsi
-            theta = (lo * g_hi - hi * g_lo) / (g_hi - g_lo)
+            theta = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
             if not lo < theta < hi:
                 theta = 0.5 * (lo + hi)
-            value = g(theta)
-            if abs(value) <= gap_tol or hi - lo <= 1e-15:
+            value = f(theta)
+            if abs(value if f is g else value * theta) <= gap_tol or hi - lo <= 1e-15:
                 break
             if value < 0.0:
-                lo, g_lo = theta, value
+                lo, f_lo = theta, value
                 if side == -1:
-                    g_hi *= 0.5  # Illinois: keep the stale end from stalling the secant
+                    f_hi *= 0.5  # Illinois: keep the stale end from stalling the secant
                 side = -1
             else:
-                hi, g_hi = theta, value
+                hi, f_hi = theta, value
                 if side == 1:
-                    g_lo *= 0.5
+                    f_lo *= 0.5
                 side = 1
+        del offset
         return theta
 
     def _locate(self, x_start, t: float, h: float, candidates: list[int], address: int | None):

@@ -135,6 +135,17 @@ class Result:
         """The plant's tension of one cable by name, N."""
         return self.run.cable_tension[:, _index(self.cables, cable, "cable")]
 
+    def cable_gap(self, cable: str) -> np.ndarray:
+        """|p_a − p_b| − L of one cable by name at every instant, m: > 0 stretched, < 0 slack by that
+        much (a slack cable's ends are closer than its length)."""
+        return self.run.cable_gap[:, _index(self.cables, cable, "cable")]
+
+    @property
+    def energy_residual(self) -> np.ndarray | None:
+        """The plant's energy balance residual at every instant, J: T + U − (T + U)₀ − (W_u + W_anchor −
+        E_d + impact energy); None with the MuJoCo plant (its soft limits dissipate energy of their own)."""
+        return self.run.energy_residual
+
     # --- figures ----------------------------------------------------------------------------------
     def summary(self) -> dict:
         """The per-method figures of summary.json: errors, tensions, step times, limits, saturation."""
@@ -167,6 +178,9 @@ class Result:
         for c, cable in enumerate(self.cables):
             cols[f"cable_{cable}_tension_N"] = self.run.cable_tension[:, c]
             cols[f"cable_{cable}_slack"] = (self.run.cable_active[:, c] == 0).astype(np.int8)
+            cols[f"cable_{cable}_gap_m"] = self.run.cable_gap[:, c]
+        if self.run.energy_residual is not None:
+            cols["energy_residual_J"] = self.run.energy_residual
         cols["saturated"] = self.run.saturated.astype(np.int8)
         # The pose (q) and the moving anchors always: enough to draw the crane at every instant.
         for name, j in self.layout.anchor_signal.items():

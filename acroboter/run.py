@@ -360,6 +360,12 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
             reason = "the check before the run found the ideal motion feasible, but the closed loop needed more"
         held = f"; saturated: {', '.join(saturated)}" if saturated else ""
         print(f"the path was not feasible with these limits: {reason}{held}")
+    diverged = [m for m, r in results.items() if r.diverged_at is not None]
+    if diverged:  # the results up to there are written; the run did not do what was asked
+        for m in diverged:
+            print(f"error: {m} diverged at t = {results[m].diverged_at:.2f} s: {results[m].run.divergence}",
+                  file=sys.stderr)
+        return 3
     return 0
 
 

@@ -55,6 +55,15 @@ class RunResult:
     # Per instant: the moving anchors' positions (m), 3 columns per anchor in layout order
     # (layout.anchor_signal), so that a run can be drawn without its path.
     anchors: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    # Per instant and cable: |p_a − p_b| − L (m; > 0 stretched, < 0 slack by that much), at the end of the
+    # plant step before the instant (the start's for the first).
+    cable_gap: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    # Per instant: the plant's energy balance residual (J, Plant.energy_balance; None for MuJoCo, whose
+    # soft cable limits dissipate energy of their own) and the bound the plant holds it to.
+    energy_residual: np.ndarray | None = None
+    energy_bound: float | None = None
+    # Open loop (acroboter.open_loop): per input, the instants at which it was outside the spec's limits.
+    outside_limits: dict[str, dict] | None = None
 
 
 # A run that strays this far from the path (m) has diverged: nothing useful follows.
@@ -108,6 +117,7 @@ def simulate(
     energy: bool = False,
     allow_divergence: bool = False,
     sensor=None,
+    qd0: np.ndarray | None = None,
 ) -> RunResult:
     """Run the closed loop from rest at q0 for `duration` seconds.
 
@@ -123,6 +133,8 @@ def simulate(
     point strays more than DIVERGENCE_LIMIT_M from the path. That raises
     SimulationError, or with allow_divergence returns the run up to that instant with
     `diverged_at` and `divergence` set.
+
+    `qd0`: the plant's initial velocities (default at rest).
 
     `sensor` (acroboter.sensing.Estimator, reset here to q0): the controller reads its estimate from
     measurements instead of the plant's state; the records stay the plant's (docs/sensing.md).
@@ -165,10 +177,13 @@ def simulate(
     rec_limit = np.zeros((samples, lay.l), dtype=np.int8)
     rec_saturated = np.zeros(samples, dtype=bool)
     rec_impact = np.zeros(samples)
+    rec_gap = np.zeros((samples, n_cables))
+    checks_energy = hasattr(plant, "energy_balance")
+    rec_residual = np.zeros(samples) if checks_energy else None
     step_s = np.zeros(samples)
     sigma_fn, phi_fn = model.functions["sigma"], model.functions["phi"]
     sigma_out, phi_out = sigma_fn.outputs["sigma"], phi_fn.outputs["phi"]
-    x = plant.initial_state(q0)
+    x = plant.initial_state(q0, qd0)
     p = lay.path_signal
     position_rows = Scenario.from_model(model).position_rows
     clock = time.perf_counter
@@ -204,6 +219,9 @@ def simulate(
         rec_limit[k] = controller.limit_state
         rec_saturated[k] = controller.saturation()  # a report on the step, after its timing
         rec_impact[k] = plant.impact_energy
+        rec_gap[k] = plant.cable_gap
+        if checks_energy:
+            rec_residual[k] = plant.energy_residual
         if sensor is not None:  # the records are the plant's, not the estimate the controller loaded
             model.q[:], model.qd[:] = q, qd
         sigma_fn.call()  # at the state and signals the controller just loaded
@@ -245,6 +263,9 @@ def simulate(
         rec_anchor = rec_anchor[kept]
         rec_tension, rec_active = rec_tension[kept], rec_active[kept]
         rec_limit, rec_impact, rec_saturated = rec_limit[kept], rec_impact[kept], rec_saturated[kept]
+        rec_gap = rec_gap[kept]
+        if checks_energy:
+            rec_residual = rec_residual[kept]
         if energy:
             rec_energy = rec_energy[kept]
     result = RunResult(controller.name, rec_t, rec_q, rec_qd, rec_u, rec_sigma, rec_phi, rec_des, step_s, wall,
@@ -252,7 +273,9 @@ def simulate(
                        cable_tension=rec_tension, cable_active=rec_active,
                        cable_transitions=plant.transitions.copy(), impact_energy=rec_impact,
                        limit_state=rec_limit, saturated=rec_saturated, control_period=period,
-                       plant_params=dict(getattr(plant, "parameters", {})), anchors=rec_anchor)
+                       plant_params=dict(getattr(plant, "parameters", {})), anchors=rec_anchor,
+                       cable_gap=rec_gap, energy_residual=rec_residual,
+                       energy_bound=plant.energy_bound if checks_energy else None)
     if energy:
         names = ("mechanical", "work_inputs", "work_anchors", "dissipated")
         result.energy = {name: rec_energy[:, i].copy() for i, name in enumerate(names)}
@@ -332,6 +355,9 @@ def summarize(result: RunResult, scenario: Scenario, layout) -> dict:
             "transitions": int(result.cable_transitions[c]),
             "min_tension_N": float(result.cable_tension[:, c].min()) if len(result.t) else None,
             "max_tension_N": float(result.cable_tension[:, c].max()) if len(result.t) else None,
+            # the largest stretch at any instant (m; > 0 only if a cable is stretched: the plant holds a
+            # slack one to 1e-9 m, a taut one to its constraint stabilisation)
+            "max_gap_m": float(result.cable_gap[:, c].max()) if result.cable_gap.size else None,
         }
         for c, name in enumerate(result.cable_names)
     }
@@ -351,6 +377,11 @@ def summarize(result: RunResult, scenario: Scenario, layout) -> dict:
     # Saturation: the instants at which a limit kept the input from what the controller asked of the
     # task (an input on a limit that only moved internal forces does not count), and what it cost.
     saturated = result.saturated
+    if result.energy_residual is not None and result.energy_residual.size:
+        summary["max_abs_energy_residual_J"] = float(np.abs(result.energy_residual).max())
+        summary["energy_residual_bound_J"] = result.energy_bound
+    if result.outside_limits is not None:
+        summary["inputs_outside_limits"] = result.outside_limits
     summary["saturated"] = bool(saturated.any())
     summary["time_saturated_s"] = float(np.count_nonzero(saturated[held]) * period)
     summary["max_position_error_while_saturated_mm"] = worst_error(saturated)

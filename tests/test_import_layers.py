@@ -18,7 +18,7 @@ LAYERS = [
     ("bindings", {"build", "compiled"}),
     ("store", {"cache", "casadi_backend"}),  # the only runtime modules that may call the code generator
     ("control", {"path", "recovery", "distribution", "controllers", "plant", "mujoco_plant", "statics", "sensing"}),
-    ("simulation", {"simulation", "feasibility", "result"}),
+    ("simulation", {"simulation", "feasibility", "result", "open_loop"}),
     ("api", {"crane"}),
 ]
 TOP = "studies, reports and CLIs"  # every other module
