@@ -376,9 +376,10 @@ def test_default_formulation_against_high_precision(method, spec_path):
     stays far below the Python comparison's tolerance, which the Python controller's own round-off
     limits (it solves the A form: ~1e-9 on the default crane, up to ~4e-8 on lab_crane's light bodies).
     Specs with redundant constraints get the A form ('auto'), good to ~1e-9. With more inputs than
-    servo-constraints (four-cable crane) the weighted distribution's matrix G + μI (μ = 1e-5 tr(G)/l) has
-    condition λmax/μ ≈ 4e5 at these states, which amplifies the round-off of G and λ̂ along the internal
-    force: 4.0e-10 measured (the Python controller: 2.7e-9..7.4e-9), hence 2e-9 there."""
+    servo-constraints (four-cable crane) the distribution, lexicographic in the servo accelerations
+    (Cholesky of E G Eᵀ and E Eᵀ, 6x6), gives 5e-14 (it gave 4.0e-10 with the weighted distribution used
+    before, whose G + μI had condition ≈ 4e5; the Python controller: 2.4e-9..7.4e-9, its A form), within
+    the 2e-9 kept there."""
     spec = load_spec(spec_path)
     model = load_model(spec)
     desired = desired_path(model)
