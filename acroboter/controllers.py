@@ -121,10 +121,14 @@ class Controller:
             self._hold = self.anti_windup and self.saturation()
         return u
 
-    def _distribute(self, hessian: np.ndarray, gradient: np.ndarray) -> np.ndarray:
-        """The bounded input (acroboter.distribution) into self.u."""
+    def _distribute(self, hessian: np.ndarray, gradient: np.ndarray, servo_map=None) -> np.ndarray:
+        """The bounded input (acroboter.distribution) into self.u; with `servo_map` (E), lexicographic in
+        the servo accelerations E u (BoundedInputs.solve_task)."""
         try:
-            self.u[:] = self.limits.solve(hessian, gradient)
+            if servo_map is None:
+                self.u[:] = self.limits.solve(hessian, gradient)
+            else:
+                self.u[:] = self.limits.solve_task(hessian, gradient, servo_map)
         except DistributionError as err:
             raise SingularSystemError(f"{self.name}: {err}") from None
         return self.u
@@ -261,9 +265,12 @@ class Penalty(Controller):
 
     terms_function = "penalty_terms"
     bounded_function = "penalty_bounded_terms"
-    secondary_weight = PENALTY_SECONDARY_WEIGHT
+    secondary_weight = PENALTY_SECONDARY_WEIGHT  # eq12/eq13 with redundant inputs, where a limit is in the way
 
     def __init__(self, model, path: DesiredPath, gains: Gains, iterations: int = 1, limits=None):
+        if gains.recovery == "projected":
+            # Redundant inputs: lexicographic in the servo accelerations (BoundedInputs.solve_task), as MLM.
+            self.secondary_weight = 0.0
         super().__init__(model, path, gains, limits)
         if iterations < 1:
             raise ValueError("iterations must be at least 1")
@@ -329,11 +336,18 @@ class Penalty(Controller):
         return self._distribute(*self.recovery.least_squares(T, self.lam_hat, self._qdd_last, self.lam))
 
     def _bounded_projected(self) -> np.ndarray:
-        """The projected recovery's fit ½uᵀGu + gᵀu, g = servo_map · λ̂, within the limits."""
+        """The projected recovery's fit ½uᵀGu + gᵀu, g = servo_map · λ̂, within the limits.
+
+        With redundant inputs the fit's task part exactly and the internal forces (the null space of
+        the servo accelerations E = σ_q P H, from mlm_bounded_terms) at the preferred values: see
+        acroboter.distribution (BoundedInputs.solve_task)."""
         self._bounded_fn.call()  # at the state and parameters penalty_terms just read
         self._multipliers()
         B = self.bounded_terms
         np.matmul(B["servo_map"], self.lam_hat, out=self._gradient)
+        if self.redundant_inputs:
+            self._servo_fn.call()  # E at the same state
+            return self._distribute(B["hessian"], self._gradient, self._servo_fn.outputs["servo_map"])
         return self._distribute(B["hessian"], self._gradient)
 
     def _multipliers(self) -> None:

@@ -20,12 +20,12 @@ RANK_TOLERANCE = 1e-9
 # Weight of the secondary objective on the internal forces in the bounded QP (lexicographic case),
 # relative to G's mean eigenvalue.
 SECONDARY_WEIGHT = 1e-9
-# The penalty methods' weighted secondary objective (redundant inputs), relative likewise: it sets
-# how tightly the internal force stays at u_pref. On the four-cable crane's 55 s path with u_pref =
-# 20 N (tension range; max position error 0.062 mm in all three): 4e-6: 17.1..23.3 N; 1e-5:
-# 19.0..21.5 N; 1e-4: 20.0..20.4 N. A u_pref far from the need (152.5 N) also pulls real directions:
-# 0.07, 0.09, 0.41 mm. The internal force's share of the fit there is 4e-10..8e-9 of G's mean
-# eigenvalue, its other directions' share at least 0.16.
+# The weighted secondary objective, relative likewise: the explicit recoveries eq12/eq13 with redundant
+# inputs, where a limit is in the way (their unbounded fit is unique). The projected recovery (default)
+# no longer uses it: its distribution is lexicographic in the servo accelerations
+# (acroboter.distribution.BoundedInputs.solve_task), because this weight also pulled the task
+# directions: on the four-cable crane's 55 s path, preferred = 152.5 N (the middle of [5, 300] N) gave
+# 0.0976 mm against 0.0617 mm with 20 N (Penalty); the lexicographic form gives 0.0617 mm for both.
 PENALTY_SECONDARY_WEIGHT = 1e-5
 
 

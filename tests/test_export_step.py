@@ -32,7 +32,6 @@ from acroboter.codegen.export_step import ExportError, build_step, step_name, wr
 from acroboter.codegen.generate import generate
 from acroboter.codegen_cli import export_step_main as main
 from acroboter.controllers import Gains, make_controller
-from acroboter.settings import PENALTY_SECONDARY_WEIGHT
 from acroboter.simulation import setup_default, simulate
 from acroboter.spec import load_spec, parse_spec
 from acroboter.statics import desired_path, solve_equilibrium
@@ -317,8 +316,9 @@ def test_tikhonov_fallback_keeps_u(scenario, monkeypatch):
 def _reference_inputs(model, desired, gains, method, states) -> np.ndarray:
     """The penalty methods with the projected recovery, in 40-digit arithmetic (mpmath), from the model
     terms at each state: a reference free of the round-off of either formulation. With more inputs than
-    servo-constraints, the weighted distribution of the same fit (acroboter.distribution), which must be
-    within the limits at these states (the reference has no QP)."""
+    servo-constraints, the distribution of the same fit, lexicographic in the servo accelerations
+    (acroboter.distribution.BoundedInputs.solve_task), which must be within the limits at these states (the
+    reference has no QP)."""
     iterations = 1 if method == "penalty" else int(method.removeprefix("iterative-"))
     lay = model.layout
     lower, upper, preferred = model.spec.input_limits()
@@ -354,8 +354,12 @@ def _reference_inputs(model, desired, gains, method, states) -> np.ndarray:
                 P = minv - minv * phi.T * mpmath.inverse(phi * minv * phi.T) * phi * minv
                 G, g = H.T * P * H, H.T * P * sigma_q.T * lam_hat
                 G = (G + G.T) / 2
-                mu = PENALTY_SECONDARY_WEIGHT * sum(G[j, j] for j in range(lay.l)) / lay.l  # weight · tr(G)/l
-                x = mpmath.lu_solve(G + mu * mpmath.eye(lay.l), -(g - mu * mpmath.matrix(preferred.tolist())))
+                # lexicographic in the servo accelerations (BoundedInputs.solve_task): E = σ_q P H,
+                # u_F = −Eᵀ(E G Eᵀ)⁻¹E g, then u = u_F + (I − Eᵀ(EEᵀ)⁻¹E)(u_pref − u_F)
+                E = sigma_q * P * H
+                u_task = -(E.T * mpmath.lu_solve(E * G * E.T, E * g))
+                shift = mpmath.matrix(preferred.tolist()) - u_task
+                x = u_task + shift - E.T * mpmath.lu_solve(E * E.T, E * shift)
                 u = np.array([float(x[j]) for j in range(lay.l)])
                 assert np.all(u >= lower) and np.all(u <= upper), "the reference needs u within the limits"
                 out.append(u)
@@ -372,9 +376,10 @@ def test_default_formulation_against_high_precision(method, spec_path):
     stays far below the Python comparison's tolerance, which the Python controller's own round-off
     limits (it solves the A form: ~1e-9 on the default crane, up to ~4e-8 on lab_crane's light bodies).
     Specs with redundant constraints get the A form ('auto'), good to ~1e-9. With more inputs than
-    servo-constraints (four-cable crane) the weighted distribution's matrix G + μI (μ = 1e-5 tr(G)/l) has
-    condition λmax/μ ≈ 4e5 at these states, which amplifies the round-off of G and λ̂ along the internal
-    force: 4.0e-10 measured (the Python controller: 2.7e-9..7.4e-9), hence 2e-9 there."""
+    servo-constraints (four-cable crane) the distribution, lexicographic in the servo accelerations
+    (Cholesky of E G Eᵀ and E Eᵀ, 6x6), gives 5e-14 (it gave 4.0e-10 with the weighted distribution used
+    before, whose G + μI had condition ≈ 4e5; the Python controller: 2.4e-9..7.4e-9, its A form), within
+    the 2e-9 kept there."""
     spec = load_spec(spec_path)
     model = load_model(spec)
     desired = desired_path(model)

@@ -46,10 +46,12 @@ C gives their u also where a limit binds:
   MLM: ½|E u − e|², mlm_bounded_terms; eq12/eq13: G = HᵀH), its unbounded minimiser if within, else a
   box QP; eq15/kappa (explicit maps, G = I): the clip onto the limits.
 - more inputs than servo-constraints (internal forces, e.g. the four-cable crane): always distributed.
-  Penalty methods (projected recovery): weighted, (G + μI)u = −g + μ u_pref by SX Cholesky, with
-  μ = PENALTY_SECONDARY_WEIGHT·tr(G)/l; MLM: lexicographic, u = u_pref + Eᵀ(EEᵀ)⁻¹(e − E u_pref) (Python's
-  eigen split of EᵀE in closed form) and, bounded, the QP with Hessian EᵀE + μZZᵀ, ZZᵀ = I − Eᵀ(EEᵀ)⁻¹E,
-  μ = SECONDARY_WEIGHT·tr(EᵀE)/l.
+  MLM: lexicographic, u = u_pref + Eᵀ(EEᵀ)⁻¹(e − E u_pref) (Python's eigen split of EᵀE in closed form)
+  and, bounded, the QP with Hessian EᵀE + μZZᵀ, ZZᵀ = I − Eᵀ(EEᵀ)⁻¹E, μ = SECONDARY_WEIGHT·tr(EᵀE)/l.
+  Penalty methods (projected recovery): the same, with e = e_F = E u_F the servo accelerations of the
+  fit's input in the task directions, u_F = −Eᵀ(E G Eᵀ)⁻¹E g by SX Cholesky (BoundedInputs.solve_task).
+  eq12/eq13 with redundant inputs, where a limit is in the way: weighted, (HᵀH + μI)u = −g + μ u_pref,
+  μ = PENALTY_SECONDARY_WEIGHT·tr(HᵀH)/l.
 - G's scale is its mean eigenvalue tr(G)/l, as in BoundedInputs: a sum of the diagonal, no eigenvalue
   solver in the C.
 - the QP is CasADi's own active-set solver 'qrqp', generated inline (no external library, no heap),
@@ -452,10 +454,10 @@ def _penalty(graph: _Graph, iterations: int, system: str) -> ca.MX:
         lam, lam_hat = multipliers[:m], multipliers[m:]
     bounds = graph.bounds
     if kind == "projected" and l > k:
-        # More inputs than servo-constraints: as controllers.Penalty, always the weighted distribution of the
-        # fit ½uᵀGu + gᵀu, G = HᵀPH, g = servo_map λ̂ (codegen.structured.penalty_bounded_terms).
-        return bounds.weighted(P["bounded_hessian"], ca.mtimes(P["bounded_servo_map"], lam_hat),
-                               PENALTY_SECONDARY_WEIGHT)
+        # More inputs than servo-constraints: as controllers.Penalty, always the distribution of the fit
+        # ½uᵀGu + gᵀu, G = HᵀPH, g = servo_map λ̂ (codegen.structured.penalty_bounded_terms), lexicographic in
+        # the servo accelerations E u (E from codegen.structured.mlm_bounded_terms).
+        return bounds.task(P["bounded_hessian"], ca.mtimes(P["bounded_servo_map"], lam_hat), P["bounded_task_map"])
     if kind == "projected":
         size = P["normal"].shape[0]
         rhs = -ca.mtimes(P["normal_map"], lam_hat)
@@ -545,17 +547,30 @@ def _recovery_prelude(graph: _Graph) -> dict[str, ca.SX]:
     H, sigma_q = T["input_matrix"], T["sigma_q"]
     if kind == "projected" and graph.l > graph.k:
         terms = penalty_bounded_terms(graph.model, graph.params)
+        e_map = mlm_bounded_terms(graph.model, graph.params)["servo_map"]
+        k, l = graph.k, graph.l
+        gram = ca.mtimes(e_map, e_map.T)
+        graph.bounds.check_nonsingular(gram, f"the servo-constraint map E E^T ({k}x{k}, E = sigma_q P H)")
+        ratio = graph.bounds.check_nonsingular(ca.mtimes([e_map, terms["hessian"], e_map.T]),
+                                               f"the projected fit in the task directions E G E^T ({k}x{k})")
         graph.export.linear_solvers.append(
-            f"SX Cholesky of the {graph.l}x{graph.l} matrix G + mu I of the weighted input distribution "
-            "(G = H^T P H, codegen.structured.penalty_bounded_terms, P through an SX Cholesky of phi_q M^-1 phi_q^T)"
+            f"SX Cholesky of the {k}x{k} matrices E G E^T (smallest/largest eigenvalue {ratio:.1e} at the nominal "
+            "configuration) and E E^T of the input distribution (G = H^T P H, "
+            "codegen.structured.penalty_bounded_terms; E = sigma_q P H, codegen.structured.mlm_bounded_terms; "
+            "P through an SX Cholesky of phi_q M^-1 phi_q^T)"
         )
         graph.export.distribution.append(
-            f"{graph.l} inputs for {graph.k} servo-constraints: as controllers.Penalty, always the weighted "
-            "distribution of the projected recovery's fit 1/2 u^T G u + g^T u, G = H^T P H, g = H^T P sigma_q^T "
-            "lambda_hat: (G + mu I) u = -g + mu u_pref (Cholesky), mu = PENALTY_SECONDARY_WEIGHT * tr(G)/l"
-            + (", if within the limits; otherwise the QP with Hessian G + mu I" if graph.bounds.bounded else "")
+            f"{l} inputs for {k} servo-constraints: as controllers.Penalty, always the distribution of the projected "
+            "recovery's fit 1/2 u^T G u + g^T u, G = H^T P H, g = H^T P sigma_q^T lambda_hat, lexicographic in the "
+            "servo accelerations E u (acroboter.distribution.BoundedInputs.solve_task): the fit's input in the task "
+            "directions u_F = -E^T (E G E^T)^-1 E g, its servo accelerations e_F = E u_F exactly and the internal "
+            "forces (null(E)) at the preferred values: u = u_pref + E^T (E E^T)^-1 (e_F - E u_pref)"
+            + (", if within the limits; otherwise the QP with Hessian E^T E + mu Z Z^T, Z Z^T = I - E^T (E E^T)^-1 E, "
+               "gradient -E^T e_F - mu Z Z^T u_pref, mu = SECONDARY_WEIGHT * tr(E^T E)/l"
+               if graph.bounds.bounded else "")
         )
-        return {"bounded_hessian": _symmetric(terms["hessian"]), "bounded_servo_map": terms["servo_map"]}
+        return {"bounded_hessian": _symmetric(terms["hessian"]), "bounded_servo_map": terms["servo_map"],
+                "bounded_task_map": e_map}
     if kind == "projected":
         return _projected_prelude(graph)
     if kind == "eq15":
@@ -777,6 +792,17 @@ class _Bounds:
 
         return self.finish(u2, [servo_map, target], terms)
 
+    def task(self, hessian: ca.MX, gradient: ca.MX, servo_map: ca.MX) -> ca.MX:
+        """The fit ½uᵀGu + gᵀu with redundant inputs, lexicographic in the servo accelerations E u, as
+        BoundedInputs.solve_task: e_F = E u_F, u_F = −Eᵀ(E G Eᵀ)⁻¹E g (SX Cholesky), then internal(E, e_F)."""
+        l, k = self.l, self.graph.k
+        g, f, e_map = ca.SX.sym("G", l, l), ca.SX.sym("g", l), ca.SX.sym("E", k, l)
+        reduced = _symmetric(ca.mtimes([e_map, g, e_map.T]))
+        w = cholesky_solve(reduced, ca.mtimes(e_map, f))
+        (target,) = self.sx_call("task_target", [g, f, e_map], [-ca.mtimes(e_map, ca.mtimes(e_map.T, w))],
+                                 [hessian, gradient, servo_map])
+        return self.internal(servo_map, target)
+
     def after_unbounded(self, u0: ca.MX, extra: list[ca.MX], branch) -> ca.MX:
         """Python's step 1: the unbounded u0 if within the limits, else branch(step inputs, extra)."""
         if not self.bounded:
@@ -832,9 +858,11 @@ def _limits_block(export: StepExport) -> list[str]:
             "no heap (work in w/iw, small structs on the stack). Its runtime includes <stdio.h> and <stdarg.h> for "
             "printing that is compiled out (CASADI_SNPRINTF undefined): no stdio function is referenced"
         )
-    lines.append(f"    - weights: PENALTY_SECONDARY_WEIGHT = {PENALTY_SECONDARY_WEIGHT:g}, SECONDARY_WEIGHT = "
-                 f"{SECONDARY_WEIGHT:g}, relative to G's scale tr(G)/l (its mean eigenvalue: a sum of the diagonal, no "
-                 "eigenvalue solver), as acroboter.distribution")
+    lines.append("    - weights, relative to G's scale tr(G)/l (its mean eigenvalue: a sum of the diagonal, no "
+                 f"eigenvalue solver), as acroboter.distribution: mu = SECONDARY_WEIGHT * tr(G)/l (SECONDARY_WEIGHT = "
+                 f"{SECONDARY_WEIGHT:g}) on the internal forces in a lexicographic QP; mu = PENALTY_SECONDARY_WEIGHT * "
+                 f"tr(G)/l (PENALTY_SECONDARY_WEIGHT = {PENALTY_SECONDARY_WEIGHT:g}) in the weighted form (eq12/eq13 "
+                 "with more inputs than servo-constraints only)")
     lines.append("    - the C returns u only: which inputs hold a limit (the controller's limit_state) is not reported")
     return lines
 
