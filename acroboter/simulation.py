@@ -355,9 +355,6 @@ def summarize(result: RunResult, scenario: Scenario, layout) -> dict:
             "transitions": int(result.cable_transitions[c]),
             "min_tension_N": float(result.cable_tension[:, c].min()) if len(result.t) else None,
             "max_tension_N": float(result.cable_tension[:, c].max()) if len(result.t) else None,
-            # the largest stretch at any instant (m; > 0 only if a cable is stretched: the plant holds a
-            # slack one to 1e-9 m, a taut one to its constraint stabilisation)
-            "max_gap_m": float(result.cable_gap[:, c].max()) if result.cable_gap.size else None,
         }
         for c, name in enumerate(result.cable_names)
     }
@@ -377,6 +374,11 @@ def summarize(result: RunResult, scenario: Scenario, layout) -> dict:
     # Saturation: the instants at which a limit kept the input from what the controller asked of the
     # task (an input on a limit that only moved internal forces does not count), and what it cost.
     saturated = result.saturated
+    # Per cable the largest |p_a − p_b| − L at any instant (m; > 0 only if stretched: the plant holds a
+    # slack cable to 1e-9 m, a taut one to its constraint stabilisation).
+    if result.cable_gap.size:
+        summary["cable_max_gap_m"] = {name: float(result.cable_gap[:, c].max())
+                                      for c, name in enumerate(result.cable_names)}
     if result.energy_residual is not None and result.energy_residual.size:
         summary["max_abs_energy_residual_J"] = float(np.abs(result.energy_residual).max())
         summary["energy_residual_bound_J"] = result.energy_bound

@@ -75,8 +75,8 @@ def test_csv_columns_and_rows(short_run):
     expected += ["tension_1_N", "tension_2_N", "tension_3_N", "yaw_torque_Nm", "thrust_u_N", "thrust_v_N"]
     cables = ("main", "L1", "L2", "L3")
     for c in cables:
-        expected += [f"cable_{c}_tension_N", f"cable_{c}_slack"]
-    expected += ["saturated"]
+        expected += [f"cable_{c}_tension_N", f"cable_{c}_slack", f"cable_{c}_gap_m"]
+    expected += ["energy_residual_J", "saturated"]
     expected += [f"anchor_climbing_unit_{axis}_m" for axis in "xyz"]
     expected += [f"q_{body}.{vec}_{axis}{'_m' if vec == 'r' else ''}" for body in ("CC", "SU") for vec in "ruvw"
                  for axis in "xyz"]

@@ -162,7 +162,9 @@ def test_ki_zero_closed_loop_equals_the_code_before(cranes, index):
     r = crane.simulate(method, duration=case["duration"], ki=0.0, **case["overrides"])
     assert {"u": digest(r.u), "q": digest(r.q), "qd": digest(r.qd)} == {k: case[k] for k in ("u", "q", "qd")}
     assert int(r.saturated.sum()) == case["saturated_steps"]
-    assert {k: v for k, v in r.summary().items() if k not in TIMING} == case["summary"]
+    # the figures the code before reported (later additions, such as the plant's gaps and energy
+    # residual of issue 18, are not in the baseline)
+    assert {k: v for k, v in r.summary().items() if k not in TIMING and k in case["summary"]} == case["summary"]
 
 
 @pytest.mark.parametrize("method", ["mlm", "penalty", "iterative-3"])
@@ -195,9 +197,11 @@ def test_ki_zero_with_a_running_integrator_changes_nothing(cranes, spec, method)
 
 def _recorded_columns(data: bytes) -> bytes:
     """The CSV as it was when the baseline was recorded (with --state): without the moving anchors'
-    columns and with the winch lengths' old unitless names (both changed later), by the same writer."""
+    columns, the cables' gaps and the energy residual, and with the winch lengths' old unitless names
+    (all changed later), by the same writer."""
     rows = list(csv.reader(io.StringIO(data.decode(), newline="")))
-    keep = [i for i, name in enumerate(rows[0]) if not name.startswith("anchor_")]
+    keep = [i for i, name in enumerate(rows[0])
+            if not (name.startswith("anchor_") or name.endswith("_gap_m") or name == "energy_residual_J")]
     rows[0] = [re.sub(r"\.length_m(_per_s)?$", lambda m: ".length" + ("_per_s" if m.group(1) else ""), name)
                for name in rows[0]]
     text = io.StringIO(newline="")
@@ -221,7 +225,8 @@ def test_the_run_command_with_ki_zero_writes_what_it_wrote_before(tmp_path, caps
     closed_loop_comparable("acroboter")
     assert {name: hashlib.sha256(data).hexdigest() for name, data in csvs[False].items()} == base["csv"]
     for method, figures in summary["methods"].items():
-        assert {k: v for k, v in figures.items() if k not in TIMING} == base["methods"][method], method
+        recorded = base["methods"][method]  # the figures reported then (later additions are not in it)
+        assert {k: v for k, v in figures.items() if k not in TIMING and k in recorded} == recorded, method
     assert sorted(summary) == base["summary_keys"]
 
 
