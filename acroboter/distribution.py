@@ -146,11 +146,7 @@ class BoundedInputs:
             raise DistributionError("the input distribution's terms are not finite")
         y += w
         u = self.preferred - E.T @ y  # Π u_pref + u_F
-        self.unbounded[:] = u
-        if self.within_limits(u):
-            self.u[:] = u
-            self.limit_state[:] = 0
-            self.bounded_step = False
+        if self._take_unbounded(u):
             return self.u
         # Step 3: ½|E u − e_F|² + ½μ|Π(u − u_pref)|², within the limits.
         np.matmul(E.T, E, out=self._hessian)
@@ -195,13 +191,19 @@ class BoundedInputs:
                 mu = SECONDARY_WEIGHT * scale if scale > 0 else 1.0
                 self._hessian += mu * (z @ z.T)
                 self._gradient -= mu * (z @ (z.T @ self.preferred))
-        self.unbounded[:] = u
-        if self.within_limits(u):
-            self.u[:] = u
-            self.limit_state[:] = 0
-            self.bounded_step = False
+        if self._take_unbounded(u):
             return self.u
         return self._bounded()
+
+    def _take_unbounded(self, u: np.ndarray) -> bool:
+        """Record the unbounded minimiser u; if it is within the limits it is the answer (True)."""
+        self.unbounded[:] = u
+        if not self.within_limits(u):
+            return False
+        self.u[:] = u
+        self.limit_state[:] = 0
+        self.bounded_step = False
+        return True
 
     def _bounded(self) -> np.ndarray:
         """Step 3 with the Hessian and gradient in self._hessian, self._gradient: the strictly convex QP
