@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.optimize import lsq_linear, minimize
 
-from acroboter.distribution import SECONDARY_WEIGHT, BoundedInputs
+from acroboter.control.distribution import SECONDARY_WEIGHT, BoundedInputs
 
 INF = np.inf
 

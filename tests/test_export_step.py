@@ -26,16 +26,16 @@ import mpmath
 import numpy as np
 import pytest
 
-from acroboter.cache import load_model
+from acroboter.cli.generate import export_step_main as main
 from acroboter.codegen import export_step
 from acroboter.codegen.export_step import ExportError, build_step, step_name, write_step
 from acroboter.codegen.generate import generate
-from acroboter.codegen_cli import export_step_main as main
-from acroboter.controllers import Gains, make_controller
-from acroboter.settings import PENALTY_SECONDARY_WEIGHT
-from acroboter.simulation import setup_default, simulate
-from acroboter.spec import load_spec, parse_spec
-from acroboter.statics import desired_path, solve_equilibrium
+from acroboter.control.controllers import Gains, make_controller
+from acroboter.model.settings import PENALTY_SECONDARY_WEIGHT
+from acroboter.model.spec import load_spec, parse_spec
+from acroboter.runtime.cache import load_model
+from acroboter.sim.simulation import setup_default, simulate
+from acroboter.sim.statics import desired_path, solve_equilibrium
 
 REPO = Path(__file__).resolve().parent.parent
 SPEC_PATH = REPO / "model_spec" / "acroboter.toml"

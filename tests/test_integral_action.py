@@ -28,15 +28,15 @@ import pytest
 import scipy
 
 import acroboter
-from acroboter import run
-from acroboter.cache import load_model
+from acroboter.cli import run
 from acroboter.codegen.export_step import ExportError, build_step
-from acroboter.controllers import make_controller
-from acroboter.path import TrajectoryPath
-from acroboter.settings import Gains
-from acroboter.simulation import setup_default, simulate
-from acroboter.spec import SpecError, load_spec
-from acroboter.statics import solve_equilibrium, start_targets
+from acroboter.control.controllers import make_controller
+from acroboter.control.path import TrajectoryPath
+from acroboter.model.settings import Gains
+from acroboter.model.spec import SpecError, load_spec
+from acroboter.runtime.cache import load_model
+from acroboter.sim.simulation import setup_default, simulate
+from acroboter.sim.statics import solve_equilibrium, start_targets
 
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT = REPO / "model_spec" / "acroboter.toml"

@@ -70,9 +70,9 @@ import casadi as ca
 import numpy as np
 from scipy.linalg import cholesky, solve_triangular
 
-from ..layout import Layout, nominal_coordinates
-from ..settings import MLM_RCOND_LIMIT, PENALTY_SECONDARY_WEIGHT, RANK_TOLERANCE, SECONDARY_WEIGHT, Gains
-from ..spec import MAX_ITERATIONS, RECOVERIES, Spec, load_spec
+from ..model.layout import Layout, nominal_coordinates
+from ..model.settings import MLM_RCOND_LIMIT, PENALTY_SECONDARY_WEIGHT, RANK_TOLERANCE, SECONDARY_WEIGHT, Gains
+from ..model.spec import MAX_ITERATIONS, RECOVERIES, Spec, load_spec
 from .generate import INPUT_NAMES
 from .structured import cholesky_solve, mlm_bounded_terms, penalty_bounded_terms
 from .symbolic import SymbolicModel, build_symbolic_model
