@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 
 from acroboter.cli.generate import export_step_main as main
-from acroboter.codegen import export_step
+from acroboter.codegen import step_methods
 from acroboter.codegen.export_step import ExportError, build_step, step_name, write_step
 from acroboter.codegen.generate import generate
 from acroboter.control.controllers import Gains, make_controller
@@ -307,7 +307,7 @@ def test_tikhonov_fallback_keeps_u(scenario, monkeypatch):
     """If the projected recovery's matrix were still rank deficient after the redundant rows are left out,
     the export adds 1e-12 * trace/size to the normal equations' diagonal: forced here, u stays put."""
     spec, model, desired, gains, states = scenario
-    monkeypatch.setattr(export_step, "RANK_TOL", 2.0)  # every matrix counts as rank deficient
+    monkeypatch.setattr(step_methods, "RANK_TOL", 2.0)  # every matrix counts as rank deficient
     export = build_step(spec, "penalty", gains)
     assert any("Tikhonov term" in note and "rank deficient" in note for note in export.notes)
     u_c = np.array([np.asarray(export.function(q, qd, *desired.signal_arrays(t))).ravel() for t, q, qd in states])
@@ -580,7 +580,7 @@ def test_refuses_distributions_it_cannot_bound(scenario, four_cable, monkeypatch
     """Where the exported distribution would need Python's eigen split at run time (a singular Hessian
     without more inputs than servo-constraints, or MLM's E rank deficient), the export refuses: clear
     ExportError, exit 2 from the CLI, no traceback. Forced here: every Hessian counts as singular."""
-    monkeypatch.setattr(export_step, "SINGULAR_MARGIN", 1e30)
+    monkeypatch.setattr(step_methods, "SINGULAR_MARGIN", 1e30)
     spec = scenario[0]
     with pytest.raises(ExportError, match="cannot bound the inputs: the projected recovery's fit H\\^T P H is "
                        "singular at the nominal configuration"):
