@@ -33,7 +33,9 @@ from scipy.linalg.lapack import dpotrf, dpotrs
 
 from ..control.path import DesiredPath
 from ..model.layout import nominal_coordinates
-from ..model.spec import Sensing, SpecError, _format_pydantic, _Strict, sensing_coordinates, sensing_problems
+from ..model.schema import Sensing, SpecError, _Strict, sensing_coordinates
+from ..model.spec_checks import sensing_problems
+from ..model.spec_errors import format_pydantic
 
 # Gauss–Newton stops once max |φ| is this small (the plant itself holds φ to about 1e-13).
 PROJECTION_TOLERANCE = 1e-13
@@ -90,7 +92,7 @@ def resolve(spec, sensing=None, source: str = "sensing") -> Sensing | None:
         try:
             chosen = _SensingOnly.model_validate({"sensing": data}).sensing
         except ValidationError as err:
-            raise SpecError(source, _format_pydantic(err, {"sensing": data})) from None
+            raise SpecError(source, format_pydantic(err, {"sensing": data})) from None
     else:
         raise TypeError(f"sensing: expected None, False, a mapping or a Sensing, found {type(sensing).__name__}")
     problems = sensing_problems(spec, chosen)
