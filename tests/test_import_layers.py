@@ -145,8 +145,9 @@ def test_a_module_is_read_in_one_sitting(module):
 
 
 def _layer_rows(text: str) -> list[tuple[str, str]]:
-    """(folder, rest of the row) of each `| `folder/` | ... |` row of a layer table, in order."""
-    return re.findall(r"^\| `(\w+)/` \|(.*)$", text, flags=re.M)
+    """(folder, rest of the row) of each row of the document's layer table (headed `| folder | modules |`)."""
+    table = text[text.index("| folder | modules |"):].split("\n\n", 1)[0]
+    return re.findall(r"^\| `(\w+)/` \|(.*)$", table, flags=re.M)
 
 
 def _named(row: str) -> set[str]:

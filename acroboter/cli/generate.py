@@ -247,7 +247,7 @@ def export_step_main(argv: list[str] | None = None) -> int:
 
 @guarded
 def build_main(argv: list[str] | None = None) -> int:
-    """`acroboter build`: compile the examples' libraries into the cache (acroboter.build), with the
+    """`acroboter build`: compile the examples' libraries into the cache (acroboter.runtime.build), with the
     error boundary of every command."""
     from ..runtime.build import main as build
 

@@ -3,7 +3,7 @@
     acroboter mjcf model_spec/lab_crane.toml -o lab_crane.xml
     python -m mujoco.viewer --mjcf lab_crane.xml          # where a display exists
 
-The XML is what acroboter.mjcf_model writes (docs/mujoco.md: every modelling choice); before it is
+The XML is what acroboter.model.mjcf_model writes (docs/mujoco.md: every modelling choice); before it is
 written, MuJoCo loads it (`mujoco.MjModel.from_xml_string`), so a file on disk always loads. By
 default its reference pose is the crane's static equilibrium at the start of the path, with a
 keyframe `static_start` whose ctrl holds it there (load it in MuJoCo's viewer: without the inputs

@@ -1,11 +1,11 @@
 """Monte Carlo robustness study: `acroboter robustness` (see --help), or `robustness()` from Python.
 
-N plants are drawn around the spec's physical parameters (acroboter.robustness_grid: masses ±10 %,
+N plants are drawn around the spec's physical parameters (acroboter.studies.robustness_grid: masses ±10 %,
 inertias ±20 %, point positions ±5 mm, cable lengths ±2 mm by default, uniform, sample i seeded by
 (seed, i)); on each, every method (MLM, penalty, iterative-3/4/5) runs the spec's path with the
 PD law (ki = 0) and with integral action (ki: docs/integral_action.md's choice for the spec's kp, kd,
 18.375 for kp = kd = 5), while the controllers keep the spec's model. One task per sample, on a
-dask.distributed cluster (acroboter.grid: a LocalCluster on 127.0.0.1 by default, --scheduler a
+dask.distributed cluster (acroboter.studies.grid: a LocalCluster on 127.0.0.1 by default, --scheduler a
 running one, --workers 0 in this process); tasks never compile.
 
 Writes <out>/robustness.csv (one row per sample, method and ki: the sample's parameters, max and RMS
@@ -190,7 +190,7 @@ def _write(out: Path, result: RobustnessResult, spec, spec_path, seed, duration,
             "spec_sha256": hashlib.sha256(Path(spec_path).read_bytes()).hexdigest(),
             "seed": seed, "samples": len(result.samples), "duration_s": duration,
             "sampling": "uniform; sample i from numpy.random.default_rng((seed, i)), one draw per parameter in "
-                        "acroboter.physical.parameter_names order, redrawn while the spec refuses it",
+                        "acroboter.model.physical.parameter_names order, redrawn while the spec refuses it",
             "ranges": {g: {"low": lo, "high": hi, "unit": GROUPS[g][1], "what": GROUPS[g][0]}
                        for g, (lo, hi) in ranges.items()},
             "methods": list(methods), "ki": [0.0, result.ki], "kp": spec.controller.kp, "kd": spec.controller.kd,
@@ -267,7 +267,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                        help=f"range of the {what}, {unit}: ±H or LO:HI (default ±{half:g})")
     p.add_argument("--sensing-noise", action="append", default=[], metavar="GROUP=STD",
                    help="measurement noise (standard deviation, m or unitless) of a sensing group, e.g. "
-                        "positions=0.0002; repeatable (acroboter.sensing, docs/sensing.md); default: none")
+                        "positions=0.0002; repeatable (acroboter.sim.sensing, docs/sensing.md); default: none")
     p.add_argument("--sensing-delay", type=whole(0), default=None, metavar="N",
                    help="measurement delay in whole control periods (default: none)")
     p.add_argument("--sensing-seed", type=whole(0), default=None, metavar="N",

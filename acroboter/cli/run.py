@@ -245,7 +245,7 @@ def provenance(args: argparse.Namespace, spec, gains, methods: list[str], durati
         "spec_toml": Path(args.spec).read_text(),
         "gains": asdict(gains),
         "plant": plant_provenance(args, spec),
-        # the plant's physical parameters other than the spec's (acroboter.physical), {} for none
+        # the plant's physical parameters other than the spec's (acroboter.model.physical), {} for none
         "plant_params": dict(getattr(args, "plant_params", {})),
         # what the controller measured instead of the plant's state (docs/sensing.md), None for the state
         "sensing": sensing.model_dump(mode="json") if (sensing := getattr(args, "sensing_used", None)) else None,
@@ -270,7 +270,7 @@ def plant_provenance(args: argparse.Namespace, spec) -> dict:
     from ..model.mjcf_model import DEFAULT_TIMESTEP
 
     return {"engine": "mujoco", "mujoco_version": metadata.version("mujoco"), "integrator": "RK4",
-            "step_s": args.mujoco_timestep or DEFAULT_TIMESTEP, "model": "acroboter.mjcf_model (docs/mujoco.md)"}
+            "step_s": args.mujoco_timestep or DEFAULT_TIMESTEP, "model": "acroboter.model.mjcf_model (docs/mujoco.md)"}
 
 
 def is_paper_crane(spec) -> bool:

@@ -1,18 +1,18 @@
 """Penalty-number study on Dask: `python -m acroboter.sweep` (see --help), or `sweep()` from Python.
 
-The grid (acroboter.penalty_grid): the penalty numbers α (by default α̃ = α̂ = α, one value per decade
+The grid (acroboter.studies.penalty_grid): the penalty numbers α (by default α̃ = α̂ = α, one value per decade
 from 1e1 to 1e16: the usual range 1e3..1e12 and enough beyond it on both sides to see each method
 break down), the constraint penalty's natural frequency Ω, and the methods penalty and iterative-N,
 plus one MLM reference run (MLM has no penalty numbers). Every grid point is one closed-loop
-simulation of the spec's path, run as one task on a dask.distributed cluster (acroboter.grid): by
+simulation of the spec's path, run as one task on a dask.distributed cluster (acroboter.studies.grid): by
 default a LocalCluster of worker processes on 127.0.0.1, with --scheduler ADDRESS a running cluster
 (its workers need this package and the same checkout, with the model library already built: tasks
 never compile). dask is an optional extra: `pip install 'acroboter[dask]'`.
 
-Writes <out>/sweep.csv (one row per run: acroboter.penalty_grid.COLUMNS) and the figures
-sweep_tracking_error.png, sweep_constraints.png and sweep_condition.png (acroboter.study_figures);
+Writes <out>/sweep.csv (one row per run: acroboter.studies.penalty_grid.COLUMNS) and the figures
+sweep_tracking_error.png, sweep_constraints.png and sweep_condition.png (acroboter.report.study_figures);
 prints a table of the tracking error and the α range over which each method stays within a factor
-(--tolerance, 2) of MLM's error, and how it breaks down outside it (acroboter.judging).
+(--tolerance, 2) of MLM's error, and how it breaks down outside it (acroboter.studies.judging).
 """
 
 from __future__ import annotations
@@ -214,6 +214,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    # The tasks (acroboter.penalty_grid.run_case) live in an importable module: they pickle as
+    # The tasks (acroboter.studies.penalty_grid.run_case) live in an importable module: they pickle as
     # references however this one is started.
     sys.exit(main())

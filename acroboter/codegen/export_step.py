@@ -38,7 +38,7 @@ The mass matrix of natural coordinates is constant, so its Cholesky factor's inv
 'projected' recovery, a least squares in the M⁻¹ metric) is a numeric constant in the C as well.
 
 Input limits (the spec's actuator `limits` and `preferred`, baked in as constants like the gains) are
-honoured as the Python controllers do (acroboter.distribution.BoundedInputs), branch for branch, so the
+honoured as the Python controllers do (acroboter.control.distribution.BoundedInputs), branch for branch, so the
 C gives their u also where a limit binds:
 - no more inputs than servo-constraints: the unbounded u above if it is within the limits (bit for bit
   the unbounded export); otherwise, in a CasADi Switch that the C evaluates only then, the recovery's

@@ -22,7 +22,7 @@ from .structured import mlm_bounded_terms, penalty_bounded_terms
 RANK_TOL = 1e-10
 TIKHONOV = 1e-12
 # Non-redundant inputs: the distribution's Hessian must be nonsingular at the nominal configuration, its
-# smallest/largest eigenvalue this far above acroboter.distribution.RANK_TOLERANCE (which is relative to
+# smallest/largest eigenvalue this far above acroboter.control.distribution.RANK_TOLERANCE (which is relative to
 # the mean eigenvalue, never above the largest: the check is the stricter one).
 SINGULAR_MARGIN = 1e3
 

@@ -1,4 +1,4 @@
-"""The input limits in an exported step: acroboter.distribution's bounded distribution as CasADi graph pieces.
+"""The input limits in an exported step: acroboter.control.distribution's bounded distribution as CasADi graph pieces.
 
 Bounds holds the spec's limits and preferred values (baked in as constants) and builds, for the graph of
 one step (acroboter.codegen.step_graph.StepGraph), the limit checks, the clip, the three forms of the
@@ -14,7 +14,7 @@ import numpy as np
 from ..model.settings import SECONDARY_WEIGHT
 from .structured import cholesky_solve
 
-# --- Input limits: acroboter.distribution's bounded distribution, in the graph ----------------------------
+# --- Input limits: acroboter.control.distribution's bounded distribution, in the graph ----------------------------
 #
 # Every branch mirrors BoundedInputs (acroboter/distribution.py) step by step:
 #   1. non-redundant inputs: the unbounded u (computed as before) if it is within the limits;

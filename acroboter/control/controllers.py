@@ -44,7 +44,7 @@ def unbounded(spec: Spec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 class Controller:
     """Shared part: load state, signals and parameters into the model's input buffers.
 
-    Every controller honours the spec's input limits (acroboter.distribution): an unbounded
+    Every controller honours the spec's input limits (acroboter.control.distribution): an unbounded
     solution within them is used as it is; otherwise, or where there are more inputs than
     servo-constraints (redundant actuation), a small bounded QP gives the input.
     """
@@ -52,7 +52,7 @@ class Controller:
     name = "controller"
     terms_function = ""
     bounded_function = ""
-    secondary_weight = 0.0  # acroboter.distribution: 0 lexicographic, > 0 weighted
+    secondary_weight = 0.0  # acroboter.control.distribution: 0 lexicographic, > 0 weighted
 
     def __init__(self, model, path: DesiredPath, gains: Gains, limits=None):
         """`model`: a CompiledModel, or any backend with the same buffers and functions.
@@ -122,7 +122,7 @@ class Controller:
         return u
 
     def _distribute(self, hessian: np.ndarray, gradient: np.ndarray) -> np.ndarray:
-        """The bounded input (acroboter.distribution) into self.u."""
+        """The bounded input (acroboter.control.distribution) into self.u."""
         try:
             self.u[:] = self.limits.solve(hessian, gradient)
         except DistributionError as err:

@@ -1,4 +1,4 @@
-"""What a run writes besides the CSVs (Result.to_csv) and figures (acroboter.figures): summary.json, the table."""
+"""What a run writes besides the CSVs (Result.to_csv) and figures (acroboter.report.figures): summary.json, the table."""
 
 from __future__ import annotations
 
@@ -57,12 +57,12 @@ def format_table(summaries: dict, paper: bool = True) -> str:
 def write_figures(out: Path, results: dict[str, RunResult], scenario: Scenario, summaries: dict,
                   input_names: list[str], servo_names: list[str], input_limits=None,
                   paper: bool = True) -> list[Path]:
-    """The run's figures, written into `out`; returns their paths (acroboter.figures.FIGURE_NAMES).
+    """The run's figures, written into `out`; returns their paths (acroboter.report.figures.FIGURE_NAMES).
 
     `input_names`: the inputs' y-labels with units; `servo_names`: the servo-constraints' names;
     `input_limits` (min, max) per input are drawn on the inputs' panels; `paper=False` (a crane
     that is not the paper's) leaves the paper's MATLAB times out of control_step_time.png.
-    A thin alias of acroboter.figures.write_figures (imported here on use: matplotlib loads only then)."""
+    A thin alias of acroboter.report.figures.write_figures (imported here on use: matplotlib loads only then)."""
     from .figures import write_figures as write
 
     return write(out, results, scenario, summaries, input_names, servo_names, input_limits, paper)

@@ -1,4 +1,4 @@
-"""Judging a robustness study's rows (acroboter.robustness_grid): the tables and the findings.
+"""Judging a robustness study's rows (acroboter.studies.robustness_grid): the tables and the findings.
 
 `summarize` turns the rows into the numbers summary.json keeps: per (method, ki) the success rate
 at the paper's bounds, divergences and the distribution of the max error; per bin of the SU + CC
@@ -11,7 +11,7 @@ import math
 
 from ..studies.robustness_grid import POSITION_BOUND_MM, SETTLE_S, YAW_BOUND_DEG
 
-MASS_BINS = 10  # the same bins as the success figure (acroboter.study_figures.robustness_figures)
+MASS_BINS = 10  # the same bins as the success figure (acroboter.report.study_figures.robustness_figures)
 
 
 def _quantile(values: list[float], q: float) -> float | None:

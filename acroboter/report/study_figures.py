@@ -1,8 +1,8 @@
 """The studies' figures (matplotlib, written as PNG without a display).
 
-- `sweep_figures`: a penalty-number grid's rows (acroboter.penalty_grid.COLUMNS) against the swept α:
+- `sweep_figures`: a penalty-number grid's rows (acroboter.studies.penalty_grid.COLUMNS) against the swept α:
   tracking error, constraint violation and cond(A), a panel per method and a line per Ω;
-- `position_error_figure`: the position error over time of a study's runs (acroboter.study), one
+- `position_error_figure`: the position error over time of a study's runs (acroboter.cli.study), one
   line per case.
 
 matplotlib is imported inside the functions: the CLIs' --help and --no-plots never load it.
@@ -135,7 +135,7 @@ def sweep_figures(out: Path, rows: list[dict], alpha_mode: str = "tied", toleran
 
 
 def position_error_figure(cases: list[dict], path: Path, title: str, with_spec: bool) -> None:
-    """Position error over time of a study's cases (acroboter.study.run_case): the whole run on the
+    """Position error over time of a study's cases (acroboter.cli.study.run_case): the whole run on the
     left, the first 1.5 s on the right; cases the method refused are left out."""
     import numpy as np
 
@@ -184,7 +184,7 @@ def case_label(case: dict) -> str:
 
 
 # ---------------------------------------------------------------------------------------------------
-# The robustness Monte Carlo (acroboter.robustness): rows of acroboter.robustness_grid.COLUMNS_HEAD
+# The robustness Monte Carlo (acroboter.cli.robustness): rows of acroboter.studies.robustness_grid.COLUMNS_HEAD
 
 
 def robustness_figures(out: Path, rows: list[dict], bins: int = 10, worst: dict | None = None) -> list[Path]:

@@ -1,7 +1,7 @@
 """`acroboter run --view`: replay a run in MuJoCo's interactive viewer (needs a display).
 
 The recorded natural coordinates of each method are set into the spec's MJCF model instant by
-instant (acroboter.mujoco_plant.MujocoPlant.set_state), in real time, whichever plant simulated
+instant (acroboter.sim.mujoco_plant.MujocoPlant.set_state), in real time, whichever plant simulated
 them; close the window to go on. Without a display `display_problem()` says why, before any work.
 """
 
@@ -34,7 +34,7 @@ def display_problem() -> str | None:
 
 
 def replay(model, path, results: dict, speed: float = 1.0) -> None:
-    """Show each method's run (name -> acroboter.result.Result) in turn in one viewer window."""
+    """Show each method's run (name -> acroboter.sim.result.Result) in turn in one viewer window."""
     import mujoco.viewer
 
     from ..sim.mujoco_plant import MujocoPlant

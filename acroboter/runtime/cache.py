@@ -9,7 +9,7 @@ The generated C of a spec comes from, in order:
    spec's model hash and the code generator's hash (which covers CasADi's version), written into a
    temporary folder and renamed into place under a lock.
 
-The library is then compiled into the cache (acroboter.build), keyed by the sources and flags.
+The library is then compiled into the cache (acroboter.runtime.build), keyed by the sources and flags.
 This is the one runtime module that may call the code generator: controllers, plant and
 simulation only ever see the CompiledModel it returns.
 """

@@ -157,7 +157,7 @@ class CompiledModel:
     def __init__(self, spec: Spec, source_dir: Path, cache_root: Path, build: bool = True):
         """Bind the generated code in `source_dir` (a generated/<spec>/ folder, checked against the
         spec and by content hash) compiled into the cache at `cache_root` (on first use).
-        acroboter.cache.load_model finds both for a spec. build=False: a missing library is a
+        acroboter.runtime.cache.load_model finds both for a spec. build=False: a missing library is a
         NotBuiltError instead of a compilation (e.g. on a worker machine that must not compile)."""
         self.spec = spec
         self.layout: Layout = build_layout(spec)

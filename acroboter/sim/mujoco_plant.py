@@ -1,5 +1,5 @@
 """MuJoCo as the plant: the spec's MJCF model (acroboter.codegen.mjcf) stepped by MuJoCo, read in
-the project's natural coordinates, with the interface of acroboter.plant.Plant.
+the project's natural coordinates, with the interface of acroboter.sim.plant.Plant.
 
     plant = MujocoPlant(model, path)            # model: a CompiledModel (for its spec and layout)
     x = plant.initial_state(q0)                 # [q, q̇] in natural coordinates
@@ -52,7 +52,7 @@ class _Body:
 
 
 class MujocoPlant:
-    """The crane of `model.spec` (with `parameters`, acroboter.physical) simulated by MuJoCo."""
+    """The crane of `model.spec` (with `parameters`, acroboter.model.physical) simulated by MuJoCo."""
 
     def __init__(self, model, path: DesiredPath, parameters=None, timestep: float = DEFAULT_TIMESTEP):
         mujoco = _mujoco()

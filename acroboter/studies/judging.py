@@ -1,6 +1,6 @@
 """Judging a grid's rows: which runs are good, how the others fail, and the text that says so.
 
-A row (acroboter.penalty_grid.COLUMNS) is *good* when its run finished (status 'ok') and its max
+A row (acroboter.studies.penalty_grid.COLUMNS) is *good* when its run finished (status 'ok') and its max
 position error is within `tolerance` times the reference's (MLM: no penalty numbers, so the best the
 crane's model allows at these gains). A run that is not good falls in one category (`category`):
 

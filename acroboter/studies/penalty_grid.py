@@ -7,7 +7,7 @@ penalty's natural frequency Ω. `run_case` simulates one case's closed loop and 
 the run, the condition number of the penalty matrix A = M + α̃ φ_qᵀφ_q + α̂ σ_qᵀσ_q and how far the
 commanded acceleration q̈ violates the constraint and servo-constraint acceleration equations:
 |φ_q q̈ + ρ| = |λ|/α̃ and |σ_q q̈ + ρ_s| = |λ̂|/α̂, the softness of the penalty (zero for MLM up to
-round-off). It runs on a dask worker (acroboter.grid.run_cases) or in-process alike.
+round-off). It runs on a dask worker (acroboter.studies.grid.run_cases) or in-process alike.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The Monte Carlo robustness grid: parameter ranges, seeded samples, the task that runs one sample.
 
-A sample is a plant whose physical parameters (acroboter.physical names) are drawn uniformly within
+A sample is a plant whose physical parameters (acroboter.model.physical names) are drawn uniformly within
 the ranges around the spec's values, while every controller keeps the spec's model. Ranges come in
 groups (`GROUPS`): relative for masses, inertias (the bodies' tensor entries and the winch drums'
 reflected inertia) and dampings, absolute (mm) for the bodies' points and the fixed cables' lengths.

@@ -141,7 +141,7 @@ def camera_axes(azimuth: float, elevation: float) -> tuple[np.ndarray, np.ndarra
 
 class MujocoFrames:
     """Draws the scene at any row with MuJoCo's offscreen renderer. The crane is its MJCF model
-    (acroboter.mjcf_model) posed from the row's q by MujocoPlant.set_state, the moving anchors where the run
+    (acroboter.model.mjcf_model) posed from the row's q by MujocoPlant.set_state, the moving anchors where the run
     recorded them; the cables are its visible tendons, coloured per frame by tension (the matplotlib renderer's
     colormap and range) or grey, translucent and thin while slack. Added to MuJoCo's scene per frame: the bodies'
     axes u, v, w (arrows), their outlines, the desired path and the trace so far (lines through at most
