@@ -1,4 +1,4 @@
-"""What a run writes besides the CSVs (Result.to_csv) and figures (acroboter.report.figures): summary.json, the table."""
+"""What a run writes besides the CSVs (Result.to_csv) and figures (report/figures.py): summary.json, the table."""
 
 from __future__ import annotations
 
