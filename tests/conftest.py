@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acroboter.cache import load_model
-from acroboter.compiled import CompiledModel
-from acroboter.layout import Layout, nominal_coordinates
-from acroboter.spec import Spec, load_spec
+from acroboter.model.layout import Layout, nominal_coordinates
+from acroboter.model.spec import Spec, load_spec
+from acroboter.runtime.cache import load_model
+from acroboter.runtime.compiled import CompiledModel
 
 REPO = Path(__file__).resolve().parent.parent
 SPEC_DIR = REPO / "model_spec"
@@ -130,7 +130,7 @@ def rigid_plant_rhs(model, path, u, zeta: float, omega: float):
 
 def load_with_start(path: Path):
     """(spec, compiled model, desired path, static equilibrium at the start) of a spec file."""
-    from acroboter.statics import desired_path, solve_equilibrium
+    from acroboter.sim.statics import desired_path, solve_equilibrium
 
     spec = load_spec(path)
     model = load_model(spec)

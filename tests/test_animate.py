@@ -10,12 +10,12 @@ import shutil
 import numpy as np
 import pytest
 
-from acroboter import animate
-from acroboter.animation.matplotlib_frames import MatplotlibFrames
-from acroboter.animation.mujoco_frames import MujocoFrames, probe_gl
-from acroboter.animation.scene import SLACK_COLOUR, AnimationInputError, frame_rows, load, spec_of_run
-from acroboter.run import main as run_main
-from acroboter.spec import load_spec
+from acroboter.cli import animate
+from acroboter.cli.run import main as run_main
+from acroboter.model.spec import load_spec
+from acroboter.report.animation.matplotlib_frames import MatplotlibFrames
+from acroboter.report.animation.mujoco_frames import MujocoFrames, probe_gl
+from acroboter.report.animation.scene import SLACK_COLOUR, AnimationInputError, frame_rows, load, spec_of_run
 
 DURATION = 1.0
 
@@ -312,7 +312,7 @@ def _diverged_copy(results, tmp_path, at=0.9):
 
 
 def test_a_diverged_run_says_so(results, tmp_path, caplog):
-    from acroboter.animation.matplotlib_frames import render_rows
+    from acroboter.report.animation.matplotlib_frames import render_rows
 
     folder = _diverged_copy(results, tmp_path)
     with caplog.at_level("INFO", logger="acroboter"):
@@ -337,7 +337,7 @@ def test_mujoco_diverged_note_and_gif_colours(gl, results_2s, tmp_path, monkeypa
     from matplotlib import colormaps
     from PIL import Image
 
-    from acroboter.animation.mujoco_frames import render_rows
+    from acroboter.report.animation.mujoco_frames import render_rows
 
     monkeypatch.setenv("MUJOCO_GL", gl)
     folder = _diverged_copy(results_2s, tmp_path, at=1.9)

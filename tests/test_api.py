@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import acroboter
-from acroboter.path import TrajectoryError
+from acroboter.control.path import TrajectoryError
 
 REPO = Path(__file__).resolve().parent.parent
 

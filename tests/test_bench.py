@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acroboter.bench import time_steps
-from acroboter.cache import load_model
-from acroboter.casadi_backend import CasadiModel
-from acroboter.controllers import Gains, make_controller
-from acroboter.spec import load_spec
-from acroboter.statics import desired_path, solve_equilibrium
+from acroboter.cli.bench import time_steps
+from acroboter.control.controllers import Gains, make_controller
+from acroboter.model.spec import load_spec
+from acroboter.runtime.cache import load_model
+from acroboter.runtime.casadi_backend import CasadiModel
+from acroboter.sim.statics import desired_path, solve_equilibrium
 
 SPEC = Path(__file__).resolve().parent.parent / "model_spec" / "acroboter.toml"
 

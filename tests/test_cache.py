@@ -12,10 +12,10 @@ import pytest
 from conftest import SPEC_DIR
 
 import acroboter
-from acroboter.build import BuildError
-from acroboter.cache import load_model
-from acroboter.interrupts import remembered_interrupt
-from acroboter.spec import load_spec
+from acroboter.model.interrupts import remembered_interrupt
+from acroboter.model.spec import load_spec
+from acroboter.runtime.build import BuildError
+from acroboter.runtime.cache import load_model
 
 
 @pytest.fixture(scope="module")

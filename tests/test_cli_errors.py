@@ -53,7 +53,7 @@ def test_bad_options_exit_2_before_any_work(module, args, words):
 
 def test_an_unexpected_error_is_one_line_and_exit_3(monkeypatch, capsys):
     """A bug no error class names still meets the boundary: a message, exit 3, no traceback."""
-    from acroboter.entry import guarded
+    from acroboter.cli.entry import guarded
 
     @guarded
     def broken(argv=None) -> int:
@@ -66,9 +66,9 @@ def test_an_unexpected_error_is_one_line_and_exit_3(monkeypatch, capsys):
 
 
 def test_the_boundary_maps_the_project_errors_to_their_codes(capsys):
-    from acroboter.controllers import SingularSystemError
-    from acroboter.entry import guarded
-    from acroboter.statics import EquilibriumError
+    from acroboter.cli.entry import guarded
+    from acroboter.control.controllers import SingularSystemError
+    from acroboter.sim.statics import EquilibriumError
 
     for error, code in ((EquilibriumError("no static equilibrium found"), 2),
                         (SingularSystemError("MLM's system is singular"), 3), (KeyboardInterrupt(), 130)):

@@ -12,8 +12,8 @@ import pytest
 from conftest import load_with_start, rigid_plant_rhs
 from scipy.integrate import solve_ivp
 
-from acroboter.controllers import Gains, make_controller
-from acroboter.simulation import Scenario, setup_default, simulate, summarize
+from acroboter.control.controllers import Gains, make_controller
+from acroboter.sim.simulation import Scenario, setup_default, simulate, summarize
 
 REPO = Path(__file__).resolve().parent.parent
 METHODS = ("mlm", "penalty", "iterative-3", "iterative-4", "iterative-5")

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acroboter.cache import load_model
 from acroboter.codegen.generate import generate
-from acroboter.controllers import Gains, make_controller
-from acroboter.spec import load_spec
-from acroboter.statics import desired_path
+from acroboter.control.controllers import Gains, make_controller
+from acroboter.model.spec import load_spec
+from acroboter.runtime.cache import load_model
+from acroboter.sim.statics import desired_path
 
 TOY = Path(__file__).resolve().parent / "specs" / "collocated_toy.toml"
 

@@ -17,10 +17,10 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from acroboter.cache import load_model
 from acroboter.codegen.generate import FUNCTIONS, GenerationContext
-from acroboter.layout import nominal_coordinates
-from acroboter.spec import load_spec
+from acroboter.model.layout import nominal_coordinates
+from acroboter.model.spec import load_spec
+from acroboter.runtime.cache import load_model
 
 REPO = Path(__file__).resolve().parent.parent
 SPEC_DIR = REPO / "model_spec"
@@ -85,7 +85,7 @@ def random_extra_input(pair: Pair, name: str, size: int, model_inputs, rng: np.r
     if name in ("force", "qdd", "qdd_sum"):
         return rng.standard_normal(size)
     if name == "plant_params":  # physical parameters (acroboter.physical): the spec's ±2 % (inertias stay physical)
-        from acroboter.physical import parameter_values
+        from acroboter.model.physical import parameter_values
 
         return parameter_values(pair.spec) * rng.uniform(0.98, 1.02, size)
     if name == "no_plant_params" and size == 0:  # the folded plant's empty parameter input
@@ -192,7 +192,7 @@ def test_generation_is_deterministic(name, tmp_path):
     # Another process with another hash seed: no set or dict order may leak into the output.
     third = tmp_path / "third"
     script = (
-        "import sys; from pathlib import Path; from acroboter.spec import load_spec; "
+        "import sys; from pathlib import Path; from acroboter.model.spec import load_spec; "
         "from acroboter.codegen.generate import GenerationContext; "
         "GenerationContext(load_spec(sys.argv[1])).register_all().write(Path(sys.argv[2]))"
     )

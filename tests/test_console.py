@@ -9,7 +9,7 @@ import sys
 import pytest
 
 import acroboter
-from acroboter.cli import COMMANDS, main
+from acroboter.cli.console import COMMANDS, main
 
 
 def _acroboter(*args, cwd=None):

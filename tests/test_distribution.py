@@ -1,4 +1,4 @@
-"""The bounded input distribution (acroboter.distribution) against independent solvers.
+"""The bounded input distribution (acroboter.control.distribution) against independent solvers.
 
 Oracles: numpy's dense solves and closed forms for the unbounded cases, scipy's bounded least
 squares (`lsq_linear`) and SLSQP with equality constraints for the bounded ones. None of them
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.optimize import lsq_linear, minimize
 
-from acroboter.distribution import SECONDARY_WEIGHT, BoundedInputs
+from acroboter.control.distribution import SECONDARY_WEIGHT, BoundedInputs
 
 INF = np.inf
 

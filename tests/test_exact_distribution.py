@@ -1,7 +1,7 @@
 """Issue 18, item 5: with redundant inputs, limits and `preferred` do not cost tracking.
 
 The penalty methods' distribution is lexicographic in the servo-constraint accelerations
-(acroboter.distribution.BoundedInputs.solve_task), as MLM's is. Oracles, none sharing code with the
+(acroboter.control.distribution.BoundedInputs.solve_task), as MLM's is. Oracles, none sharing code with the
 distribution: the same crane without limits and with another `preferred` (closed loop); a dense
 numpy solve of the constrained dynamics for σ̈(u), its null space by SVD; for random problems, the
 fit restricted to the task directions by numpy least squares on an SVD basis, scipy's bounded least
@@ -18,9 +18,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import lsq_linear
 
-from acroboter.controllers import Gains, make_controller, unbounded
-from acroboter.distribution import BoundedInputs
-from acroboter.simulation import Scenario, setup_default, simulate, summarize
+from acroboter.control.controllers import Gains, make_controller, unbounded
+from acroboter.control.distribution import BoundedInputs
+from acroboter.sim.simulation import Scenario, setup_default, simulate, summarize
 
 FOUR_CABLE = REPO / "model_spec" / "acroboter_4cable.toml"
 METHODS = ("penalty", "iterative-3", "mlm")

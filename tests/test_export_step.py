@@ -26,15 +26,15 @@ import mpmath
 import numpy as np
 import pytest
 
-from acroboter.cache import load_model
-from acroboter.codegen import export_step
+from acroboter.cli.generate import export_step_main as main
+from acroboter.codegen import step_methods
 from acroboter.codegen.export_step import ExportError, build_step, step_name, write_step
 from acroboter.codegen.generate import generate
-from acroboter.codegen_cli import export_step_main as main
-from acroboter.controllers import Gains, make_controller
-from acroboter.simulation import setup_default, simulate
-from acroboter.spec import load_spec, parse_spec
-from acroboter.statics import desired_path, solve_equilibrium
+from acroboter.control.controllers import Gains, make_controller
+from acroboter.model.spec import load_spec, parse_spec
+from acroboter.runtime.cache import load_model
+from acroboter.sim.simulation import setup_default, simulate
+from acroboter.sim.statics import desired_path, solve_equilibrium
 
 REPO = Path(__file__).resolve().parent.parent
 SPEC_PATH = REPO / "model_spec" / "acroboter.toml"
@@ -306,7 +306,7 @@ def test_tikhonov_fallback_keeps_u(scenario, monkeypatch):
     """If the projected recovery's matrix were still rank deficient after the redundant rows are left out,
     the export adds 1e-12 * trace/size to the normal equations' diagonal: forced here, u stays put."""
     spec, model, desired, gains, states = scenario
-    monkeypatch.setattr(export_step, "RANK_TOL", 2.0)  # every matrix counts as rank deficient
+    monkeypatch.setattr(step_methods, "RANK_TOL", 2.0)  # every matrix counts as rank deficient
     export = build_step(spec, "penalty", gains)
     assert any("Tikhonov term" in note and "rank deficient" in note for note in export.notes)
     u_c = np.array([np.asarray(export.function(q, qd, *desired.signal_arrays(t))).ravel() for t, q, qd in states])
@@ -585,7 +585,7 @@ def test_refuses_distributions_it_cannot_bound(scenario, four_cable, monkeypatch
     """Where the exported distribution would need Python's eigen split at run time (a singular Hessian
     without more inputs than servo-constraints, or MLM's E rank deficient), the export refuses: clear
     ExportError, exit 2 from the CLI, no traceback. Forced here: every Hessian counts as singular."""
-    monkeypatch.setattr(export_step, "SINGULAR_MARGIN", 1e30)
+    monkeypatch.setattr(step_methods, "SINGULAR_MARGIN", 1e30)
     spec = scenario[0]
     with pytest.raises(ExportError, match="cannot bound the inputs: the projected recovery's fit H\\^T P H is "
                        "singular at the nominal configuration"):

@@ -12,10 +12,10 @@ import pytest
 from conftest import load_with_start
 from matplotlib.image import imread
 
-from acroboter.controllers import Gains, make_controller
-from acroboter.figures import FIGURE_NAMES, build_figures, magnification, yaw_error_deg
-from acroboter.report import format_table, write_figures
-from acroboter.simulation import Scenario, setup_default, simulate, summarize
+from acroboter.control.controllers import Gains, make_controller
+from acroboter.report.figures import FIGURE_NAMES, build_figures, magnification, yaw_error_deg
+from acroboter.report.report import format_table, write_figures
+from acroboter.sim.simulation import Scenario, setup_default, simulate, summarize
 
 REPO = Path(__file__).resolve().parent.parent
 METHODS = ("mlm", "penalty")

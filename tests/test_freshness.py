@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 from conftest import REPO, SHIPPED_NAMES, SHIPPED_SPECS, SPEC_DIR, raw_spec
 
-from acroboter.build import build, library_path
-from acroboter.cache import load_model
 from acroboter.codegen.generate import generate
-from acroboter.compiled import StaleModelError
-from acroboter.fingerprint import codegen_hash
-from acroboter.locations import cache_dir, shipped_generated_folder
-from acroboter.spec import load_spec, parse_spec
+from acroboter.model.fingerprint import codegen_hash
+from acroboter.model.locations import cache_dir, shipped_generated_folder
+from acroboter.model.spec import load_spec, parse_spec
+from acroboter.runtime.build import build, library_path
+from acroboter.runtime.cache import load_model
+from acroboter.runtime.compiled import StaleModelError
 
 GENERATED_DIR = shipped_generated_folder()
 

@@ -18,11 +18,11 @@ from pathlib import Path
 import pytest
 from conftest import REPO, SPEC_DIR
 
-from acroboter.cache import load_model
 from acroboter.codegen import generate as generation
 from acroboter.codegen.generate import GenerationContext, generate
-from acroboter.compiled import StaleModelError
-from acroboter.spec import load_spec
+from acroboter.model.spec import load_spec
+from acroboter.runtime.cache import load_model
+from acroboter.runtime.compiled import StaleModelError
 
 TOY = Path(__file__).resolve().parent / "specs" / "collocated_toy.toml"
 
@@ -115,7 +115,7 @@ def test_a_spec_from_elsewhere_cannot_overwrite_a_checked_in_crane(tmp_path):
 
 def test_generation_checks_that_the_code_compiles(tmp_path, monkeypatch):
     """The CLI's verification compiles the staged C: broken C never replaces working C."""
-    from acroboter import codegen_cli as cli
+    from acroboter.cli import generate as cli
 
     spec = load_spec(TOY)
     root = tmp_path / "generated"
@@ -219,8 +219,8 @@ def test_git_status_stays_clean_after_an_interrupted_generation_of_a_checked_in_
 
 def test_two_checked_in_specs_with_one_name_are_refused(tmp_path, monkeypatch):
     """A copy in model_spec/ that kept the original's name (step 1 of "Model a new crane", forgotten)."""
-    from acroboter import codegen_cli as cli
-    from acroboter.spec import SpecError
+    from acroboter.cli import generate as cli
+    from acroboter.model.spec import SpecError
 
     specs = tmp_path / "model_spec"
     specs.mkdir()
@@ -235,7 +235,7 @@ def test_two_checked_in_specs_with_one_name_are_refused(tmp_path, monkeypatch):
 
 
 def test_a_truncated_library_is_rebuilt_not_loaded(toy_tree, tmp_path):
-    from acroboter.build import build as build_library
+    from acroboter.runtime.build import build as build_library
 
     spec, root, build = copy_tree(toy_tree, tmp_path)
     lib = build_library(spec.name, root / spec.name, build)  # built, not loaded: this process never maps it

@@ -28,15 +28,16 @@ import pytest
 import scipy
 
 import acroboter
-from acroboter import run
-from acroboter.cache import load_model
+import acroboter.api.crane
+from acroboter.cli import run
 from acroboter.codegen.export_step import ExportError, build_step
-from acroboter.controllers import make_controller
-from acroboter.path import TrajectoryPath
-from acroboter.settings import Gains
-from acroboter.simulation import setup_default, simulate
-from acroboter.spec import SpecError, load_spec
-from acroboter.statics import solve_equilibrium, start_targets
+from acroboter.control.controllers import make_controller
+from acroboter.control.path import TrajectoryPath
+from acroboter.model.settings import Gains
+from acroboter.model.spec import SpecError, load_spec
+from acroboter.runtime.cache import load_model
+from acroboter.sim.simulation import setup_default, simulate
+from acroboter.sim.statics import solve_equilibrium, start_targets
 
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT = REPO / "model_spec" / "acroboter.toml"
@@ -368,7 +369,7 @@ def test_the_integrator_does_not_wind_up_on_a_limit(limited, method):
 def test_ki_is_a_controller_setting_checked_for_stability(tmp_path, capsys):
     raw = DEFAULT.read_text()
     assert load_spec(DEFAULT).controller.ki == 0.0  # absent: no integral action
-    assert "ki" in acroboter.crane.GAIN_NAMES
+    assert "ki" in acroboter.api.crane.GAIN_NAMES
     crane = acroboter.Crane.from_toml(DEFAULT)
     assert crane.gains(ki=KI).ki == KI
     with pytest.raises(ValueError, match="ki"):

@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 from conftest import load_with_start
 
-from acroboter import run
-from acroboter.cache import load_model
-from acroboter.controllers import Gains, make_controller, unbounded
-from acroboter.simulation import Scenario, setup_default, simulate, summarize
-from acroboter.statics import desired_path, solve_equilibrium
+from acroboter.cli import run
+from acroboter.control.controllers import Gains, make_controller, unbounded
+from acroboter.runtime.cache import load_model
+from acroboter.sim.simulation import Scenario, setup_default, simulate, summarize
+from acroboter.sim.statics import desired_path, solve_equilibrium
 
 REPO = Path(__file__).resolve().parent.parent
 FOUR_CABLE = REPO / "model_spec" / "acroboter_4cable.toml"
@@ -223,7 +223,7 @@ def test_a_reversed_winch_reports_its_tension_as_gain_times_u(tmp_path):
     from conftest import raw_spec
 
     from acroboter.codegen.generate import generate
-    from acroboter.spec import parse_spec
+    from acroboter.model.spec import parse_spec
 
     data = raw_spec("acroboter")
     data["name"] = "acroboter_reversed_winch"

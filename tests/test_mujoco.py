@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 
 from acroboter import Crane
-from acroboter.mjcf_model import MjcfError, check_representable, joint_layout, mjcf_xml
-from acroboter.mujoco_plant import MujocoPlant
-from acroboter.path import TrajectoryPath
-from acroboter.plant import Plant
-from acroboter.spec import BodyThrust, BodyTorque, WinchTension, load_spec
+from acroboter.control.path import TrajectoryPath
+from acroboter.model.mjcf_model import MjcfError, check_representable, joint_layout, mjcf_xml
+from acroboter.model.spec import BodyThrust, BodyTorque, WinchTension, load_spec
+from acroboter.sim.mujoco_plant import MujocoPlant
+from acroboter.sim.plant import Plant
 
 ROOT = Path(__file__).resolve().parent.parent
 SPECS = sorted((ROOT / "model_spec").glob("*.toml"))
@@ -304,7 +304,7 @@ def test_mujoco_timestep_must_divide_the_plant_step(cranes):
 
 
 def test_an_input_beyond_its_limits_is_refused_not_clipped(cranes):
-    from acroboter.plant import SimulationError
+    from acroboter.sim.plant import SimulationError
 
     crane = cranes["acroboter"]
     start = crane.equilibrium()
@@ -403,7 +403,7 @@ def test_a_heavier_load_on_mujoco_sags_as_on_the_own_plant(cranes):
 def test_yawed_bodies_on_slide_and_ball_joints_agree_too():
     """lab_crane's bodies (damping that differs: slides and a ball joint) turned at the start, so the
     body frames at qpos0 are not the world's: the state mapping in both directions is exercised."""
-    from acroboter.spec import Spec
+    from acroboter.model.spec import Spec
 
     data = load_spec(ROOT / "model_spec" / "lab_crane.toml").model_dump()
     data["name"] = "lab_crane_yawed"

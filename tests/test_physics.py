@@ -13,8 +13,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from acroboter.layout import body_rotation
-from acroboter.spec import BodyThrust, BodyTorque, PositionTask, WinchTension
+from acroboter.model.layout import body_rotation
+from acroboter.model.spec import BodyThrust, BodyTorque, PositionTask, WinchTension
 
 AXIS = {"u": 0, "v": 1, "w": 2}
 

@@ -1,7 +1,7 @@
 """The plant through slack/taut transitions on cases nobody chose (issue 18).
 
 Oracles: MuJoCo (an engine written by others) on the spec's MJCF model, driven by the same inputs
-(acroboter.plant_fuzz), and the plant's own invariants (no slack cable stretched, no taut cable
+(acroboter.studies.plant_fuzz), and the plant's own invariants (no slack cable stretched, no taut cable
 pushing, the energy balance closed), which it checks itself at every substep. The experiments are
 drawn by hypothesis (a few here; `make plant-fuzz` runs thousands, docs/plant-fuzz.md); the cases
 it shrank to, and the issue's reproduction, are kept below as regression tests.
@@ -20,9 +20,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from acroboter import Crane
-from acroboter import plant as plant_module
-from acroboter.open_loop import OpenLoopError
-from acroboter.plant_fuzz import (
+from acroboter.sim import plant as plant_module
+from acroboter.sim.open_loop import OpenLoopError
+from acroboter.studies.plant_fuzz import (
     POSITION_BOUND_M,
     Experiment,
     experiment_of,
@@ -110,7 +110,7 @@ def _check(outcome):
 def test_random_open_loop_experiments_agree_with_mujoco(name, rng):
     """A few of `make plant-fuzz`'s experiments, drawn (and shrunk) by hypothesis, on every spec."""
     template = experiment_of(name, 0)  # the spec's static inputs and winches, as make plant-fuzz sees them
-    from acroboter.plant_fuzz import crane_of
+    from acroboter.studies.plant_fuzz import crane_of
 
     crane = crane_of(name)
     static = dict(zip(crane.layout.inputs, (float(v) for v in crane.equilibrium().inputs), strict=True))
@@ -122,7 +122,7 @@ def test_random_open_loop_experiments_agree_with_mujoco(name, rng):
                                         ("acroboter_4input", 26)])
 def test_seeded_experiments_with_cascades_agree(name, seed):
     """Seeds of make plant-fuzz whose experiments hand loads between cables (dozens of re-tensions)."""
-    from acroboter.plant_fuzz import crane_of
+    from acroboter.studies.plant_fuzz import crane_of
 
     outcome = run_experiment(experiment_of(name, seed), crane_of(name))
     _check(outcome)
@@ -134,7 +134,7 @@ def test_a_cascade_that_used_to_chatter_forever_resolves():
     impact, was located at θ = 1e-9 where its gap's change (4e-18 m) is round-off; the impact there
     left it slack, and again, 250 times in one step (SimulationError, 'chattering'). The bracket now
     starts where the gap has measurably moved (GAP_RESOLUTION)."""
-    from acroboter.plant_fuzz import crane_of
+    from acroboter.studies.plant_fuzz import crane_of
 
     experiment = Experiment("acroboter_4input", 1.0, {  # the first second of the draw (4.24 s)
         "tension_1": [["sine", 8.23318235961625, 2.482877079153468, 0.35661655265673553]],

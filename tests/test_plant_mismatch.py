@@ -23,14 +23,14 @@ import numpy as np
 import pytest
 
 import acroboter
-from acroboter.cache import load_model
 from acroboter.codegen.generate import generate
-from acroboter.controllers import make_controller
-from acroboter.physical import PlantParameterError, parameter_names, parameter_values, resolve
-from acroboter.plant import Plant
-from acroboter.simulation import simulate
-from acroboter.spec import load_spec
-from acroboter.statics import desired_path, start_targets
+from acroboter.control.controllers import make_controller
+from acroboter.model.physical import PlantParameterError, parameter_names, parameter_values, resolve
+from acroboter.model.spec import load_spec
+from acroboter.runtime.cache import load_model
+from acroboter.sim.plant import Plant
+from acroboter.sim.simulation import simulate
+from acroboter.sim.statics import desired_path, start_targets
 
 REPO = Path(__file__).resolve().parent.parent
 SPEC = REPO / "model_spec" / "acroboter.toml"
@@ -96,7 +96,7 @@ def folded_nominal(tmp_path_factory):
 
 
 def spec_value(spec, name: str) -> float:
-    from acroboter.physical import parameter_names, parameter_values
+    from acroboter.model.physical import parameter_names, parameter_values
 
     return float(parameter_values(spec)[parameter_names(spec).index(name)])
 

@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acroboter.cache import load_model
-from acroboter.controllers import Gains, SingularSystemError, make_controller
-from acroboter.simulation import Scenario, setup_default, simulate, summarize
-from acroboter.spec import load_spec
-from acroboter.statics import desired_path, solve_equilibrium
+from acroboter.control.controllers import Gains, SingularSystemError, make_controller
+from acroboter.model.spec import load_spec
+from acroboter.runtime.cache import load_model
+from acroboter.sim.simulation import Scenario, setup_default, simulate, summarize
+from acroboter.sim.statics import desired_path, solve_equilibrium
 
 SPECS = Path(__file__).resolve().parent.parent / "model_spec"
 DURATION = 6.0  # s: past the first corner's acceleration and the start of the yaw turn

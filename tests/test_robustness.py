@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from acroboter import robustness as rb
-from acroboter import robustness_grid as rg
+from acroboter.cli import robustness as rb
+from acroboter.studies import robustness_grid as rg
 
 REPO = Path(__file__).resolve().parent.parent
 SPEC = REPO / "model_spec" / "acroboter.toml"
@@ -165,7 +165,7 @@ def test_ranges_and_recommended_ki():
     assert math.isfinite(rg.POSITION_BOUND_MM)
 
 
-@pytest.mark.skipif(importlib.util.find_spec("acroboter.sensing") is None, reason="no acroboter.sensing")
+@pytest.mark.skipif(importlib.util.find_spec("acroboter.sim.sensing") is None, reason="no acroboter.sensing")
 def test_measurement_noise_and_delay_reach_every_run(tmp_path):
     p = run_cli("--spec", str(SPEC), "--samples", "1", "--duration", "0.5", "--methods", "mlm", "--workers", "0",
                 "--sensing-noise", "positions=0.0002", "--sensing-delay", "1", "--sensing-seed", "3", "--no-plots",

@@ -98,9 +98,9 @@ def test_a_run_that_blows_up_between_records_reports_no_tiny_error(tmp_path):
 def test_an_equilibrium_solve_gives_up_within_its_time_limit(monkeypatch):
     """The lab crane's start needs the solve; with no time allowed it says so at once, as it would after
     EQUILIBRIUM_TIME_LIMIT_S (5 s) on a spec that has no equilibrium."""
-    from acroboter import statics
-    from acroboter.cache import load_model
-    from acroboter.spec import load_spec
+    from acroboter.model.spec import load_spec
+    from acroboter.runtime.cache import load_model
+    from acroboter.sim import statics
 
     model = load_model(load_spec(REPO / "model_spec" / "lab_crane.toml"))
     path = statics.desired_path(model)
@@ -114,12 +114,12 @@ def test_an_equilibrium_solve_gives_up_within_its_time_limit(monkeypatch):
 def test_a_one_input_crane_runs(tmp_path):
     """One actuator: its n x 1 terms stay matrices. The winch lifts the box along the vertical path;
     MLM (one input for three servo-constraints) refuses with its reason."""
-    from acroboter.cache import load_model
     from acroboter.codegen.generate import generate
-    from acroboter.controllers import Gains, SingularSystemError, make_controller
-    from acroboter.simulation import Scenario, setup_default, simulate, summarize
-    from acroboter.spec import load_spec
-    from acroboter.statics import desired_path, solve_equilibrium
+    from acroboter.control.controllers import Gains, SingularSystemError, make_controller
+    from acroboter.model.spec import load_spec
+    from acroboter.runtime.cache import load_model
+    from acroboter.sim.simulation import Scenario, setup_default, simulate, summarize
+    from acroboter.sim.statics import desired_path, solve_equilibrium
 
     spec = load_spec(Path(__file__).resolve().parent / "specs" / "one_winch.toml")
     generate(spec, tmp_path / "generated")
@@ -144,11 +144,11 @@ def test_a_long_run_needs_memory_for_its_records_only():
     (~24 MB here); a table of every RK4 stage of the run would add 100 MB."""
     import tracemalloc
 
-    from acroboter.cache import load_model
-    from acroboter.controllers import Gains, make_controller
-    from acroboter.simulation import setup_default, simulate
-    from acroboter.spec import load_spec
-    from acroboter.statics import desired_path, solve_equilibrium
+    from acroboter.control.controllers import Gains, make_controller
+    from acroboter.model.spec import load_spec
+    from acroboter.runtime.cache import load_model
+    from acroboter.sim.simulation import setup_default, simulate
+    from acroboter.sim.statics import desired_path, solve_equilibrium
 
     spec = load_spec(REPO / "model_spec" / "acroboter.toml")
     model = load_model(spec)

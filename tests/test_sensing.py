@@ -25,9 +25,9 @@ import scipy
 from conftest import raw_spec
 
 import acroboter
-from acroboter.crane import Crane
-from acroboter.sensing import Estimator, is_ideal, make_estimator, resolve
-from acroboter.spec import SpecError, parse_spec
+from acroboter.api.crane import Crane
+from acroboter.model.spec import SpecError, parse_spec
+from acroboter.sim.sensing import Estimator, is_ideal, make_estimator, resolve
 
 METHODS = ["mlm", "penalty", "iterative-3", "iterative-4", "iterative-5"]
 BASELINE = json.loads((Path(__file__).parent / "data" / "sensing_baseline.json").read_text())

@@ -16,8 +16,8 @@ from conftest import SHIPPED_NAMES, raw_spec
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from acroboter.layout import build_layout, nominal_coordinates
-from acroboter.spec import SpecError, parse_spec
+from acroboter.model.layout import build_layout, nominal_coordinates
+from acroboter.model.spec import SpecError, parse_spec
 
 EXTREMES = [0.0, -1.0, 1e-300, 1e300, math.nan, math.inf, -math.inf, -1e9, 7]
 SWAPS = ["text", True, [], {}, [1.0, 2.0], {"x": 1}]

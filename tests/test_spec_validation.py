@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import pytest
 from conftest import REPO, SHIPPED_SPECS, raw_spec
 
-from acroboter.spec import RECOVERIES, SpecError, load_spec, parse_spec
+from acroboter.model.spec import RECOVERIES, SpecError, load_spec, parse_spec
 
 
 def _set(*path, value):

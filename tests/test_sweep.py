@@ -19,9 +19,9 @@ from pathlib import Path
 
 import pytest
 
-from acroboter import grid, judging
-from acroboter import penalty_grid as pg
-from acroboter import sweep as sw
+from acroboter.cli import sweep as sw
+from acroboter.studies import grid, judging
+from acroboter.studies import penalty_grid as pg
 
 REPO = Path(__file__).resolve().parent.parent
 SPEC = REPO / "model_spec" / "acroboter.toml"
@@ -186,7 +186,7 @@ def test_import_and_help_need_no_dask():
     code = "import sys, acroboter.sweep; print(sorted({'dask', 'distributed'} & set(sys.modules)))"
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60)
     assert proc.returncode == 0 and proc.stdout.strip() == "[]", proc.stdout + proc.stderr
-    code = WITHOUT_DASK + "from acroboter.cli import main; sys.exit(main(['sweep', '--help']))"
+    code = WITHOUT_DASK + "from acroboter.cli.console import main; sys.exit(main(['sweep', '--help']))"
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60)
     assert proc.returncode == 0, proc.stderr
     assert "--scheduler" in proc.stdout and "Traceback" not in proc.stderr

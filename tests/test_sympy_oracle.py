@@ -19,9 +19,8 @@ import numpy as np
 import pytest
 import sympy as sp
 
-from acroboter.cache import load_model
-from acroboter.layout import Layout, build_layout, nominal_coordinates
-from acroboter.spec import (
+from acroboter.model.layout import Layout, build_layout, nominal_coordinates
+from acroboter.model.spec import (
     BodyThrust,
     BodyTorque,
     LevelTask,
@@ -32,6 +31,7 @@ from acroboter.spec import (
     load_spec,
     parse_spec,
 )
+from acroboter.runtime.cache import load_model
 
 REPO = Path(__file__).resolve().parent.parent
 SPEC_DIR = REPO / "model_spec"

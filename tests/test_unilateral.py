@@ -23,14 +23,14 @@ from conftest import load_with_start, rigid_plant_rhs
 from scipy.integrate import quad, solve_ivp
 from scipy.optimize import brentq
 
-from acroboter.cache import load_model
 from acroboter.codegen.generate import generate
-from acroboter.controllers import Gains, make_controller
-from acroboter.plant import Plant
-from acroboter.result import Result
-from acroboter.simulation import Scenario, setup_default, simulate, summarize
-from acroboter.spec import load_spec, parse_spec
-from acroboter.statics import desired_path, solve_equilibrium
+from acroboter.control.controllers import Gains, make_controller
+from acroboter.model.spec import load_spec, parse_spec
+from acroboter.runtime.cache import load_model
+from acroboter.sim.plant import Plant
+from acroboter.sim.result import Result
+from acroboter.sim.simulation import Scenario, setup_default, simulate, summarize
+from acroboter.sim.statics import desired_path, solve_equilibrium
 
 REPO = Path(__file__).resolve().parent.parent
 G = 9.81

@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from acroboter.cache import load_model
+from acroboter.api.crane import Crane
 from acroboter.codegen.generate import generate
-from acroboter.crane import Crane
-from acroboter.locations import example_spec
-from acroboter.plant import Plant
+from acroboter.model.locations import example_spec
+from acroboter.runtime.cache import load_model
+from acroboter.sim.plant import Plant
 
 
 def step_times(plant: Plant, states, inputs, table, substeps: int, h: float, calls: int = 20) -> float:

@@ -16,10 +16,10 @@ from pathlib import Path
 
 import casadi as ca
 
-from ..fingerprint import codegen_hash, file_digest, manifest_hash
-from ..interrupts import deferred_interrupt
-from ..mjcf_model import mjcf_xml
-from ..spec import Spec
+from ..model.fingerprint import codegen_hash, file_digest, manifest_hash
+from ..model.interrupts import deferred_interrupt
+from ..model.mjcf_model import mjcf_xml
+from ..model.spec import Spec
 from . import plant, structured
 from .symbolic import SymbolicModel, build_symbolic_model
 

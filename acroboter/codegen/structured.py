@@ -16,7 +16,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from ..layout import nominal_coordinates
+from ..model.layout import nominal_coordinates
 from .symbolic import SymbolicModel
 
 PARAMS = ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu", "ki")  # then z, one per servo row

@@ -12,9 +12,9 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from ..layout import Layout, build_layout
-from ..physical import INERTIA_ENTRIES, parameter_names
-from ..spec import BodyThrust, BodyTorque, LevelTask, PositionTask, Spec, WinchTension, YawTask
+from ..model.layout import Layout, build_layout
+from ..model.physical import INERTIA_ENTRIES, parameter_names
+from ..model.spec import BodyThrust, BodyTorque, LevelTask, PositionTask, Spec, WinchTension, YawTask
 
 AXIS_INDEX = {"u": 0, "v": 1, "w": 2}
 # Heading of a body axis relative to the body's u axis, for the yaw servo-constraint.

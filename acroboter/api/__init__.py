@@ -1,0 +1,1 @@
+"""The library face: `Crane` (spec -> compiled model -> controllers -> simulate -> Result)."""

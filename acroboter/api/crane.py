@@ -1,0 +1,350 @@
+"""The library's face: a crane from its spec, its controllers, and closed-loop simulations.
+
+    import acroboter
+
+    crane = acroboter.Crane.from_toml(acroboter.example_spec("acroboter"))   # validate, compile once, bind
+    start = crane.equilibrium()                     # static start: q, multipliers, inputs
+    controller = crane.controller("penalty")        # for a plant of your own: u = controller.step(q, qd, t)
+    result = crane.simulate("iterative", iterations=5, duration=20.0, kd=6.0)   # -> acroboter.Result
+
+Methods are "mlm", "penalty", "iterative" (with `iterations=N`, default the spec's first count) or
+"iterative-N". Keyword overrides replace the spec's controller settings for that call: kp, kd,
+alpha_geometric, alpha_servo, omega, mu, recovery, kappa, ki (integral action, docs/integral_action.md).
+A `trajectory` (a SampledTrajectory, or a function t -> (position, velocity, acceleration) with
+`duration`) replaces the spec's waypoints.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Callable, Mapping
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+
+from ..control.controllers import make_controller
+from ..control.path import DesiredPath, SampledTrajectory, TrajectoryPath
+from ..model.locations import example_spec
+from ..model.physical import parameter_names, parameter_values
+from ..model.settings import Gains
+from ..model.spec import MAX_ITERATIONS, RECOVERIES, Spec, integral_gain_problem, load_spec
+from ..runtime.cache import load_model
+from ..runtime.compiled import CompiledModel
+from ..sim.feasibility import Feasibility, check_path
+from ..sim.open_loop import held_path, simulate_open_loop
+from ..sim.result import Result
+from ..sim.sensing import check_measurable, make_estimator
+from ..sim.sensing import resolve as resolve_sensing
+from ..sim.simulation import Scenario, setup_default, simulate
+from ..sim.statics import Equilibrium, desired_path, solve_equilibrium, start_targets
+
+# Untimed control steps at the start state before a timed run: the first calls page code and data in.
+WARM_UP_STEPS = 200
+GAIN_NAMES = ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu", "recovery", "kappa", "ki")
+
+Trajectory = SampledTrajectory | Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
+
+
+class Crane:
+    """A crane model: its validated spec, the compiled dynamics bound once, its desired path.
+
+    Names, as the generated code orders them: `coordinates` (natural coordinates, e.g. "SU.r_x"),
+    `inputs` (actuators, e.g. "tension_1") with `input_units`, `servo_constraints` (the task),
+    `cables`."""
+
+    def __init__(self, spec: Spec, model: CompiledModel, source: Path | None = None):
+        self.spec, self.model, self.source = spec, model, source
+        self.layout = model.layout
+        self.name: str = spec.name
+        self.coordinates: list[str] = list(self.layout.coordinates)
+        self.inputs: list[str] = list(self.layout.inputs)
+        self.input_units: list[str] = list(self.layout.input_units)
+        self.servo_constraints: list[str] = list(self.layout.servo_constraints)
+        self.cables: list[str] = [c.name for c in spec.cables]
+        self.scenario = Scenario.from_model(model)
+        self._path: DesiredPath | None = None
+        self._start: Equilibrium | None = None
+        if spec.sensing is not None:  # a [sensing] that measures too little is refused here (SpecError)
+            check_measurable(model, spec.sensing, source=str(source or spec.name))
+
+    # --- construction -----------------------------------------------------------------------------
+    @classmethod
+    def from_toml(cls, path: str | PathLike, cache_dir: str | PathLike | None = None) -> Crane:
+        """Load and validate a spec file, generate and compile its model on first use (into the cache:
+        `cache_dir`, else $ACROBOTER_CACHE_DIR, else the per-user cache), and bind it."""
+        spec = load_spec(Path(path))
+        return cls(spec, load_model(spec, cache_dir=None if cache_dir is None else Path(cache_dir)), Path(path))
+
+    @classmethod
+    def from_example(cls, name: str = "acroboter", cache_dir: str | PathLike | None = None) -> Crane:
+        """One of the shipped cranes by name (acroboter.example_names())."""
+        return cls.from_toml(example_spec(name), cache_dir)
+
+    @classmethod
+    def from_spec(cls, spec: Spec, cache_dir: str | PathLike | None = None) -> Crane:
+        return cls(spec, load_model(spec, cache_dir=None if cache_dir is None else Path(cache_dir)))
+
+    def __repr__(self) -> str:
+        return (f"<Crane {self.name}: {len(self.coordinates)} coordinates, {len(self.inputs)} inputs, "
+                f"{len(self.servo_constraints)} servo-constraints, {len(self.cables)} cables>")
+
+    # --- the pieces -------------------------------------------------------------------------------
+    @property
+    def path(self) -> DesiredPath:
+        """The spec's desired path (waypoints, mean speed, yaw turn)."""
+        if self._path is None:
+            self._path = desired_path(self.model)
+        return self._path
+
+    def input_limits(self) -> dict[str, tuple[float, float, float]]:
+        """Per input: (min, max, preferred), as the spec resolves them."""
+        lower, upper, preferred = self.spec.input_limits()
+        return {name: (float(lo), float(hi), float(p))
+                for name, lo, hi, p in zip(self.inputs, lower, upper, preferred, strict=True)}
+
+    def desired(self, trajectory: Trajectory | None = None, duration: float | None = None) -> DesiredPath:
+        """The path a controller follows: the spec's, or the given trajectory's."""
+        if trajectory is None:
+            return self.path
+        if isinstance(trajectory, SampledTrajectory):
+            duration = trajectory.duration if duration is None else duration
+        elif not callable(trajectory):
+            raise TypeError("trajectory: expected a SampledTrajectory or a function t -> (position, velocity, "
+                            "acceleration)")
+        if duration is None:
+            raise ValueError("a trajectory function needs its duration: pass duration=seconds")
+        _, start_yaw = start_targets(self.model)
+        return TrajectoryPath(self.spec, self.layout, trajectory, float(duration), start_yaw)
+
+    def equilibrium(self, trajectory: Trajectory | None = None, duration: float | None = None) -> Equilibrium:
+        """The static equilibrium at the start of the path: q, constraint multipliers, inputs (at rest)."""
+        if trajectory is None:
+            if self._start is None:
+                self._start = solve_equilibrium(self.model, self.path)
+            return self._start
+        return solve_equilibrium(self.model, self.desired(trajectory, duration))
+
+    def mjcf(self, timestep: float | None = None, plant_params: Mapping[str, float] | None = None,
+             pose: str = "spec") -> str:
+        """The crane's MJCF model for MuJoCo (docs/mujoco.md): mujoco.MjModel.from_xml_string(crane.mjcf());
+        `plant_params` as in simulate(), `timestep` MuJoCo's step (default 1e-4 s); pose="static": the
+        reference pose is the static equilibrium, with a keyframe `static_start` of the inputs holding it
+        (pose="spec": the spec's initial configuration, the XML of generated/)."""
+        from ..model.mjcf_model import DEFAULT_TIMESTEP, mjcf_xml
+        from ..model.physical import with_parameters
+
+        if pose not in ("spec", "static"):
+            raise ValueError(f"pose: expected 'spec' or 'static', found {pose!r}")
+        spec = with_parameters(self.spec, plant_params or {})
+        start = None
+        if pose == "static":
+            equilibrium = self.equilibrium()
+            start = (equilibrium.q, equilibrium.inputs)
+        return mjcf_xml(spec, DEFAULT_TIMESTEP if timestep is None else timestep, start)
+
+    def plant_parameters(self) -> dict[str, float]:
+        """The physical parameters a plant may differ in (`simulate(plant_params=...)`), with the spec's
+        values: gravity.x/y/z, <body>.mass, <body>.inertia.xx …, <body>.damping.translational/rotational,
+        <body>.points.<point>.x/y/z, <cable>.length, <cable>.winch.reflected_inertia (acroboter.physical)."""
+        return dict(zip(parameter_names(self.spec), map(float, parameter_values(self.spec)), strict=True))
+
+    def gains(self, **overrides) -> Gains:
+        """The spec's controller settings with `overrides` (kp, kd, alpha_geometric, alpha_servo, omega,
+        mu, recovery, kappa, ki) checked and applied; ki ≥ 0 must keep the servo error dynamics stable,
+        ki < 2·kd·kp² (docs/integral_action.md)."""
+        unknown = sorted(set(overrides) - set(GAIN_NAMES))
+        if unknown:
+            raise TypeError(f"unknown controller setting(s) {', '.join(unknown)}: use {', '.join(GAIN_NAMES)}")
+        for name, value in overrides.items():
+            if value is None:
+                continue
+            if name == "recovery":
+                if value not in RECOVERIES:
+                    raise ValueError(f"recovery: expected one of {', '.join(RECOVERIES)}, found {value!r}")
+                continue
+            if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value):
+                raise ValueError(f"{name}: expected a finite number, found {value!r}")
+            if name == "kappa" and not 0.0 <= value <= 1.0:
+                raise ValueError(f"kappa: expected a number in [0, 1], found {value:g}")
+            if name == "ki" and value < 0:
+                raise ValueError(f"ki: expected a number ≥ 0, found {value:g}")
+            if name not in ("kappa", "ki") and value <= 0:
+                raise ValueError(f"{name}: expected a positive number, found {value:g}")
+        gains = Gains.from_spec(self.spec, **overrides)
+        if (problem := integral_gain_problem(gains.kp, gains.kd, gains.ki)) is not None:
+            raise ValueError(f"ki: {problem}")
+        return gains
+
+    def sensing(self, sensing=None):
+        """The sensing a run uses (acroboter.spec.Sensing, or None: the plant's state): None, the spec's
+        section; False, none; a mapping of overrides onto the spec's section (or, without one, the
+        groups 'positions', 'axes', 'lengths' measuring every coordinate exactly): `noise` and
+        `quantization` ({group: value}), `delay_periods`, `seed`, `velocity_filter_s`,
+        `projection_iterations`, `groups`. A bad value, or groups that measure too little for the
+        constraints to determine the rest, is a SpecError naming the field (docs/sensing.md)."""
+        chosen = resolve_sensing(self.spec, sensing, source=str(self.source or self.name))
+        if chosen is not None and chosen is not self.spec.sensing:
+            check_measurable(self.model, chosen, source=str(self.source or self.name))
+        return chosen
+
+    def method_name(self, method: str, iterations: int | None = None) -> str:
+        """'mlm', 'penalty', 'iterative-N'; 'iterative' takes `iterations` (default the spec's first)."""
+        if method == "iterative":
+            iterations = self.spec.controller.penalty.iterations[0] if iterations is None else iterations
+            whole = isinstance(iterations, numbers.Integral) and not isinstance(iterations, bool)
+            if not whole or not 1 <= iterations <= MAX_ITERATIONS:
+                raise ValueError(f"iterations: expected a whole number from 1 to {MAX_ITERATIONS}, "
+                                 f"found {iterations!r}")
+            return f"iterative-{int(iterations)}"
+        if iterations is not None:
+            raise ValueError(f"iterations= goes with method 'iterative', not '{method}'")
+        count = method.removeprefix("iterative-")
+        if method in ("mlm", "penalty") or (method.startswith("iterative-") and count.isascii() and count.isdigit()
+                                            and 1 <= int(count) <= MAX_ITERATIONS):
+            return method
+        raise ValueError(f"unknown method '{method}': use mlm, penalty, iterative or iterative-N "
+                         f"(1 <= N <= {MAX_ITERATIONS})")
+
+    def controller(self, method: str = "penalty", trajectory: Trajectory | None = None,
+                   duration: float | None = None, iterations: int | None = None, **overrides) -> Controller:
+        """A controller for a plant of your own: `u = controller.step(q, qd, t)`."""
+        name = self.method_name(method, iterations)
+        path = self.desired(trajectory, duration)
+        return Controller(make_controller(name, self.model, path, self.gains(**overrides)), self.inputs)
+
+    def check_path(self, duration: float | None = None, trajectory: Trajectory | None = None,
+                   **overrides) -> Feasibility:
+        """Before a run: can the ideal motion be realised within the input limits (MLM on the plant)?"""
+        path = self.desired(trajectory, duration)
+        duration = _duration(path, duration)
+        start = self.equilibrium(trajectory, duration)
+        return check_path(self.model, path, setup_default(self.model, path), start.q, duration,
+                          self.gains(**overrides))
+
+    def simulate(self, method: str = "penalty", duration: float | None = None,
+                 trajectory: Trajectory | None = None, iterations: int | None = None,
+                 warm_up: int = WARM_UP_STEPS, progress: Callable[[int], object] | None = None,
+                 plant_params: Mapping[str, float] | None = None, sensing=None, plant: str = "own",
+                 mujoco_timestep: float | None = None, **overrides) -> Result:
+        """Closed loop from the static start: the controller at the spec's rate, the plant's RK4 between.
+
+        `plant`: "own" (the project's Baumgarte RK4 plant) or "mujoco" (MuJoCo on the spec's MJCF
+        model, docs/mujoco.md, at `mujoco_timestep` seconds, default 1e-4; the controller still runs
+        at the spec's rate with the input held in between).
+
+        `plant_params` (name -> value, e.g. {"SU.mass": 8.8}; the names: `plant_parameters()`) make the
+        plant's crane differ from the controller's model, which keeps the spec's numbers; checked
+        before any work (an unknown name or a value the spec would refuse: PlantParameterError, a
+        ValueError). The run starts at the model's static equilibrium.
+
+        `duration` defaults to the path's. A run that diverges (state or input not finite, the tracked
+        point more than 0.5 m off, no consistent cable state) stops there and says so
+        (`result.diverged_at`); a method that cannot handle the crane at all raises
+        SingularSystemError (e.g. MLM with redundant constraints). `progress(n)` is called every
+        control step (e.g. a tqdm bar's update).
+
+        `sensing`: what the controller measures instead of reading the plant's state (docs/sensing.md):
+        None, the spec's [sensing] section (none without one); False, none; a mapping of overrides
+        ({"noise": {"positions": 2e-4}, "delay_periods": 1, "seed": 3, ...}, see `sensing()`)."""
+        name = self.method_name(method, iterations)
+        gains = self.gains(**overrides)
+        chosen = self.sensing(sensing)
+        path = self.desired(trajectory, duration)
+        duration = _duration(path, duration)
+        engine = setup_default(self.model, path, plant_params, plant, mujoco_timestep)
+        start = self.equilibrium(trajectory, duration)
+        controller = make_controller(name, self.model, path, gains)
+        rest = np.zeros(self.layout.n)
+        for _ in range(warm_up):  # steady-state step times: the first calls page code in
+            controller.compute(start.q, rest, 0.0)
+        controller.reset()  # the run starts with the integral action's z = 0
+        run = simulate(self.model, path, controller, engine, start.q, duration,
+                       self.spec.controller.rate_hz, self.spec.simulation.step, progress=progress,
+                       allow_divergence=True, sensor=make_estimator(self.model, path, chosen))
+        return Result(run, self.layout, self.scenario, self.name)
+
+    def simulate_open_loop(self, inputs, duration: float, trajectory: Trajectory | None = None,
+                           plant: str = "own", plant_params: Mapping[str, float] | None = None,
+                           mujoco_timestep: float | None = None, qd0=None,
+                           progress: Callable[[int], object] | None = None) -> Result:
+        """The plant driven open loop from the static start (docs/plant.md).
+
+        `inputs`: a function t -> u (one value per input, `crane.inputs`, in N or N·m) evaluated at each
+        control instant and held for the control period, or an array with one row per control
+        instant. The spec's input limits are not applied (they are what the user asks): the summary's
+        `inputs_outside_limits` lists the instants outside them. The moving anchors follow
+        `trajectory`, by default held where the spec's path starts (the climbing unit at rest).
+        `qd0`: initial velocities (default at rest). `plant`, `plant_params`, `mujoco_timestep` as in
+        `simulate`. A broken plant invariant (a slack cable stretched, a taut one pushing, energy not
+        balanced) or a state that leaves any sensible motion ends the run there (`result.diverged_at`,
+        the reason in `result.summary()` and `result.run.divergence`). Tracking figures are taken
+        against the path the anchors follow."""
+        if not (isinstance(duration, numbers.Real) and math.isfinite(duration) and duration > 0):
+            raise ValueError(f"duration: expected a positive number of seconds, found {duration!r}")
+        path = (held_path(self.spec, self.layout, self.path, float(duration)) if trajectory is None
+                else self.desired(trajectory, duration))
+        if qd0 is not None:
+            qd0 = np.asarray(qd0, dtype=float)
+            if qd0.shape != (self.layout.n,) or not np.isfinite(qd0).all():
+                raise ValueError(f"qd0: expected {self.layout.n} finite velocities (crane.coordinates' order)")
+        engine = setup_default(self.model, path, plant_params, plant, mujoco_timestep)
+        start = self.equilibrium(trajectory, duration)
+        run = simulate_open_loop(self.model, path, engine, start.q, inputs, float(duration),
+                                 self.spec.controller.rate_hz, self.spec.simulation.step, qd0=qd0, progress=progress)
+        return Result(run, self.layout, self.scenario, self.name)
+
+
+class Controller:
+    """One of the crane's controllers for a plant of your own: `u = controller.step(q, qd, t)`.
+
+    q and q̇ are the natural coordinates in `crane.coordinates` order; u is in `inputs` order (a new
+    array each call). After a step, `limit_state` says which inputs sit on a limit (−1 lower, +1
+    upper) and `saturated()` whether a limit kept the input from what the task asked."""
+
+    def __init__(self, inner, inputs: list[str]):
+        self._inner, self.inputs, self.name = inner, inputs, inner.name
+
+    def step(self, q: np.ndarray, qd: np.ndarray, t: float) -> np.ndarray:
+        """The input at measured coordinates q, rates qd (n each, `coordinates` order) and time t (s).
+        Non-finite or mis-shaped measurements are a ValueError: they never reach the actuators."""
+        n = self._inner.n
+        q, qd = np.asarray(q, dtype=float), np.asarray(qd, dtype=float)
+        for name, value in (("q", q), ("qd", qd)):
+            if value.shape != (n,):
+                raise ValueError(f"{name}: expected {n} numbers (crane.coordinates order), found shape {value.shape}")
+            if not np.isfinite(value).all():
+                raise ValueError(f"{name}: expected finite numbers, found NaN or infinity")
+        if not math.isfinite(t):
+            raise ValueError(f"t: expected a finite time in seconds, found {t}")
+        return self._inner.compute(q, qd, float(t)).copy()
+
+    @property
+    def limit_state(self) -> np.ndarray:
+        return self._inner.limit_state.copy()
+
+    def saturated(self) -> bool:
+        return bool(self._inner.saturation())
+
+    @property
+    def integral(self) -> np.ndarray:
+        """z = ∫σ dt per servo-constraint, the integral action's state (zero while ki = 0)."""
+        return self._inner.integral.copy()
+
+    def reset(self) -> None:
+        """z = 0: before a new run (a step at an earlier time than the last one also resets it)."""
+        self._inner.reset()
+
+    def __repr__(self) -> str:
+        return f"<Controller {self.name}: inputs {', '.join(self.inputs)}>"
+
+
+def _duration(path: DesiredPath, duration: float | None) -> float:
+    """The run's length: the path's, or a positive finite number of seconds (checked before any work)."""
+    if duration is None:
+        return path.duration
+    if isinstance(duration, bool) or not isinstance(duration, numbers.Real) or not math.isfinite(duration) \
+            or duration <= 0:
+        raise ValueError(f"duration: expected a positive number of seconds, found {duration!r}")
+    return float(duration)

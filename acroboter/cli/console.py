@@ -1,0 +1,92 @@
+"""`acroboter <command>`: one console script for every command line of the package.
+
+    acroboter run          the paper's scenario (or any spec) under the controllers
+    acroboter bench        control-step timings: compiled C against the casadi.Function path
+    acroboter study        redundancy and non-collocation study over the example cranes
+    acroboter sweep        penalty-number sweep on a Dask cluster (pip install 'acroboter[dask]')
+    acroboter robustness   Monte Carlo over plant parameters: every method, with and without ki, on Dask
+    acroboter generate     write a spec's C (generated/ in a checkout)
+    acroboter check        regenerate into a temporary folder and compare with generated/
+    acroboter build        compile the example specs' libraries into the cache
+    acroboter export-step  one method's complete control step as embedded C
+    acroboter animate      a video (MP4, GIF) of one method's run from its results folder
+    acroboter mjcf         a spec's MJCF model for MuJoCo
+    acroboter plant-fuzz   generated open-loop experiments, the own plant against MuJoCo (docs/plant.md)
+
+`acroboter <command> --help` lists each command's options. -q shows warnings and errors only (no
+progress bars), -v adds debugging detail (cache paths, library paths). Exit codes: 0 done, 2 bad
+input, 3 cannot run, 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from importlib import import_module
+
+# command -> (module, function, arguments put before the user's)
+COMMANDS: dict[str, tuple[str, str, tuple[str, ...]]] = {
+    "run": ("acroboter.cli.run", "main", ()),
+    "bench": ("acroboter.cli.bench", "main", ()),
+    "study": ("acroboter.cli.study", "main", ()),
+    "sweep": ("acroboter.cli.sweep", "main", ()),
+    "robustness": ("acroboter.cli.robustness", "main", ()),
+    "generate": ("acroboter.cli.generate", "main", ("generate",)),
+    "check": ("acroboter.cli.generate", "main", ("check",)),
+    "build": ("acroboter.cli.generate", "build_main", ()),
+    "export-step": ("acroboter.cli.generate", "export_step_main", ()),
+    "animate": ("acroboter.cli.animate", "main", ()),
+    "mjcf": ("acroboter.cli.mjcf", "main", ()),
+    "plant-fuzz": ("acroboter.cli.plant_fuzz", "main", ()),
+}
+
+
+def version() -> str:
+    from .. import __version__
+
+    return __version__
+
+
+def configure_logging(verbosity: int) -> None:
+    """-q (verbosity -1): warnings only; default: progress and notes; -v: debugging detail."""
+    level = {-1: logging.WARNING, 0: logging.INFO}.get(verbosity, logging.DEBUG)
+    logger = logging.getLogger("acroboter")
+    if not logger.handlers:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("%(message)s"))
+        logger.addHandler(handler)
+        logger.propagate = False
+    logger.setLevel(level)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = argparse.ArgumentParser(prog="acroboter", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"acroboter {version()}",
+                        help="print the package version and exit")
+    noise = parser.add_mutually_exclusive_group()
+    noise.add_argument("-q", "--quiet", action="store_const", const=-1, dest="verbosity", default=0,
+                       help="warnings and errors only, no progress bars")
+    noise.add_argument("-v", "--verbose", action="store_const", const=1, dest="verbosity",
+                       help="debugging detail (cache and library paths)")
+    parser.add_argument("command", choices=sorted(COMMANDS), metavar="COMMAND",
+                        help=f"one of: {', '.join(COMMANDS)}")
+    parser.add_argument("arguments", nargs=argparse.REMAINDER, help="the command's own options (see COMMAND --help)")
+    if not argv:
+        parser.print_help()
+        return 0
+    args = parser.parse_args(argv)
+    configure_logging(args.verbosity)
+    module, function, prefix = COMMANDS[args.command]
+    try:
+        command = getattr(import_module(module), function)
+    except KeyboardInterrupt:  # while the command's modules load (numpy, scipy): before any work
+        print("interrupted", file=sys.stderr)
+        return 130
+    return command([*prefix, *args.arguments])
+
+
+if __name__ == "__main__":
+    sys.exit(main())

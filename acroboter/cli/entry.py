@@ -1,0 +1,165 @@
+"""The one error boundary of every command line, and the option types they share.
+
+Every CLI's `main` is wrapped by `guarded`: the project's error classes become one line on stderr
+and the documented exit code, never a traceback:
+
+    2    bad input: a spec, an option, stale or tampered generated code, an unwritable --out
+    3    cannot run: the computation failed (a singular system, a failed build, a plant that
+         found no consistent state, an I/O error while writing)
+    130  interrupted (Ctrl-C): nothing half-written is left that looks complete
+
+An error no class names (a bug) is reported the same way, as "internal error", with exit 3; set
+ACROBOTER_TRACEBACK=1 to see its traceback. The option types check every number the same way
+(finite, in range) before any work.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import math
+import os
+import sys
+import tempfile
+import traceback
+from collections.abc import Callable
+from pathlib import Path
+
+from ..report.progress import (
+    progress_disabled as progress_disabled,  # every command's --quiet (shared with the animation)
+)
+
+EXIT_BAD_INPUT = 2
+EXIT_CANNOT_RUN = 3
+EXIT_INTERRUPTED = 130
+
+
+def _bad_input_errors() -> tuple[type[BaseException], ...]:
+    from ..model.physical import PlantParameterError
+    from ..model.spec import SpecError
+    from ..runtime.compiled import StaleModelError  # imported late: `--help` stays instant
+    from ..sim.statics import EquilibriumError
+
+    return SpecError, StaleModelError, EquilibriumError, PlantParameterError
+
+
+def _cannot_run_errors() -> tuple[type[BaseException], ...]:
+    from ..control.controllers import SingularSystemError
+    from ..control.distribution import DistributionError
+    from ..control.recovery import RecoveryError
+    from ..runtime.build import BuildError
+    from ..sim.plant import SimulationError
+
+    return BuildError, SingularSystemError, DistributionError, SimulationError, RecoveryError, OSError
+
+
+def guarded(main: Callable[..., int]) -> Callable[..., int]:
+    """Run a CLI main with the error boundary above (argparse's own exit 2 passes through)."""
+
+    @functools.wraps(main)
+    def wrapper(*args, **kwargs) -> int:
+        try:
+            return main(*args, **kwargs)
+        except KeyboardInterrupt:
+            print("interrupted", file=sys.stderr)
+            return EXIT_INTERRUPTED
+        except Exception as err:  # noqa: BLE001 - the boundary: every error becomes a message and a code
+            if isinstance(err, _bad_input_errors()):
+                print(f"error: {err}", file=sys.stderr)
+                return EXIT_BAD_INPUT
+            if isinstance(err, _cannot_run_errors()):
+                print(f"error: {err}", file=sys.stderr)
+                return EXIT_CANNOT_RUN
+            if os.environ.get("ACROBOTER_TRACEBACK"):
+                traceback.print_exc()
+            print(f"internal error ({type(err).__name__}: {err}); this is a bug, please report it "
+                  "(ACROBOTER_TRACEBACK=1 shows where)", file=sys.stderr)
+            return EXIT_CANNOT_RUN
+
+    return wrapper
+
+
+# --- option types (argparse `type=`): the same checks for every number of every command -------------
+
+
+def number(low: float | None = None, high: float | None = None, *, low_open: bool = False) -> Callable[[str], float]:
+    """A finite float within [low, high] (low excluded with low_open)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, found '{text}'") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"expected a finite number, found {text}")
+        if low is not None and (value <= low if low_open else value < low):
+            raise argparse.ArgumentTypeError(f"expected a number {'above' if low_open else 'at least'} {low:g}, "
+                                             f"found {value:g}")
+        if high is not None and value > high:
+            raise argparse.ArgumentTypeError(f"expected a number at most {high:g}, found {value:g}")
+        return value
+
+    return parse
+
+
+def positive(high: float | None = None) -> Callable[[str], float]:
+    return number(0.0, high, low_open=True)
+
+
+def whole(low: int = 1, high: int | None = None) -> Callable[[str], int]:
+    """A whole number within [low, high]."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, found '{text}'") from None
+        if value < low or (high is not None and value > high):
+            bound = f"between {low} and {high}" if high is not None else f"at least {low}"
+            raise argparse.ArgumentTypeError(f"expected a whole number {bound}, found {value}")
+        return value
+
+    return parse
+
+
+def check_out_folder(parser: argparse.ArgumentParser, out: Path, option: str = "--out") -> None:
+    """--out must be creatable and writable: found before any work, not after it (parser.error: exit 2)."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out):
+            pass
+    except OSError as err:
+        parser.error(f"cannot write into {option} {out}: {err.strerror or err}")
+
+
+def folder_write_problem(folder: Path) -> str | None:
+    """Why no file can be written into `folder` (None: one can), found without creating anything."""
+    if not folder.exists():
+        return f"the folder {folder} does not exist"
+    if not folder.is_dir():
+        return f"{folder} is not a folder"
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as err:
+        return f"cannot write into the folder {folder}: {err.strerror or err}"
+    return None
+
+
+def file_write_problem(path: Path) -> str | None:
+    """Why the file `path` (through a link: its target) cannot be written or replaced (None: it can)."""
+    target = path.resolve() if path.is_symlink() else path
+    if target.exists() and not target.is_file():
+        return f"{path} is not a regular file"
+    return folder_write_problem(target.parent)
+
+
+def name_value(item: str) -> tuple[str, float] | None:
+    """'NAME=NUMBER' (an option such as --plant-param SU.mass=8.8) as (name, number); None when there
+    is no '=', no name or no number. The caller judges the number (finite, sign)."""
+    name, sep, text = item.partition("=")
+    try:
+        value = float(text)
+    except ValueError:
+        return None
+    return (name.strip(), value) if sep and name.strip() else None

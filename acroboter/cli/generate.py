@@ -1,0 +1,258 @@
+"""The code generator's command lines: `acroboter generate|check [SPEC ...]` and `acroboter export-step`.
+
+generate: write the C of specs (default: every example of model_spec/) into generated/ (in a
+checkout) or --out; check: regenerate into a temporary folder and compare with generated/ (what
+`make check-generated` runs). export-step: one method's complete control step as embedded C.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import filecmp
+import json
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+from ..codegen.generate import generate
+from ..model.interrupts import remembered_interrupt
+from ..model.locations import checkout_root, example_spec, shipped_generated_folder, spec_folder
+from ..model.spec import Spec, SpecError, load_spec
+from .entry import check_out_folder, guarded, number, positive
+
+SPEC_DIR = spec_folder()
+GENERATED_DIR = shipped_generated_folder()
+REPO = checkout_root() or Path.cwd()
+# Outside a checkout nothing is written next to the package: generated C and embedded steps go to
+# the current folder unless --out says otherwise.
+DEFAULT_GENERATED = GENERATED_DIR if checkout_root() is not None else Path("generated")
+DEFAULT_EMBEDDED = REPO / "build" / "embedded" if checkout_root() is not None else Path("embedded")
+
+
+def _specs(paths: list[str]) -> list[Path]:
+    return [Path(p) for p in paths] if paths else sorted(SPEC_DIR.glob("*.toml"))
+
+
+def load_all(spec_paths: list[Path]) -> list[tuple[Path, Spec]]:
+    """Every spec, validated, with distinct names (each name is a folder of generated/)."""
+    specs = [(path, load_spec(path)) for path in spec_paths]
+    first: dict[str, Path] = {}
+    for path, spec in specs:
+        if spec.name in first:
+            raise SpecError(str(path), [("name", f"expected a name of its own, found '{spec.name}', the name of "
+                                                 f"{first[spec.name]} too: each crane needs its own name "
+                                                 "(its folder generated/<name>/)")])
+        first[spec.name] = path
+    return specs
+
+
+def _shown(path: Path) -> str:
+    return str(path.relative_to(REPO)) if path.is_relative_to(REPO) else str(path)
+
+
+def refuse_collisions(specs: list[tuple[Path, Spec]], out_root: Path) -> None:
+    """A spec from elsewhere must not overwrite the generated code of a checked-in spec of the same name."""
+    if out_root.resolve() != GENERATED_DIR.resolve():
+        return
+    checked_in: dict[str, list[Path]] = {}
+    for path in sorted(SPEC_DIR.glob("*.toml")):
+        try:
+            checked_in.setdefault(load_spec(path).name, []).append(path.resolve())
+        except SpecError:
+            continue  # a broken checked-in spec is reported when it is generated itself
+    for path, spec in specs:
+        owners = checked_in.get(spec.name, [])
+        if len(owners) > 1:
+            listed = ", ".join(_shown(p) for p in owners)
+            raise SpecError(str(path), [("name", f"expected a name of its own, found '{spec.name}' in {len(owners)} "
+                                                 f"specs of model_spec/ ({listed}): each crane needs its own name "
+                                                 f"(its folder generated/<name>/); rename the copy")])
+        owner = owners[0] if owners else None
+        if owner is not None and owner != path.resolve():
+            raise SpecError(str(path), [("name", f"expected a name of its own, found '{spec.name}', the name of the "
+                                                 f"checked-in {_shown(owner)}: generating it would overwrite "
+                                                 f"generated/{spec.name}/. Rename the crane, or generate it elsewhere "
+                                                 "with --out DIR")])
+
+
+def compile_check(folder: Path) -> None:
+    """The generated C compiles and links into a library whose hashes are the manifest's."""
+    from ..runtime.build import BuildError, build  # the CLI composes both; codegen itself stays below the runtime
+
+    manifest = json.loads((folder / "manifest.json").read_text())
+    with tempfile.TemporaryDirectory(prefix="acroboter-compile-check-") as tmp:
+        tmp_root = Path(tmp)
+        (tmp_root / "generated").mkdir()
+        sources = tmp_root / "generated" / manifest["spec"]
+        shutil.copytree(folder, sources)
+        try:
+            lib = build(manifest["spec"], sources, tmp_root / "build")
+        except BuildError as err:
+            raise GenerationError(f"the generated C for '{manifest['spec']}' does not compile: {err}") from None
+        library = ctypes.CDLL(str(lib))
+        for what in ("spec_model_hash", "codegen_hash"):
+            fn = getattr(library, f"{manifest['spec']}_{what}")
+            fn.restype = ctypes.c_char_p
+            if fn().decode() != manifest[what]:
+                raise GenerationError(f"the compiled library's {what} is not the manifest's")
+
+
+class GenerationError(RuntimeError):
+    pass
+
+
+def cmd_generate(spec_paths: list[Path], out_root: Path, check_compiles: bool = True) -> int:
+    specs = load_all(spec_paths)  # all valid before anything is written
+    refuse_collisions(specs, out_root)
+    with remembered_interrupt() as interrupt:  # Ctrl-C inside CasADi is honoured before any file is replaced
+
+        def verify(folder: Path) -> None:
+            interrupt.check()
+            if check_compiles:
+                compile_check(folder)
+                interrupt.check()
+
+        for path, spec in specs:
+            out_dir = generate(spec, out_root, verify=verify)
+            print(f"generated {_shown(out_dir)} from {path.name}")
+    return 0
+
+
+def compare_trees(fresh: Path, committed: Path, prefix: str = "") -> list[str]:
+    """Differences between two generated trees: missing, extra and changed files."""
+    problems = []
+    fresh_files = {p.relative_to(fresh) for p in fresh.rglob("*") if p.is_file()}
+    committed_files = {p.relative_to(committed) for p in committed.rglob("*") if p.is_file()}
+    for rel in sorted(fresh_files - committed_files):
+        problems.append(f"missing from generated/: {prefix}{rel}")
+    for rel in sorted(committed_files - fresh_files):
+        problems.append(f"in generated/ but not produced by any spec: {prefix}{rel}")
+    for rel in sorted(fresh_files & committed_files):
+        if not filecmp.cmp(fresh / rel, committed / rel, shallow=False):
+            problems.append(f"differs from what its spec produces: {prefix}{rel}")
+    return problems
+
+
+def cmd_check(spec_paths: list[Path], committed: Path, whole_tree: bool) -> int:
+    """Regenerate into a temporary folder and compare with `committed`.
+
+    With whole_tree, every folder of `committed` must come from some spec; otherwise only the
+    folders of the given specs are compared.
+    """
+    with tempfile.TemporaryDirectory(prefix="acroboter-check-") as tmp:
+        fresh = Path(tmp)
+        problems = []
+        for _, spec in load_all(spec_paths):
+            out_dir = generate(spec, fresh)
+            if not whole_tree:
+                problems += compare_trees(out_dir, committed / out_dir.name, prefix=f"{out_dir.name}/")
+        if whole_tree:
+            problems = compare_trees(fresh, committed)
+    if problems:
+        print("generated/ is stale:", *problems, sep="\n  ")
+        print("fix: run `acroboter generate` (in a checkout: `make generate`, then commit generated/)")
+        return 1
+    print(f"generated/ is up to date ({len(spec_paths)} spec(s))")
+    return 0
+
+
+@guarded
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="acroboter", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("command", choices=["generate", "check"],
+                        help="generate the C, or check generated/ is fresh")
+    parser.add_argument("specs", nargs="*", help="spec files (default: every model_spec/*.toml)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="the folder written (generate; default: generated/ in a checkout, else ./generated) "
+                             "or compared (check; default: the shipped generated/)")
+    parser.add_argument("--no-compile-check", action="store_true",
+                        help="generate: skip compiling each spec's C before it replaces the previous files")
+    args = parser.parse_args(argv)
+    if args.out is None:
+        args.out = DEFAULT_GENERATED if args.command == "generate" else GENERATED_DIR
+    if args.command == "generate":
+        check_out_folder(parser, args.out)
+    try:
+        if args.command == "generate":
+            return cmd_generate(_specs(args.specs), args.out, check_compiles=not args.no_compile_check)
+        return cmd_check(_specs(args.specs), args.out, whole_tree=not args.specs)
+    except SpecError as err:
+        print(err, file=sys.stderr)
+        return 2
+    except GenerationError as err:
+        print(f"error: {err} (the previous generated files are unchanged)", file=sys.stderr)
+        return 3
+    except KeyboardInterrupt:
+        print("interrupted: the previous generated files are unchanged", file=sys.stderr)
+        return 130
+    except OSError as err:
+        print(f"error: cannot write the generated files: {err}", file=sys.stderr)
+        return 3
+
+
+@guarded
+def export_step_main(argv: list[str] | None = None) -> int:
+    """`acroboter export-step`: one method's complete control step as self-contained C and a header."""
+    import numpy as np
+
+    from ..codegen.export_step import GAIN_OPTIONS, MLM_SYSTEMS, PENALTY_SYSTEMS, ExportError, export_step
+    from ..model.spec import RECOVERIES
+
+    parser = argparse.ArgumentParser(
+        prog="acroboter export-step",
+        description="Export one method's complete control step as self-contained C with a header.",
+    )
+    parser.add_argument("--spec", type=Path, default=example_spec(), help="model spec (default: %(default)s)")
+    parser.add_argument("--method", default="penalty", help="mlm, penalty or iterative-N (default: %(default)s)")
+    parser.add_argument("--recovery", choices=RECOVERIES, default=None,
+                        help="input recovery of the penalty methods (default: the spec's, normally projected)")
+    for option in GAIN_OPTIONS:
+        parser.add_argument(f"--{option.replace('_', '-')}", default=None, dest=option,
+                            type=number(0.0, 1.0) if option == "kappa" else positive(1e300),
+                            help="override the spec's value")
+    parser.add_argument("--mlm-system", choices=MLM_SYSTEMS, default="reduced",
+                        help="MLM: the (m+l) system reduced by the constant M, or the full (n+m+l) one "
+                        "(default: %(default)s)")
+    parser.add_argument("--penalty-system", choices=PENALTY_SYSTEMS, default="auto",
+                        help="penalty methods: solve the (m+k) x (m+k) multiplier matrix D^-1 + J M^-1 J^T, or the "
+                        "n x n penalty matrix A = M + J^T D J; the same iterates. auto: multipliers, unless the "
+                        "spec has redundant constraints (then matrix) (default: %(default)s)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help=f"output folder (default: {DEFAULT_EMBEDDED}/<spec>_<method>/)")
+    args = parser.parse_args(argv)
+    if args.out is not None:
+        check_out_folder(parser, args.out)
+    overrides = {name: getattr(args, name) for name in (*GAIN_OPTIONS, "recovery")}
+    for name, value in overrides.items():
+        if isinstance(value, float) and (not np.isfinite(value) or value < 0 or (name != "kappa" and value == 0)):
+            print(f"error: --{name.replace('_', '-')} must be a finite positive number, got {value}", file=sys.stderr)
+            return 2
+    if overrides["kappa"] is not None and overrides["kappa"] > 1:
+        print("error: --kappa must be in [0, 1]", file=sys.stderr)
+        return 2
+    try:
+        spec_name = load_spec(args.spec).name
+        out = args.out if args.out is not None else DEFAULT_EMBEDDED / f"{spec_name}_{args.method}"
+        written = export_step(args.spec, args.method, out, args.mlm_system, args.penalty_system, **overrides)
+    except (SpecError, ExportError, OSError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    for path in written:
+        print(f"wrote {_shown(path)}")
+    return 0
+
+
+@guarded
+def build_main(argv: list[str] | None = None) -> int:
+    """`acroboter build`: compile the examples' libraries into the cache (acroboter.runtime.build), with the
+    error boundary of every command."""
+    from ..runtime.build import main as build
+
+    return build(argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

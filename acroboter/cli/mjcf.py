@@ -1,0 +1,104 @@
+"""`python -m acroboter.mjcf SPEC -o crane.xml` (or `acroboter mjcf`): the MJCF model of a spec.
+
+    acroboter mjcf model_spec/lab_crane.toml -o lab_crane.xml
+    python -m mujoco.viewer --mjcf lab_crane.xml          # where a display exists
+
+The XML is what acroboter.model.mjcf_model writes (docs/mujoco.md: every modelling choice); before it is
+written, MuJoCo loads it (`mujoco.MjModel.from_xml_string`), so a file on disk always loads. By
+default its reference pose is the crane's static equilibrium at the start of the path, with a
+keyframe `static_start` whose ctrl holds it there (load it in MuJoCo's viewer: without the inputs
+the winches pay out and the load falls); `--pose spec` writes the spec's initial configuration
+instead, which is the XML checked in as generated/<spec>/<spec>.xml for the specs in model_spec/.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+from .entry import file_write_problem, guarded, number
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    from ..model.mjcf_model import DEFAULT_TIMESTEP, MAX_TIMESTEP
+
+    p = argparse.ArgumentParser(prog="acroboter mjcf", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("spec", type=Path, nargs="?", default=None,
+                   help="model spec TOML (default: the paper's crane, model_spec/acroboter.toml)")
+    p.add_argument("-o", "--out", type=Path, default=None,
+                   help="the XML file to write (default: <spec name>.xml in the current folder; - for stdout)")
+    p.add_argument("--timestep", type=number(0, MAX_TIMESTEP, low_open=True), default=DEFAULT_TIMESTEP,
+                   help="MuJoCo's time step in s; the cables' constraint time constant is two steps "
+                        "(default: %(default)g, where the agreement with the own plant was measured)")
+    p.add_argument("--pose", choices=["static", "spec"], default="static",
+                   help="the reference pose: static (the static equilibrium at the path's start, with a keyframe "
+                        "static_start holding it; compiles the crane's library on first use) or spec (the spec's "
+                        "initial configuration, as in generated/) (default: %(default)s)")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
+    return p.parse_args(argv)
+
+
+@guarded
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    import mujoco
+
+    from ..model.locations import example_spec
+    from ..model.mjcf_model import mjcf_xml
+    from ..model.spec import load_spec
+
+    spec_path = args.spec if args.spec is not None else example_spec("acroboter")
+    spec = load_spec(spec_path)
+    out = None
+    if str(args.out) != "-":  # checked before any work (the static pose compiles the crane's library)
+        out = args.out if args.out is not None else Path(f"{spec.name}.xml")
+        if out.is_dir():
+            out = out / f"{spec.name}.xml"
+        problem = file_write_problem(out)
+        if problem:
+            print(f"error: -o {args.out}: {problem}: give a file in a folder you can write to, or - for stdout",
+                  file=sys.stderr)
+            return 2
+    start = None
+    if args.pose == "static":
+        from ..api.crane import Crane
+
+        equilibrium = Crane.from_toml(spec_path).equilibrium()
+        start = (equilibrium.q, equilibrium.inputs)
+    xml = mjcf_xml(spec, args.timestep, start)
+    try:
+        model = mujoco.MjModel.from_xml_string(xml)
+    except ValueError as err:  # a model this writer should never produce: say so, write nothing
+        raise RuntimeError(f"MuJoCo refused the MJCF written for {spec_path}: {err}") from err
+    if out is None:
+        sys.stdout.write(xml)
+        return 0
+    target = out.resolve() if out.is_symlink() else out  # a link keeps pointing at the written file
+    # Written beside the target and renamed: an interrupted write never leaves half an XML.
+    tmp = None
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+        with os.fdopen(fd, "w") as f:
+            f.write(xml)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # as an ordinary new file (mkstemp's 0600 would stick)
+        os.replace(tmp, target)
+    except OSError as err:
+        print(f"error: -o {args.out}: cannot write it: {err.strerror or err}", file=sys.stderr)
+        return 2
+    finally:
+        if tmp is not None and os.path.exists(tmp):
+            os.unlink(tmp)
+    if not args.quiet:
+        print(f"wrote {out}: {model.nbody - 1} bodies, {model.njnt} joints, {model.ntendon} tendons, "
+              f"{model.nu} actuators (MuJoCo {mujoco.__version__}, time step {model.opt.timestep:g} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,83 @@
+"""`acroboter plant-fuzz` (`make plant-fuzz`, `python -m acroboter.plant_fuzz`): many generated open-loop
+experiments on every example spec, the own plant against MuJoCo, on a local Dask cluster, with a report
+of the verdict and the worst case of each measure (acroboter.studies.plant_fuzz, docs/plant.md)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from contextlib import nullcontext
+from functools import partial
+from pathlib import Path
+
+from ..model.locations import example_names
+from ..studies.grid import open_client, require_dask, run_cases, write_rows
+from ..studies.plant_fuzz import COLUMNS, MUJOCO_TIMESTEP, crane_of, report, run_case
+from .entry import EXIT_BAD_INPUT, check_out_folder, guarded, positive, progress_disabled, whole
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(
+        prog="acroboter plant-fuzz",
+        description="Differential fuzzing of the plant: random open-loop experiments on every example spec, the own "
+                    "plant against MuJoCo, with the own plant's invariants checked at every substep (docs/plant.md).",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("--cases", type=whole(1, 100_000), default=2000, help="experiments, spread over the specs")
+    p.add_argument("--seed", type=whole(0, 2**31), default=0, help="seed of the first case (case i: seed + i)")
+    p.add_argument("--spec", action="append", default=None,
+                   help="an example spec's name (repeat for several; default: every one in model_spec/)")
+    p.add_argument("--mujoco-timestep", type=positive(1e-3), default=MUJOCO_TIMESTEP,
+                   help="MuJoCo's step, s (must divide the plant step)")
+    p.add_argument("--workers", type=whole(1, 64), default=2, help="worker processes of the local Dask cluster "
+                   "(1: in this process, no Dask)")
+    p.add_argument("--out", type=Path, default=Path("results/plant_fuzz"), help="output folder")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    args = p.parse_args(argv)
+    check_out_folder(p, args.out)
+    return args
+
+
+@guarded
+def main(argv: list[str] | None = None) -> int:
+    from tqdm import tqdm
+
+    args = parse_args(argv)
+    names = args.spec or example_names()
+    unknown = [n for n in names if n not in example_names()]
+    if unknown:
+        print(f"error: --spec {unknown[0]}: not an example (they are {', '.join(example_names())})", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    for name in names:  # build here, once: the workers only load
+        crane_of(name)
+    cases = [(names[i % len(names)], args.seed + i) for i in range(args.cases)]
+    if args.workers > 1:
+        require_dask("acroboter plant-fuzz")
+    t0 = time.perf_counter()
+    # The task lives in an importable module (acroboter.studies.plant_fuzz): it pickles as a reference
+    # however this one is started, without the cranes loaded here.
+    task = partial(run_case, mujoco_timestep=args.mujoco_timestep)
+    with (open_client(None, args.workers) if args.workers > 1 else nullcontext(None)) as client, \
+            tqdm(total=len(cases), unit="case", desc="plant-fuzz", file=sys.stderr,
+                 disable=progress_disabled(args.quiet), smoothing=0.0) as bar:
+        failures = 0
+
+        def done(case, row):
+            nonlocal failures
+            failures += not row["passed"]
+            bar.set_postfix_str(f"{failures} failed", refresh=False)
+            bar.update(1)
+
+        rows = run_cases(task, cases, client, name="plant-fuzz", on_done=done)
+    wall = time.perf_counter() - t0
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_rows(args.out / "plant_fuzz.csv", rows, COLUMNS)
+    text = report(rows, wall, args.workers, args.mujoco_timestep)
+    (args.out / "report.md").write_text(text, encoding="utf-8")
+    print(text)
+    print(f"results in {args.out}/ (plant_fuzz.csv, report.md)")
+    return 0 if all(r["passed"] for r in rows) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

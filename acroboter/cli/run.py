@@ -1,0 +1,301 @@
+"""Run the paper's scenario: `acroboter run` (or `python -m acroboter.run`; see --help).
+
+A thin layer over the library (acroboter.Crane.simulate): what it prints and writes is what
+`crane.simulate(method, duration=..., **settings).summary()` gives for the same options. The options
+and their checks are acroboter.cli.run_args; here: the run, its outputs (written into a staging folder
+and published whole) and their provenance.
+
+With no arguments: the default spec, MLM, Penalty and Iterative Penalty with the spec's iteration
+counts (3, 4, 5), the full path; a table on stdout and results/ with summary.json, one CSV per
+method and the figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+from ..model.interrupts import deferred_interrupt
+from ..model.locations import example_spec
+from ..model.spec import MAX_CONTROL_STEPS
+from .entry import guarded, progress_disabled
+from .run_args import expand_methods, parse_args
+
+FIGURES = ("path_3d.png", "tracking_errors.png", "servo_errors.png", "inputs.png", "control_step_time.png")
+
+
+def _is_run_file(path: Path) -> bool:
+    """A file of an earlier run in --out: its summary, figures, method CSVs, and the animations
+    `acroboter animate` wrote there by default (they show the earlier run)."""
+    stem = path.stem
+    method = stem in ("mlm", "penalty") or (stem.startswith("iterative-") and stem[10:].isdigit())
+    animation = stem.startswith("animation_") and path.suffix in (".mp4", ".gif")
+    return path.name == "summary.json" or path.name in FIGURES or (path.suffix == ".csv" and method) or animation
+
+
+def _staging_folder(out: Path) -> Path:
+    """A temporary folder inside --out for this run's files (proves --out writable before any work)."""
+    out.mkdir(parents=True, exist_ok=True)
+    return Path(tempfile.mkdtemp(prefix=".run-", dir=out))
+
+
+def _publish(staging: Path, out: Path) -> None:
+    """Replace the earlier run's files in --out with this run's: figures and CSVs first, summary last.
+    Ctrl-C waits for the few renames (deferred_interrupt), so --out is never left half-replaced."""
+    with deferred_interrupt():
+        for old in out.iterdir():
+            if old.is_file() and _is_run_file(old):
+                old.unlink()
+        new = sorted(staging.iterdir(), key=lambda p: p.name == "summary.json")
+        for path in new:
+            os.replace(path, out / path.name)
+        staging.rmdir()
+
+
+@guarded
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    # as typed: `acroboter run ...` (console script, python -m acroboter) or `python -m acroboter.run ...`
+    via_cli = Path(sys.argv[0]).name in ("acroboter", "__main__.py")
+    prefix = ["acroboter", "run"] if via_cli else ["python", "-m", "acroboter.run"]
+    args.command_line = [*prefix, *(sys.argv[1:] if argv is None else argv)]
+    if getattr(args, "view_problem", None):  # before any work: the run would end in a window that cannot open
+        print(f"error: {args.view_problem}", file=sys.stderr)
+        return 3
+    existed = args.out.exists()
+    try:
+        staging = _staging_folder(args.out)
+    except OSError as err:
+        print(f"error: cannot write results into --out {args.out}: {err.strerror or err}", file=sys.stderr)
+        return 2
+    try:
+        return _run(args, staging)
+    except KeyboardInterrupt:
+        earlier = f"the earlier ones in {args.out} are as they were" if existed else f"{args.out} was not created"
+        print(f"interrupted: no results written ({earlier})", file=sys.stderr)
+        return 130
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)  # gone already when the results were published
+        if not existed and args.out.is_dir() and not any(args.out.iterdir()):
+            args.out.rmdir()  # a run that wrote nothing leaves no empty folder it made
+
+
+def _run(args: argparse.Namespace, staging: Path) -> int:
+    # Imports after parsing: --help stays instant.
+    import numpy as np
+    from tqdm import tqdm
+
+    from ..api.crane import Crane
+    from ..control.controllers import SingularSystemError
+    from ..control.recovery import RecoveryError
+    from ..model.physical import PlantParameterError, with_parameters
+    from ..model.spec import SpecError
+    from ..report.report import format_table, write_figures, write_summary
+    from ..runtime.compiled import StaleModelError
+    from ..sim.plant import SimulationError
+    from ..sim.simulation import check_mujoco_timestep
+    from ..sim.statics import EquilibriumError
+
+    overrides = {name: getattr(args, name) for name in
+                 ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu", "recovery", "kappa", "ki")}
+    try:
+        crane = Crane.from_toml(args.spec, cache_dir=args.cache_dir)
+        spec = crane.spec
+        with_parameters(spec, args.plant_params)  # names and values checked before any work (exit 2)
+        if args.mujoco_timestep is not None:
+            try:
+                check_mujoco_timestep(spec.simulation.step, args.mujoco_timestep)
+            except ValueError as err:
+                print(f"error: --{str(err).replace('_', '-', 1)}", file=sys.stderr)
+                return 2
+        sensing = crane.sensing(args.sensing)  # SpecError naming the field (exit 2), before any work
+        methods = expand_methods(args.method, args.iterations or spec.controller.penalty.iterations)
+        try:
+            gains = crane.gains(**overrides)
+        except ValueError as err:  # e.g. --ki past the stability bound of the spec's (or given) kp, kd
+            print(f"error: {err}", file=sys.stderr)
+            return 2
+        path = crane.path
+        start = crane.equilibrium()
+        duration = args.duration if args.duration is not None else path.duration
+        rate, step = spec.controller.rate_hz, spec.simulation.step
+        steps = int(round(duration * rate))
+        if not 1 <= steps <= MAX_CONTROL_STEPS:
+            print(f"error: --duration {duration:g} s is {steps} control steps at {rate:g} Hz: give between one "
+                  f"({1 / rate:g} s) and {MAX_CONTROL_STEPS} ({MAX_CONTROL_STEPS / rate:g} s)", file=sys.stderr)
+            return 2
+        results, summaries, warnings = {}, {}, []
+        # Before the run: can the path be followed within the limits at all?
+        feasibility = crane.check_path(duration, **overrides)
+        if feasibility.feasible is False:
+            warnings.append(f"the desired path is {feasibility.message}")
+        with tqdm(total=steps * len(methods), unit="step", disable=progress_disabled(args.quiet),
+                  desc="simulating", file=sys.stderr) as bar:
+            for method in methods:
+                bar.set_postfix_str(method)
+                try:
+                    r = crane.simulate(method, duration=duration, progress=bar.update,
+                                       plant_params=args.plant_params, sensing=sensing or False, plant=args.plant,
+                                       mujoco_timestep=args.mujoco_timestep, **overrides)
+                except (SingularSystemError, RecoveryError, SimulationError) as err:
+                    # This method cannot handle this system (e.g. MLM and redundant constraints), or
+                    # failed at its first step: say why, and go on with the others.
+                    summaries[method] = {"error": str(err)}
+                    warnings.append(f"{method} cannot run on this spec: {err}")
+                    bar.update(steps)
+                    continue
+                results[method] = r
+                summaries[method] = r.summary()
+                if r.diverged_at is not None:
+                    warnings.append(f"{method} diverged at t = {r.diverged_at:.2f} s: {r.run.divergence}")
+                    bar.update(steps - len(r.time) + 1)
+                for cable, c in summaries[method]["cables"].items():  # the plant's cables, not the inputs
+                    if c["time_slack_s"] > 0 or c["transitions"] > 0:
+                        warnings.append(f"{method}: cable {cable} was slack for {c['time_slack_s']:.3g} s "
+                                        f"({c['transitions']} slack/taut transitions)")
+    except (SpecError, StaleModelError, EquilibriumError, PlantParameterError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 3
+
+    if not results:  # nothing to show: the earlier results in --out stay as they were
+        for w in warnings:
+            print(f"warning: {w}", file=sys.stderr)
+        print("error: no method could run on this spec (see the warnings above); nothing was written",
+              file=sys.stderr)
+        return 3
+    args.sensing_used = sensing
+    out: Path = staging  # published into args.out at the end, in one go
+    paper = is_paper_crane(spec)
+    for name, r in results.items():
+        r.to_csv(out / f"{name}.csv", state=args.state)
+    limits = input_limits_summary(spec, crane.layout)
+    write_summary(out / "summary.json", spec.name, summaries, duration, warnings,
+                  extra={"input_limits": limits, "path_feasibility": feasibility.to_dict(),
+                         "provenance": provenance(args, spec, gains, methods, duration)})
+    if not args.no_plots:
+        lay = crane.layout
+        input_labels = [f"{name} [{unit}]" for name, unit in zip(lay.inputs, lay.input_units, strict=True)]
+        write_figures(out, {m: r.run for m, r in results.items()}, crane.scenario,
+                      {m: s for m, s in summaries.items() if m in results},
+                      input_labels, lay.servo_constraints, input_limits=spec.input_limits()[:2], paper=paper)
+    _publish(staging, args.out)
+    # Printed once the results are in place: a table on screen always has its files.
+    engine = plant_provenance(args, spec)
+    plant_text = (f"plant RK4 h = {step * 1e3:g} ms" if engine["engine"] == "own" else
+                  f"plant MuJoCo {engine['mujoco_version']} RK4 h = {engine['step_s'] * 1e3:g} ms")
+    print(f"spec {spec.name}: {duration:g} s at {rate:g} Hz, {plant_text}; "
+          f"start tensions {np.array2string(start.inputs, precision=4)}")
+    if args.plant_params:
+        print("plant differs from the model: " + ", ".join(f"{k}={v:g}" for k, v in args.plant_params.items()))
+    if sensing is not None:
+        print("controller measures (docs/sensing.md): " + "; ".join(
+            f"{g.name} noise {g.noise:g}" + (f" step {g.quantization:g}" if g.quantization else "")
+            for g in sensing.groups) + f"; delay {sensing.delay_periods} period(s), seed {sensing.seed}")
+    print(format_table(summaries, paper=paper))
+    if engine["engine"] == "mujoco":
+        print("step times with --plant mujoco are of a cold cache (MuJoCo's steps run between two control steps): "
+              "time the controllers on the own plant or with `acroboter bench` (docs/mujoco.md)")
+    for w in warnings:
+        print(f"warning: {w}")
+    print(f"results in {args.out}/")
+    if args.view:
+        from ..report.viewer import replay
+
+        replay(crane.model, crane.path, results)
+    saturated = [m for m, s in summaries.items() if s.get("saturated")]
+    if feasibility.feasible is False or saturated:
+        if feasibility.feasible is False:
+            reason = feasibility.message.removeprefix("not feasible with these limits: ")
+        elif feasibility.feasible is None:
+            reason = f"the check before the run could not decide ({feasibility.message})"
+        else:
+            reason = "the check before the run found the ideal motion feasible, but the closed loop needed more"
+        held = f"; saturated: {', '.join(saturated)}" if saturated else ""
+        print(f"the path was not feasible with these limits: {reason}{held}")
+    diverged = [m for m, r in results.items() if r.diverged_at is not None]
+    if diverged:  # the results up to there are written; the run did not do what was asked
+        for m in diverged:
+            print(f"error: {m} diverged at t = {results[m].diverged_at:.2f} s: {results[m].run.divergence}",
+                  file=sys.stderr)
+        return 3
+    return 0
+
+
+def provenance(args: argparse.Namespace, spec, gains, methods: list[str], duration: float) -> dict:
+    """What made this run: enough to repeat it (spec content, every setting, versions, command line)."""
+    import datetime
+    import hashlib
+    import platform
+    from dataclasses import asdict
+    from importlib import metadata
+
+    import casadi
+
+    try:
+        version = metadata.version("acroboter")
+    except metadata.PackageNotFoundError:
+        version = "unknown"
+    return {
+        "spec_file": str(args.spec),
+        "spec_sha256": hashlib.sha256(Path(args.spec).read_bytes()).hexdigest(),
+        "spec_model_hash": spec.model_hash(),
+        # the spec itself: the folder can be re-run or drawn after the file has moved or changed
+        "spec_toml": Path(args.spec).read_text(),
+        "gains": asdict(gains),
+        "plant": plant_provenance(args, spec),
+        # the plant's physical parameters other than the spec's (acroboter.model.physical), {} for none
+        "plant_params": dict(getattr(args, "plant_params", {})),
+        # what the controller measured instead of the plant's state (docs/sensing.md), None for the state
+        "sensing": sensing.model_dump(mode="json") if (sensing := getattr(args, "sensing_used", None)) else None,
+        "methods": methods,
+        "duration_s": duration,
+        "rate_hz": spec.controller.rate_hz,
+        "plant_step_s": spec.simulation.step,
+        "acroboter_version": version,
+        "casadi_version": casadi.__version__,
+        "python": platform.python_version(),
+        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "command_line": args.command_line,
+    }
+
+
+def plant_provenance(args: argparse.Namespace, spec) -> dict:
+    """Which engine simulated the crane, and at what step."""
+    if getattr(args, "plant", "own") != "mujoco":
+        return {"engine": "own", "integrator": "RK4 with Baumgarte stabilisation", "step_s": spec.simulation.step}
+    from importlib import metadata
+
+    from ..model.mjcf_model import DEFAULT_TIMESTEP
+
+    return {"engine": "mujoco", "mujoco_version": metadata.version("mujoco"), "integrator": "RK4",
+            "step_s": args.mujoco_timestep or DEFAULT_TIMESTEP, "model": "acroboter.model.mjcf_model (docs/mujoco.md)"}
+
+
+def is_paper_crane(spec) -> bool:
+    """The paper's crane (its MATLAB times and bounds apply): the shipped example's model."""
+    from ..model.spec import load_spec
+
+    return spec.model_hash() == load_spec(example_spec("acroboter")).model_hash()
+
+
+def input_limits_summary(spec, layout) -> dict:
+    """Each input's resolved [min, max] and preferred value (null: unbounded on that side)."""
+    lower, upper, preferred = spec.input_limits()
+
+    def finite(v: float):
+        return float(v) if math.isfinite(v) else None
+
+    return {name: {"min": finite(lo), "max": finite(hi), "preferred": float(p), "unit": unit}
+            for name, unit, lo, hi, p in zip(layout.inputs, layout.input_units, lower, upper, preferred, strict=True)}
+
+
+if __name__ == "__main__":
+    sys.exit(main())

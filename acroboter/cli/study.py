@@ -1,0 +1,169 @@
+"""What the penalty formulation buys you: `python -m acroboter.study [redundant|noncollocated|all]`.
+
+- redundant: the default crane, the same crane with redundant geometric constraints (w = u × v on
+  both bodies) and with a redundant task (yaw twice), under MLM, Penalty and Iterative Penalty.
+- noncollocated: the four-input crane (three winches and the yaw torque, task XYZ and yaw) under
+  MLM and the penalty methods with every input recovery (projected, eq12, eq13, eq15, κ = 0, 0.5, 1):
+  which track, which drift, which diverge and when.
+
+Writes a Markdown table, summary.json and figures per study into --out (default results/study).
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ..model.locations import spec_folder
+from ..model.spec import MAX_CONTROL_STEPS
+from ..report.study_figures import case_label, position_error_figure
+from ..studies.grid import run_cases, setup
+from .entry import check_out_folder, guarded, positive, progress_disabled
+
+# The study's cranes run at 50 Hz: the record cap in seconds.
+STUDY_RATE_HZ = 50.0
+STUDY_MAX_DURATION_S = MAX_CONTROL_STEPS / STUDY_RATE_HZ
+
+SPECS = spec_folder()
+REDUNDANT_SPECS = ("acroboter", "acroboter_redundant", "acroboter_redundant_task")
+REDUNDANT_METHODS = ("mlm", "penalty", "iterative-3", "iterative-5")
+RECOVERY_CASES = (("projected", None), ("eq12", None), ("eq13", None), ("eq15", None),
+                  ("kappa", 0.0), ("kappa", 0.5), ("kappa", 1.0))
+
+
+def run_case(spec_name: str, method: str, duration: float | None, **overrides) -> dict:
+    """One closed-loop run; the outcome whatever it is: figures, a divergence, or the method's refusal."""
+    from ..control.controllers import Gains, SingularSystemError, make_controller
+    from ..control.recovery import RecoveryError
+    from ..model.spec import load_spec
+    from ..sim.simulation import simulate, summarize
+
+    ctx = setup(load_spec(SPECS / f"{spec_name}.toml"))  # loaded (built if needed) once per spec
+    spec, model, path, start, plant, scenario = ctx.spec, ctx.model, ctx.path, ctx.start, ctx.plant, ctx.scenario
+    gains = Gains.from_spec(spec, **overrides)
+    duration = path.duration if duration is None else duration
+    case = {"spec": spec_name, "method": method, **{k: v for k, v in overrides.items() if v is not None}}
+    try:
+        controller = make_controller(method, model, path, gains)
+        result = simulate(model, path, controller, plant, start.q, duration, spec.controller.rate_hz,
+                          spec.simulation.step, allow_divergence=True)
+    except (SingularSystemError, RecoveryError) as err:
+        return {**case, "outcome": "refused", "message": str(err)}
+    summary = summarize(result, scenario, model.layout)
+    error = np.linalg.norm(result.sigma[:, scenario.position_rows], axis=1)
+    outcome = "diverged" if result.diverged_at is not None else "ran to the end"
+    return {**case, "outcome": outcome, "diverged_at_s": result.diverged_at, "divergence": result.divergence,
+            "summary": summary, "t": result.t.tolist(), "position_error_mm": (1e3 * error).tolist(),
+            "winch_min_N": result.u[:, scenario.winch_inputs].min(axis=1).tolist() if scenario.winch_inputs else []}
+
+
+def redundant_cases() -> list[tuple[str, str, dict]]:
+    """(spec, method, gain overrides) of the redundancy study: every spec under every method."""
+    return [(name, method, {}) for name in REDUNDANT_SPECS for method in REDUNDANT_METHODS]
+
+
+def noncollocated_cases() -> list[tuple[str, str, dict]]:
+    """The four-input crane: MLM, then both penalty methods under every input recovery."""
+    return [("acroboter_4input", "mlm", {})] + [
+        ("acroboter_4input", method, {"recovery": recovery, "kappa": kappa})
+        for recovery, kappa in RECOVERY_CASES for method in ("penalty", "iterative-3")]
+
+
+def _run(case: tuple[str, str, dict], duration: float | None) -> dict:
+    spec_name, method, overrides = case
+    return run_case(spec_name, method, duration, **overrides)
+
+
+def _run_all(cases: list, duration: float | None, progress) -> list[dict]:
+    # In this process, in order: the study is small, and a failure to set up a spec stops it at once.
+    return run_cases(functools.partial(_run, duration=duration), cases, on_done=lambda case, result: progress(1))
+
+
+def study_redundant(duration: float | None, progress) -> list[dict]:
+    return _run_all(redundant_cases(), duration, progress)
+
+
+def study_noncollocated(duration: float | None, progress) -> list[dict]:
+    return _run_all(noncollocated_cases(), duration, progress)
+
+
+def markdown_table(cases: list[dict], with_spec: bool) -> str:
+    head = ("| " + ("spec | " if with_spec else "") + "method | outcome | max pos. error [mm] | rms [mm] | "
+            "max yaw error [°] | max tilt [°] | max \\|φ\\| | min winch tension [N] |")
+    columns = 8 + (1 if with_spec else 0)
+    lines = [head, "|" + "---|" * columns]
+    for c in cases:
+        first = (f"| {c['spec']} | " if with_spec else "| ") + f"{case_label(c)} | "
+        if c["outcome"] == "refused":
+            lines.append(first + f"refused: {c['message'].split(':')[0]} | – | – | – | – | – | – |")
+            continue
+        s = c["summary"]
+        outcome = c["outcome"] if c["diverged_at_s"] is None else f"diverged at {c['diverged_at_s']:.2f} s"
+        yaw = f"{s['max_yaw_error_deg']:.4f}" if s["max_yaw_error_deg"] is not None else "–"
+        # None: the state blew up between two records, the error at divergence is unbounded
+        pos, rms = ((f"{s['max_position_error_mm']:.4g}", f"{s['rms_position_error_mm']:.4g}")
+                    if s["max_position_error_mm"] is not None else ("unbounded", "–"))
+        lines.append(first + f"{outcome} | {pos} | {rms} | "
+                     f"{yaw} | {s['max_tilt_deg']:.3g} | {s['max_constraint_violation']:.1e} | "
+                     f"{s['min_winch_tension_N']:.4g} |")
+    return "\n".join(lines)
+
+
+def _write(out: Path, name: str, cases: list[dict], title: str, with_spec: bool) -> str:
+    folder = out / name
+    folder.mkdir(parents=True, exist_ok=True)
+    table = markdown_table(cases, with_spec)
+    (folder / "table.md").write_text(table + "\n")
+    brief = [{k: v for k, v in c.items() if k not in ("t", "position_error_mm", "winch_min_N")} for c in cases]
+    (folder / "summary.json").write_text(json.dumps(brief, indent=2) + "\n")
+    position_error_figure(cases, folder / "position_error.png", title, with_spec)
+    return table
+
+
+@guarded
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="acroboter study", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("which", nargs="?", choices=["redundant", "noncollocated", "all"], default="all",
+                        help="which study to run (default: %(default)s)")
+    parser.add_argument("--duration", type=positive(STUDY_MAX_DURATION_S), default=None,
+                        help=f"simulated seconds, at most {STUDY_MAX_DURATION_S:g} (default: the whole path)")
+    parser.add_argument("--out", type=Path, default=Path("results/study"), help="output folder (default: %(default)s)")
+    args = parser.parse_args(argv)
+    if args.duration is not None and round(args.duration * STUDY_RATE_HZ) < 1:
+        parser.error(f"--duration {args.duration:g} s is no control step at {STUDY_RATE_HZ:g} Hz: give at least "
+                     f"{1 / STUDY_RATE_HZ:g} s")
+    check_out_folder(parser, args.out)
+    from tqdm import tqdm
+
+    from ..model.spec import SpecError
+    from ..runtime.compiled import StaleModelError
+
+    total = (len(redundant_cases()) if args.which in ("redundant", "all") else 0) + (
+        len(noncollocated_cases()) if args.which in ("noncollocated", "all") else 0)
+    try:
+        with tqdm(total=total, unit="run", file=sys.stderr, disable=progress_disabled()) as bar:
+            if args.which in ("redundant", "all"):
+                cases = study_redundant(args.duration, bar.update)
+                print("## Redundant constraints and a redundant task\n")
+                print(_write(args.out, "redundant", cases, "Redundant constraints and task: position error",
+                             with_spec=True))
+            if args.which in ("noncollocated", "all"):
+                cases = study_noncollocated(args.duration, bar.update)
+                print("\n## Non-collocated four-input crane\n")
+                print(_write(args.out, "noncollocated", cases, "Four inputs (non-collocated): position error",
+                             with_spec=False))
+    except (SpecError, StaleModelError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    print(f"\nresults in {args.out}/")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,219 @@
+"""Penalty-number study on Dask: `python -m acroboter.sweep` (see --help), or `sweep()` from Python.
+
+The grid (acroboter.studies.penalty_grid): the penalty numbers α (by default α̃ = α̂ = α, one value per decade
+from 1e1 to 1e16: the usual range 1e3..1e12 and enough beyond it on both sides to see each method
+break down), the constraint penalty's natural frequency Ω, and the methods penalty and iterative-N,
+plus one MLM reference run (MLM has no penalty numbers). Every grid point is one closed-loop
+simulation of the spec's path, run as one task on a dask.distributed cluster (acroboter.studies.grid): by
+default a LocalCluster of worker processes on 127.0.0.1, with --scheduler ADDRESS a running cluster
+(its workers need this package and the same checkout, with the model library already built: tasks
+never compile). dask is an optional extra: `pip install 'acroboter[dask]'`.
+
+Writes <out>/sweep.csv (one row per run: acroboter.studies.penalty_grid.COLUMNS) and the figures
+sweep_tracking_error.png, sweep_constraints.png and sweep_condition.png (acroboter.report.study_figures);
+prints a table of the tracking error and the α range over which each method stays within a factor
+(--tolerance, 2) of MLM's error, and how it breaks down outside it (acroboter.studies.judging).
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..model.locations import example_spec
+from ..report.study_figures import sweep_figures
+from ..studies.grid import (
+    MAX_RUNS,
+    DaskMissingError,
+    GridError,
+    check_duration,
+    open_client,
+    parse_values,
+    prepare,
+    require_dask,
+    run_cases,
+    worker_count,
+    write_rows,
+)
+from ..studies.judging import findings, format_table, ok
+from ..studies.penalty_grid import (
+    ALPHA_MODES,
+    COLUMNS,
+    COND_SAMPLES,
+    Case,
+    crashed_row,
+    make_grid,
+    parse_iterations,
+    run_case,
+)
+from .entry import (
+    EXIT_BAD_INPUT,
+    EXIT_CANNOT_RUN,
+    EXIT_INTERRUPTED,
+    check_out_folder,
+    guarded,
+    number,
+    positive,
+    progress_disabled,
+    whole,
+)
+
+DEFAULT_SPEC = example_spec("acroboter")
+DEFAULT_ALPHAS = "1e1:1e16"
+DEFAULT_OMEGAS = "5,10,20"
+DEFAULT_ITERATIONS = "1,3,5,10"
+WHAT = "acroboter sweep"  # names the command in the missing-dask message
+
+
+@dataclass
+class SweepResult:
+    rows: list[dict]
+    wall_s: float
+    workers: int
+    files: list[Path] = field(default_factory=list)
+
+
+def run_sweep(client, spec_path: Path, cases: list[Case], duration: float | None, progress: bool = False,
+              cond_samples: int = COND_SAMPLES, kp: float | None = None, kd: float | None = None,
+              mu: float | None = None) -> list[dict]:
+    """Run every case on `client` (None: in this process), the rows in grid order (progress bar over
+    completed tasks). A task that crashed is a row with its status; a worker that cannot set up the
+    model at all raises GridError (MissingLibraryError: no library there)."""
+    from tqdm import tqdm
+
+    # The spec travels as text: a worker on another machine need not see the client's file system.
+    task = functools.partial(run_case, Path(spec_path).read_text(encoding="utf-8"), str(spec_path),
+                             duration=duration, cond_samples=cond_samples, kp=kp, kd=kd, mu=mu)
+    with tqdm(total=len(cases), unit="run", desc="sweep", file=sys.stderr, disable=not progress,
+              smoothing=0.0) as bar:
+
+        def done(case: Case, row: dict) -> None:
+            if case.method != "mlm":
+                bar.set_postfix_str(f"{case.method} α̃={case.alpha_geometric:.0e} α̂={case.alpha_servo:.0e} "
+                                    f"Ω={case.omega:g}", refresh=False)
+            bar.update(1)
+
+        return run_cases(task, cases, client, name="sweep", on_done=done, on_error=crashed_row)
+
+
+def sweep(spec_path: Path = DEFAULT_SPEC, *, alphas: list[float] | None = None, omegas: list[float] | None = None,
+          iterations: list[int] | None = None, alpha_mode: str = "tied", duration: float | None = None,
+          workers: int = 2, scheduler: str | None = None, connect_timeout: float = 10.0, out: Path | None = None,
+          plots: bool = True, progress: bool = False, tolerance: float = 2.0, kp: float | None = None,
+          kd: float | None = None, mu: float | None = None) -> SweepResult:
+    """The whole study as a function: build the model once here, run the grid on the cluster, and
+    (with `out`) write sweep.csv and the figures. Raises GridError when it cannot run at all
+    (DaskMissingError without dask)."""
+    require_dask(WHAT)  # first: a missing extra costs no build
+    alphas = alphas or parse_values(DEFAULT_ALPHAS)
+    omegas = omegas or parse_values(DEFAULT_OMEGAS)
+    iterations = iterations or parse_iterations(DEFAULT_ITERATIONS)
+    spec = prepare(spec_path)  # builds the library here if missing: the tasks only load it
+    check_duration(spec, duration)
+    pen = spec.controller.penalty
+    cases = make_grid(alphas, omegas, iterations, alpha_mode, pen.alpha_geometric, pen.alpha_servo)
+    t0 = time.perf_counter()
+    with open_client(scheduler, workers, connect_timeout) as client:
+        n_workers = worker_count(client) if scheduler else workers
+        rows = run_sweep(client, Path(spec_path), cases, duration, progress=progress, kp=kp, kd=kd, mu=mu)
+    result = SweepResult(rows, time.perf_counter() - t0, n_workers)
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        write_rows(out / "sweep.csv", rows, COLUMNS)
+        result.files.append(out / "sweep.csv")
+        if plots:
+            result.files += sweep_figures(out, rows, alpha_mode, tolerance)
+    return result
+
+
+# ---------------------------------------------------------------------------------------------------
+# CLI
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(
+        prog="acroboter sweep",
+        description="Penalty-number study: how the penalty and iterative penalty methods track against MLM as "
+                    "the penalty numbers α and Ω vary, one closed-loop simulation per grid point on Dask.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    p.add_argument("--spec", type=Path, default=DEFAULT_SPEC, help="model spec (TOML)")
+    p.add_argument("--alphas", default=DEFAULT_ALPHAS,
+                   help="penalty numbers: comma-separated values or log ranges START:STOP[:PER_DECADE]")
+    p.add_argument("--alpha-mode", choices=ALPHA_MODES, default="tied",
+                   help="tied: α̃ = α̂ = α; geometric: sweep α̃ with α̂ from the spec; servo: sweep α̂ with α̃ from "
+                        "the spec; grid: every (α̃, α̂) pair")
+    p.add_argument("--omegas", default=DEFAULT_OMEGAS, help="Ω values of the constraint penalty, 1/s")
+    p.add_argument("--iterations", default=DEFAULT_ITERATIONS,
+                   help="iteration counts N of the iterative penalty method (1 = the plain penalty method)")
+    p.add_argument("--duration", type=positive(1e6), default=None, help="simulated seconds (default: the whole path)")
+    p.add_argument("--tolerance", type=number(1.0, low_open=True), default=2.0,
+                   help="a run is 'good' when its max position error is within this factor of MLM's")
+    p.add_argument("--out", type=Path, default=Path("results/sweep"), help="output folder")
+    p.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                   help="use the running Dask scheduler at ADDRESS (e.g. tcp://10.0.0.5:8786) instead of a local "
+                        "cluster; its workers need this checkout with the model library built")
+    p.add_argument("--workers", type=whole(1, 64), default=2, help="worker processes of the local cluster")
+    p.add_argument("--connect-timeout", type=positive(3600.0), default=10.0, help="seconds to wait for --scheduler")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar (the same as `acroboter -q sweep`)")
+    args = p.parse_args(argv)
+    check_out_folder(p, args.out)
+    try:
+        args.alphas = parse_values(args.alphas, "--alphas")
+        args.omegas = parse_values(args.omegas, "--omegas")
+        args.iterations = parse_iterations(args.iterations)
+    except ValueError as err:
+        p.error(str(err))
+    return args
+
+
+@guarded
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    n_runs = len(make_grid(args.alphas, args.omegas, args.iterations, args.alpha_mode))
+    if n_runs > MAX_RUNS:
+        print(f"error: the grid has {n_runs} runs, more than {MAX_RUNS}: give fewer --alphas, --omegas or "
+              "--iterations (or another --alpha-mode)", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    where = args.scheduler or f"a local cluster of {args.workers} worker process(es) on 127.0.0.1"
+    try:
+        require_dask(WHAT)  # before the first line of output: without dask the one line is the error
+        print(f"sweep: {n_runs} runs on {where}", file=sys.stderr)
+        result = sweep(args.spec, alphas=args.alphas, omegas=args.omegas, iterations=args.iterations,
+                       alpha_mode=args.alpha_mode, duration=args.duration, workers=args.workers,
+                       scheduler=args.scheduler, connect_timeout=args.connect_timeout, out=args.out,
+                       plots=not args.no_plots, progress=not progress_disabled(args.quiet), tolerance=args.tolerance)
+    except DaskMissingError as err:  # a missing dependency: cannot run, not bad input
+        print(f"error: {err}", file=sys.stderr)
+        return EXIT_CANNOT_RUN
+    except GridError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    rows = result.rows
+    if not any(ok(r) for r in rows):
+        print(f"error: no run of the sweep succeeded ({rows[0]['status'] if rows else 'no runs'}); see "
+              f"{args.out}/sweep.csv", file=sys.stderr)
+        return EXIT_CANNOT_RUN
+    duration = rows[0]["duration_s"] if rows and rows[0]["duration_s"] is not None else args.duration
+    print(f"{len(rows)} runs of {duration:g} s simulated in {result.wall_s:.1f} s wall on {result.workers} "
+          f"worker(s)")
+    print(format_table(rows, args.alpha_mode))
+    print()
+    for line in findings(rows, args.alpha_mode, args.tolerance):
+        print(line)
+    print(f"results in {args.out}/ ({', '.join(p.name for p in result.files)})")
+    return 0
+
+
+if __name__ == "__main__":
+    # The tasks (acroboter.studies.penalty_grid.run_case) live in an importable module: they pickle as
+    # references however this one is started.
+    sys.exit(main())

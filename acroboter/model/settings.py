@@ -1,0 +1,54 @@
+"""The controllers' settings and numerical thresholds.
+
+Shared by the Python controllers and the exported C step (acroboter.codegen.export_step), so they
+live below both: the code generator never imports the controllers.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .spec import Spec
+
+# MLM: a reciprocal condition number below this means a singular system (redundant constraints).
+MLM_RCOND_LIMIT = 1e-13
+# Eigenvalues of G below this fraction of its mean eigenvalue are internal forces (round-off leaves
+# them at ~1e-15 relative where they are exactly zero).
+RANK_TOLERANCE = 1e-9
+# Weight of the secondary objective on the internal forces in the bounded QP (lexicographic case),
+# relative to G's mean eigenvalue.
+SECONDARY_WEIGHT = 1e-9
+# The weighted secondary objective, relative likewise: the explicit recoveries eq12/eq13 with redundant
+# inputs, where a limit is in the way (their unbounded fit is unique). The projected recovery (default)
+# no longer uses it: its distribution is lexicographic in the servo accelerations
+# (acroboter.control.distribution.BoundedInputs.solve_task), because this weight also pulled the task
+# directions: on the four-cable crane's 55 s path, preferred = 152.5 N (the middle of [5, 300] N) gave
+# 0.0976 mm against 0.0617 mm with 20 N (Penalty); the lexicographic form gives 0.0617 mm for both.
+PENALTY_SECONDARY_WEIGHT = 1e-5
+
+
+@dataclass(frozen=True)
+class Gains:
+    kp: float
+    kd: float
+    alpha_geometric: float
+    alpha_servo: float
+    omega: float
+    mu: float
+    recovery: str
+    kappa: float
+    ki: float = 0.0  # integral action on the servo-constraints (docs/integral_action.md); 0: the PD law
+
+    @classmethod
+    def from_spec(cls, spec: Spec, **overrides) -> Gains:
+        c, p = spec.controller, spec.controller.penalty
+        gains = cls(c.kp, c.kd, p.alpha_geometric, p.alpha_servo, p.omega, p.mu, p.recovery, p.kappa, c.ki)
+        return replace(gains, **{k: v for k, v in overrides.items() if v is not None})
+
+    def parameter_vector(self, servo_rows: int) -> np.ndarray:
+        """The generated functions' p = [k_P, k_D, α̃, α̂, Ω, μ, k_I, z] (acroboter.codegen.structured.PARAMS,
+        then the servo-constraints' integral z, one per row, here zero: the controller writes it each step)."""
+        scalars = [self.kp, self.kd, self.alpha_geometric, self.alpha_servo, self.omega, self.mu, self.ki]
+        return np.concatenate([scalars, np.zeros(servo_rows)])

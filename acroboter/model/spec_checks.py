@@ -1,0 +1,230 @@
+"""The checks that need the whole spec: names referenced but not defined, duplicates, zero-length cables,
+the path's anchors, the integral gain, the sensing groups. Each problem is (field path, text), as the
+schema's (acroboter.model.spec joins both into one SpecError).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .schema import (
+    MAX_CONTROL_STEPS,
+    MAX_PLANT_SUBSTEPS,
+    Body,
+    PositionTask,
+    Sensing,
+    Spec,
+    WinchTension,
+    integral_gain_problem,
+    sensing_coordinates,
+)
+
+
+def body_rotation(yaw_deg: float) -> np.ndarray:
+    """Rotation about the world z axis; its columns are the body axes u, v, w."""
+    a = math.radians(yaw_deg)
+    return np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]])
+
+
+def _end_position(spec: Spec, end: str) -> np.ndarray:
+    """World position of a cable end in the initial configuration."""
+    if "." not in end:
+        return np.array(spec.anchor(end).position)
+    body_name, point_name = end.split(".", 1)
+    body = spec.body(body_name)
+    return np.array(body.initial_position) + body_rotation(body.initial_yaw_deg) @ np.array(body.point(point_name))
+
+
+def listing(names) -> str:
+    names = list(dict.fromkeys(names))  # each once, in order
+    return ", ".join(f"'{n}'" for n in names) if names else "none"
+
+
+def check_references(spec: Spec) -> list[tuple[str, str]]:
+    problems: list[tuple[str, str]] = []
+
+    # Names: bodies and anchors share one namespace (a cable end names either).
+    for kind, named in (
+        ("body or anchor", [(f"bodies[{i}].name", b.name) for i, b in enumerate(spec.bodies)]
+         + [(f"anchors[{i}].name", a.name) for i, a in enumerate(spec.anchors)]),
+        ("cable", [(f"cables[{i}].name", c.name) for i, c in enumerate(spec.cables)]),
+        ("actuator", [(f"actuators[{i}].name", a.name) for i, a in enumerate(spec.actuators)]),
+    ):
+        first: dict[str, str] = {}
+        for path, name in named:
+            if name in first:
+                problems.append(
+                    (path, f"expected a unique {kind} name, found '{name}' again (first used at {first[name]})")
+                )
+            else:
+                first[name] = path
+
+    bodies: dict[str, Body] = {}
+    for b in spec.bodies:
+        bodies.setdefault(b.name, b)  # with duplicates, the first definition counts
+    anchors = [a.name for a in spec.anchors]
+    cables = {}
+    for c in spec.cables:
+        cables.setdefault(c.name, c)
+
+    def body_ok(path: str, name: str) -> bool:
+        if name not in bodies:
+            problems.append((path, f"expected a defined body ({listing(bodies)}), found '{name}'"))
+            return False
+        return True
+
+    def end_ok(path: str, end: str) -> bool:
+        if "." in end:
+            body_name, point_name = end.split(".", 1)
+            if not body_ok(path, body_name):
+                return False
+            if point_name not in bodies[body_name].points:
+                known = listing(bodies[body_name].points)
+                problems.append(
+                    (path, f"expected a point of body '{body_name}' (defined: {known}), found '{point_name}'")
+                )
+                return False
+            return True
+        if end not in anchors:
+            problems.append(
+                (path, f"expected a defined anchor ({listing(anchors)}) or 'body.point', found '{end}'")
+            )
+            return False
+        return True
+
+    for i, cable in enumerate(spec.cables):
+        base = f"cables[{i}] ({cable.name})"
+        if (cable.length is None) == (cable.winch is None):
+            problems.append(
+                (base, "expected exactly one of 'length' (fixed cable) or 'winch' (length is a coordinate), "
+                 f"found {'both' if cable.length is not None else 'neither'}")
+            )
+        if not all([end_ok(f"{base}.ends[{k}]", e) for k, e in enumerate(cable.ends)]):
+            continue
+        owners = [e.split(".", 1)[0] if "." in e else None for e in cable.ends]
+        if owners == [None, None]:
+            problems.append((f"{base}.ends", f"expected a cable that connects a body, found two anchors {cable.ends}"))
+        elif owners[0] == owners[1]:
+            problems.append(
+                (f"{base}.ends", f"expected a cable between two different bodies (or an anchor and a body), "
+                 f"found both ends on body '{owners[0]}': {cable.ends}")
+            )
+        elif cable.winch is not None:
+            length0 = float(np.linalg.norm(_end_position(spec, cable.ends[0]) - _end_position(spec, cable.ends[1])))
+            if length0 < 1e-9:
+                problems.append(
+                    (f"{base}.ends", f"expected a positive initial cable length, found {length0:.3g} m: "
+                     f"{cable.ends[0]} and {cable.ends[1]} coincide in the initial configuration")
+                )
+
+    driven: dict[str, str] = {}
+    for i, act in enumerate(spec.actuators):
+        base = f"actuators[{i}] ({act.name})"
+        if isinstance(act, WinchTension):
+            winches = [c.name for c in spec.cables if c.winch is not None]
+            if act.cable not in cables:
+                problems.append(
+                    (f"{base}.cable", f"expected a cable with a winch ({listing(winches)}), "
+                     f"found '{act.cable}', which is not a defined cable")
+                )
+            elif cables[act.cable].winch is None:
+                problems.append(
+                    (f"{base}.cable", f"expected a cable with a winch ({listing(winches)}), "
+                     f"found '{act.cable}', a fixed-length cable without a winch")
+                )
+            elif act.cable in driven:
+                problems.append(
+                    (f"{base}.cable", f"expected one winch_tension actuator per cable, found cable '{act.cable}' "
+                     f"already driven by {driven[act.cable]}")
+                )
+            else:
+                driven[act.cable] = base
+        else:
+            body_ok(f"{base}.body", act.body)
+
+    for i, act in enumerate(spec.actuators):
+        low, high = act.resolved_limits()
+        if act.preferred is not None and not low <= act.preferred <= high:
+            problems.append((f"actuators[{i}] ({act.name}).preferred",
+                             f"expected a value within the limits [{low:g}, {high:g}], found {act.preferred:g}"))
+        if isinstance(act, WinchTension) and (low < 0 if act.gain > 0 else high > 0):
+            side = "min >= 0" if act.gain > 0 else "max <= 0 (the gain is negative)"
+            problems.append((f"actuators[{i}] ({act.name}).limits",
+                             f"expected limits that never make the cable push (a winch only pulls: {side}), "
+                             f"found [{low:g}, {high:g}] with gain {act.gain:g}"))
+
+    for i, task in enumerate(spec.task):
+        body_ok(f"task[{i}] ({task.kind}).body", task.body)
+    positions = [t for t in spec.task if isinstance(t, PositionTask)]
+    if len(positions) != 1:
+        given = ", ".join(t.kind for t in spec.task)
+        problems.append(
+            ("task", "expected exactly one servo-constraint of kind 'position' (the point the path moves), "
+             f"found {len(positions)} (kinds given: {given})")
+        )
+    waypoints = np.array(spec.path.waypoints, dtype=float)
+    if not (np.linalg.norm(np.diff(waypoints, axis=0), axis=1) > 0).any():
+        problems.append(
+            ("path.waypoints", "expected at least two distinct waypoints (the path moves the tracked point; a "
+             f"yaw-only path is not supported), found {len(waypoints)} equal ones")
+        )
+    period = 1.0 / spec.controller.rate_hz
+    substeps = round(period / spec.simulation.step)
+    if substeps < 1 or not math.isclose(substeps * spec.simulation.step, period, rel_tol=1e-9):
+        problems.append(("simulation.step", f"expected a plant step that divides the control period 1/rate_hz = "
+                                            f"{period:g} s, found {spec.simulation.step:g} s"))
+    elif substeps > MAX_PLANT_SUBSTEPS:
+        problems.append(("simulation.step", f"expected at most {MAX_PLANT_SUBSTEPS} plant steps per control period, "
+                                            f"found {substeps} ({spec.simulation.step:g} s in {period:g} s)"))
+    lengths = np.linalg.norm(np.diff(waypoints, axis=0), axis=1)
+    steps = lengths.sum() / spec.path.mean_speed * spec.controller.rate_hz
+    if lengths.sum() > 0 and not steps >= 1:
+        problems.append(("path.mean_speed", f"expected a path of at least one control step, found "
+                                            f"{lengths.sum():g} m at {spec.path.mean_speed:g} m/s: "
+                                            f"{steps:.3g} steps at {spec.controller.rate_hz:g} Hz; lower mean_speed"))
+    if steps > MAX_CONTROL_STEPS:
+        problems.append(("path", f"expected a path of at most {MAX_CONTROL_STEPS} control steps, found "
+                                 f"{lengths.sum():g} m at {spec.path.mean_speed:g} m/s and "
+                                 f"{spec.controller.rate_hz:g} Hz = {steps:.3g} steps: raise mean_speed or lower "
+                                 "rate_hz"))
+    if np.linalg.norm(spec.gravity) > 1e3:
+        problems.append(("gravity", f"expected a gravity of at most 1000 m/s², found {np.linalg.norm(spec.gravity):g}"))
+    for i, anchor in enumerate(spec.anchors):
+        if len(set(anchor.follows_path)) != len(anchor.follows_path):
+            problems.append((f"anchors[{i}].follows_path", f"expected each axis once, found {anchor.follows_path}"))
+    c = spec.controller
+    if (problem := integral_gain_problem(c.kp, c.kd, c.ki)) is not None:
+        problems.append(("controller.ki", problem))
+    if spec.sensing is not None:
+        problems += sensing_problems(spec, spec.sensing)
+    return problems
+
+
+def sensing_problems(spec: Spec, sensing: Sensing) -> list[tuple[str, str]]:
+    """Names in a sensing section: known selectors, each coordinate and each group name once."""
+    problems: list[tuple[str, str]] = []
+    seen: dict[str, str] = {}
+    names: set[str] = set()
+    for i, group in enumerate(sensing.groups):
+        where = f"sensing.groups[{i}] ({group.name})"
+        if group.name in names:
+            problems.append((f"{where}.name", f"expected a group name used once, found '{group.name}' again"))
+        names.add(group.name)
+        for j, selector in enumerate(group.coordinates):
+            found = sensing_coordinates(spec, selector)
+            if found is None:
+                problems.append((f"{where}.coordinates[{j}]", "expected '<body>', '<body>.r|u|v|w', "
+                                 "'<body>.r_x' … or '<winch cable>.length' (bodies: "
+                                 f"{listing(b.name for b in spec.bodies)}; winch cables: "
+                                 f"{listing(c.name for c in spec.cables if c.winch is not None)}), "
+                                 f"found '{selector}'"))
+                continue
+            for name in found:
+                if name in seen:
+                    problems.append((f"{where}.coordinates[{j}]", f"expected each coordinate in one group, found "
+                                     f"{name} also in group '{seen[name]}'"))
+                    break
+                seen[name] = group.name
+    return problems

@@ -1,0 +1,69 @@
+"""Writing frames to a video file: MP4 (imageio's ffmpeg, H.264 in yuv420p) and GIF (Pillow, one palette).
+
+Each writer takes an iterator of (H, W, 3) uint8 frames and returns how many it wrote; `write_complete` runs one
+through a temporary name, so an interrupted or failed render leaves no file that looks complete. Independent of
+what the frames show: the colours a GIF's palette must keep exact are passed in (`keep`).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Iterable, Iterator, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..progress import progress_disabled
+
+
+def write_mp4(frames: Iterator[np.ndarray], path: Path, fps: float, total: int, quiet: bool) -> int:
+    """H.264 in yuv420p (plays everywhere); even frame sizes, so no resizing. Returns the frame count."""
+    import imageio.v2 as imageio
+    from tqdm import tqdm
+
+    count = 0
+    writer = imageio.get_writer(path, fps=fps, codec="libx264", quality=7, pixelformat="yuv420p",
+                                macro_block_size=2, ffmpeg_log_level="error")
+    try:
+        for frame in tqdm(frames, total=total, unit="frame", desc=f"rendering {path.name}",
+                          disable=progress_disabled(quiet), file=sys.stderr):
+            writer.append_data(frame)
+            count += 1
+    finally:
+        writer.close()
+    return count
+
+
+def write_gif(frames: Iterator[np.ndarray], path: Path, fps: float, total: int, quiet: bool,
+              keep: Sequence[tuple[int, int, int]] = ()) -> int:
+    """A looping GIF with one palette (the first frame's colours and `keep`, the drawing's own) and no dithering:
+    the static background stays identical between frames, and Pillow stores only each frame's changed rectangle."""
+    from PIL import Image
+    from tqdm import tqdm
+
+    images, palette = [], None
+    for frame in tqdm(frames, total=total, unit="frame", desc=f"rendering {path.name}",
+                      disable=progress_disabled(quiet), file=sys.stderr):
+        image = Image.fromarray(frame)
+        if palette is None:
+            own = [tuple(c) for c in keep]
+            first = image.quantize(colors=256 - len(own), method=Image.Quantize.MEDIANCUT).getpalette()
+            palette = Image.new("P", (1, 1))
+            palette.putpalette([*first[: 3 * (256 - len(own))], *(v for c in own for v in c)])
+        images.append(image.quantize(palette=palette, dither=Image.Dither.NONE))
+    images[0].save(path, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0,
+                   optimize=False, disposal=1)
+    return len(images)
+
+
+def write_complete(writer, frames: Iterable[np.ndarray], path: Path, fps: float, total: int, quiet: bool) -> int:
+    """Write through a temporary name: an interrupted or failed render leaves no file that looks complete. The
+    folder must exist (the command line checks it before any work): none is created."""
+    partial = path.with_name(f".{path.stem}.partial{path.suffix}")
+    try:
+        count = writer(frames, partial, fps, total, quiet)
+        os.replace(partial, path)
+        return count
+    finally:
+        partial.unlink(missing_ok=True)

@@ -1,0 +1,171 @@
+"""Compile a spec's generated C into a shared library in the cache: `acroboter build [SPEC_NAME ...]`.
+
+A library lands in <cache>/lib/<spec>-<sources hash>/lib<spec>.so, beside the SHA-256 of the file
+the build wrote. The hash (of every generated file, the compiler flags and the compiler's name) in
+the folder name means a library older than its sources is never picked up, and a rebuilt library
+gets a new path, so a process that already loaded the old one can still load the new one (dlopen
+returns the library already loaded from a path). A build writes into a temporary folder and
+renames it into place, under a file lock: two processes building the same library at once end with
+one library, and neither ever loads a half-written one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import fcntl
+import hashlib
+import logging
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
+from pathlib import Path
+
+from ..model.locations import cache_dir, shipped_generated_folder
+
+log = logging.getLogger(__name__)
+# -O2 and IEEE semantics: never -ffast-math, the dynamics must be reproducible to the last bit.
+CFLAGS = ("-O2", "-fPIC", "-fno-fast-math")
+
+
+class BuildError(RuntimeError):
+    pass
+
+
+def _compiler() -> str:
+    return os.environ.get("CC", "cc")
+
+
+def sources_hash(source_dir: Path) -> str:
+    h = hashlib.sha256(f"{_compiler()} {' '.join(CFLAGS)}".encode())
+    for path in sorted(source_dir.iterdir()):
+        if path.is_file():
+            h.update(path.name.encode() + b"\n" + path.read_bytes())
+    return h.hexdigest()
+
+
+def library_path(spec_name: str, source_dir: Path, cache_root: Path) -> Path:
+    """Where the library built from `source_dir` (a generated/<spec_name>/ folder) lives."""
+    return cache_root / "lib" / f"{spec_name}-{sources_hash(source_dir)[:16]}" / f"lib{spec_name}.so"
+
+
+def is_current(lib: Path) -> bool:
+    """The library exists and is the file the build wrote (its SHA-256 sidecar): a truncated or
+    replaced library is rebuilt instead of loaded (loading one can crash the process)."""
+    digest = lib.with_name(lib.name + ".sha256")
+    if not (lib.is_file() and digest.is_file()):
+        return False
+    return hashlib.sha256(lib.read_bytes()).hexdigest() == digest.read_text().strip()
+
+
+def build(spec_name: str, source_dir: Path, cache_root: Path) -> Path:
+    """Compile source_dir/*.c into library_path(...), replacing what is there (atomically)."""
+    sources = sorted(source_dir.glob("*.c"))
+    if not sources:
+        raise BuildError(f"no generated C for spec '{spec_name}' in {source_dir}: run `make generate` first")
+    compiler = _compiler()
+    if shutil.which(compiler) is None:
+        raise BuildError(f"no C compiler '{compiler}' found: install gcc (or set CC) and run `make build`")
+    lib = library_path(spec_name, source_dir, cache_root)
+    lib.parent.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{lib.parent.name}.new-", dir=lib.parent.parent))
+    try:
+        def compile_one(src: Path) -> Path:
+            obj = staging / (src.stem + ".o")
+            result = subprocess.run([compiler, *CFLAGS, "-c", str(src), "-o", str(obj)], capture_output=True,
+                                    text=True)
+            if result.returncode != 0:
+                raise BuildError(f"compiling {src.name} failed:\n{result.stderr}")
+            return obj
+
+        with ThreadPoolExecutor(max_workers=os.cpu_count() or 2) as pool:
+            objects = list(pool.map(compile_one, sources))
+        built = staging / lib.name
+        result = subprocess.run([compiler, "-shared", *CFLAGS, *map(str, objects), "-lm", "-o", str(built)],
+                                capture_output=True, text=True)
+        if result.returncode != 0:
+            raise BuildError(f"linking {lib.name} failed:\n{result.stderr}")
+        for obj in objects:
+            obj.unlink()
+        (staging / (lib.name + ".sha256")).write_text(hashlib.sha256(built.read_bytes()).hexdigest() + "\n")
+        staging.chmod(0o755)
+        if lib.parent.exists():  # a damaged earlier build: make way (renaming over a folder needs it gone)
+            shutil.rmtree(lib.parent)
+        staging.rename(lib.parent)  # atomic: the library and its checksum appear together
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)  # gone already after the rename
+    return lib
+
+
+@contextmanager
+def cache_lock(cache_root: Path, name: str):
+    """An exclusive lock (flock) on <cache>/locks/<name>.lock, released when the block ends or the
+    process dies: concurrent first runs wait for one build instead of doing it twice."""
+    folder = cache_root / "locks"
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / f"{name}.lock", "a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def cache_write_error(cache_root: Path, err: OSError) -> str:
+    return (f"cannot write the model cache {cache_root} ({err.strerror or err}): point ACROBOTER_CACHE_DIR "
+            "(or --cache-dir) at a folder you can write")
+
+
+def ensure_built(spec_name: str, source_dir: Path, cache_root: Path) -> Path:
+    """The current library of `source_dir`, compiled first if it is missing or damaged."""
+    lib = library_path(spec_name, source_dir, cache_root)
+    if is_current(lib):
+        return lib
+    try:
+        with cache_lock(cache_root, lib.parent.name):
+            if not is_current(lib):  # another process may have built it while we waited
+                log.info("compiling the model library of '%s' into %s (once per version) ...", spec_name,
+                         lib.parent)
+                build(spec_name, source_dir, cache_root)
+    except OSError as err:
+        raise BuildError(cache_write_error(cache_root, err)) from None
+    return lib
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The command line (`acroboter build` runs it inside the error boundary, codegen_cli.build_main)."""
+    parser = argparse.ArgumentParser(prog="acroboter build", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("specs", nargs="*", help="example spec names (default: every shipped example)")
+    parser.add_argument("--force", action="store_true",
+                        help="recompile even the libraries that are current (same sources, flags and checksum)")
+    parser.add_argument("--cache-dir", type=Path, default=None,
+                        help="where the libraries go (default: $ACROBOTER_CACHE_DIR, else the per-user cache)")
+    args = parser.parse_args(argv)
+    root, generated = cache_dir(args.cache_dir), shipped_generated_folder()
+    # dot-folders are the code generator's staging and retired folders, never a spec's
+    names = args.specs or sorted(p.name for p in generated.iterdir() if p.is_dir() and not p.name.startswith("."))
+    try:
+        for name in names:
+            source = generated / name
+            if not source.is_dir():
+                known = ", ".join(sorted(p.name for p in generated.iterdir() if p.is_dir() and p.name[0] != "."))
+                print(f"error: no example '{name}' (the examples are {known}); a spec file of your own is built "
+                      "by its first run (`acroboter run --spec FILE`)", file=sys.stderr)
+                return 2
+            lib = library_path(name, source, root)
+            if not args.force and is_current(lib):  # incremental: the name carries sources and flags
+                print(f"up to date {lib}")
+                continue
+            with cache_lock(root, lib.parent.name):
+                print(f"built {build(name, source, root)}")
+    except OSError as err:
+        raise BuildError(cache_write_error(root, err)) from None
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,79 @@
+"""The same model functions evaluated by CasADi's virtual machine (casadi.Function calls).
+
+A drop-in for CompiledModel (same buffers, same `functions[name].call()/.outputs`), so the very
+same controllers and plant run on it. It is what a user without code generation would write, and
+the reference that `python -m acroboter.bench` compares the compiled path with. Not for hot loops:
+each casadi.Function call from Python costs tens of microseconds.
+"""
+
+from __future__ import annotations
+
+import ctypes
+
+import numpy as np
+
+from ..model.layout import build_layout
+from ..model.spec import Spec
+
+
+class CasadiFunction:
+    def __init__(self, function, inputs: list[np.ndarray]):
+        self.function = function
+        self.name = function.name()
+        self.inputs = [self._shaped(i, a) for i, a in enumerate(inputs)]
+        self.outputs = {}
+        for i in range(function.n_out()):
+            rows, cols = function.size_out(i)
+            self.outputs[function.name_out(i)] = np.zeros(rows if cols == 1 else (rows, cols), order="F")
+
+    def call(self) -> None:
+        results = self.function(*self.inputs)
+        if not isinstance(results, (list, tuple)):
+            results = [results]
+        for out, value in zip(self.outputs.values(), results, strict=True):
+            out[...] = value.full().reshape(out.shape, order="F")
+
+    def _shaped(self, index: int, flat: np.ndarray) -> np.ndarray:
+        """A view of a flat (column-major) buffer in the input's own shape, as casadi wants it."""
+        rows, cols = self.function.size_in(index)
+        return flat if cols == 1 else flat.reshape((rows, cols), order="F")
+
+    def point_input(self, index: int, address: int) -> None:
+        size = self.function.numel_in(index)
+        flat = np.ctypeslib.as_array((ctypes.c_double * size).from_address(address))
+        self.inputs[index] = self._shaped(index, flat)
+
+
+class CasadiModel:
+    """The spec's functions as casadi.Function objects behind CompiledModel's interface."""
+
+    def __init__(self, spec: Spec):
+        from acroboter.codegen.generate import GenerationContext  # CasADi symbolics: only this backend needs them
+
+        self.spec = spec
+        self.layout = build_layout(spec)
+        context = GenerationContext(spec).register_all()
+        ns = self.layout.n_signals
+        self.signals = np.zeros(3 * ns)
+        self.buffers: dict[str, np.ndarray] = {
+            "s": self.signals[:ns], "sd": self.signals[ns : 2 * ns], "sdd": self.signals[2 * ns :],
+        }
+        for f in context.functions.values():
+            for i in range(f.n_in()):
+                self.buffers.setdefault(f.name_in(i), np.zeros(f.numel_in(i)))
+        self.q, self.qd, self.p = self.buffers["q"], self.buffers["qd"], self.buffers["p"]
+        self.parameters_owner = None
+        self.s, self.sd, self.sdd = self.buffers["s"], self.buffers["sd"], self.buffers["sdd"]
+        self.functions = {
+            name: CasadiFunction(f, [self.buffers[f.name_in(i)] for i in range(f.n_in())])
+            for name, f in context.functions.items()
+        }
+
+    def bind(self, name: str) -> CasadiFunction:
+        f = self.functions[name].function
+        return CasadiFunction(f, [self.buffers[f.name_in(i)] for i in range(f.n_in())])
+
+    def term(self, name: str) -> np.ndarray:
+        fn = self.functions[name]
+        fn.call()
+        return fn.outputs[name].copy()

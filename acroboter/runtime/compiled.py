@@ -1,0 +1,284 @@
+"""Python bindings over a spec's compiled model library.
+
+The library is loaded once with ctypes, each function is bound once, and every argument, result
+and work buffer is preallocated. All functions read the same five input buffers (q, qd, s, sd,
+sdd): write the state there once, then call as many functions as needed; each call is a single
+ctypes call (~1 us) that writes into its own preallocated numpy outputs (column-major, as CasADi
+stores them).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..model.fingerprint import codegen_hash, manifest_hash
+from ..model.layout import Layout, build_layout
+from ..model.spec import Spec
+from .build import ensure_built, is_current, library_path
+
+_REAL_P = ctypes.POINTER(ctypes.c_double)
+_INT = ctypes.c_longlong
+
+
+class StaleModelError(RuntimeError):
+    """Generated code or library does not match the spec or the code generator."""
+
+
+class NotBuiltError(StaleModelError):
+    """The library is not compiled and compiling was not allowed."""
+
+
+# Outputs that are matrices whatever their shape (the others with one column are vectors).
+MATRIX_OUTPUTS = frozenset({
+    "mass_matrix", "phi_q", "sigma_q", "input_matrix", "schur", "minv_w", "penalty_matrix", "recovery_gain",
+    "hessian", "servo_map",
+})
+
+_REGENERATE = ("regenerate it with `acroboter generate SPEC_FILE` (`make generate` for the specs in "
+               "model_spec/)")
+
+
+class BoundFunction:
+    """One generated function with preallocated outputs; call() evaluates at the shared inputs."""
+
+    def __init__(self, lib: ctypes.CDLL, symbol: str, inputs: list[np.ndarray], outputs: list[tuple[str, list[int]]]):
+        self.name = symbol
+        self._fn = getattr(lib, symbol)
+        self._fn.restype = ctypes.c_int
+        self._fn.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int]
+        work = getattr(lib, f"{symbol}_work")
+        work.argtypes = [ctypes.POINTER(_INT)] * 4
+        work.restype = ctypes.c_int
+        sz = [_INT() for _ in range(4)]
+        work(*map(ctypes.byref, sz))
+        n_arg, n_res, n_iw, n_w = (int(v.value) for v in sz)
+        if n_arg < len(inputs):
+            raise StaleModelError(f"{symbol} takes {n_arg} inputs, expected {len(inputs)}: run `make generate`")
+        _check_shapes(lib, symbol, [a.size for a in inputs], outputs)
+        self.inputs = inputs
+        # casadi may need more argument slots than inputs (scratch); keep ours, pad with NULL.
+        ptrs_in = [a.ctypes.data for a in inputs]
+        self._args = (ctypes.c_void_p * n_arg)(*ptrs_in, *([None] * (n_arg - len(ptrs_in))))
+        # Column vectors come back 1-D; matrices column-major (CasADi's dense layout), also when they
+        # have one column (one input: H is n x 1).
+        self.outputs = {
+            name: np.zeros(rows if cols == 1 and name not in MATRIX_OUTPUTS else (rows, cols), order="F")
+            for name, (rows, cols) in outputs
+        }
+        ptrs = [o.ctypes.data for o in self.outputs.values()]
+        self._res = (ctypes.c_void_p * n_res)(*ptrs, *([None] * (n_res - len(ptrs))))
+        self._iw = np.zeros(max(n_iw, 1), dtype=np.int64)
+        self._w = np.zeros(max(n_w, 1))
+        # Pre-converted pointers: the per-call cost is then one foreign call.
+        self._call_args = (
+            ctypes.addressof(self._args),
+            ctypes.addressof(self._res),
+            self._iw.ctypes.data,
+            self._w.ctypes.data,
+            0,
+        )
+
+    def call(self) -> None:
+        if self._fn(*self._call_args) != 0:
+            raise RuntimeError(f"{self.name} failed")
+
+    def point_input(self, index: int, address: int) -> None:
+        """Read input `index` from another (contiguous, long enough) memory block, e.g. a table row."""
+        self._args[index] = address
+
+
+def _sparsity(lib: ctypes.CDLL, symbol: str, which: str, index: int) -> tuple[int, int, int]:
+    """(rows, columns, nonzeros) of input or output `index` from the library's own sparsity pattern."""
+    fn = getattr(lib, f"{symbol}_sparsity_{which}")
+    fn.argtypes = [_INT]
+    fn.restype = ctypes.POINTER(_INT)
+    pattern = fn(index)
+    rows, cols = int(pattern[0]), int(pattern[1])
+    # CasADi's compact form: [rows, cols, 1] is dense (a CCS colind starts at 0); otherwise
+    # [rows, cols, colind (cols + 1)..., row...] with colind[cols] = the number of nonzeros.
+    return rows, cols, rows * cols if int(pattern[2]) == 1 else int(pattern[2 + cols])
+
+
+def _check_shapes(lib: ctypes.CDLL, symbol: str, input_sizes: list[int], outputs: list) -> None:
+    """Buffers are sized from the manifest: the compiled function must agree, or a call would write
+    out of bounds. Inputs: as many numbers as the buffer; outputs: the manifest's dense shape."""
+    counts = {}
+    for which in ("in", "out"):
+        fn = getattr(lib, f"{symbol}_n_{which}")
+        fn.restype = _INT
+        counts[which] = int(fn())
+    if counts["in"] != len(input_sizes) or counts["out"] != len(outputs):
+        raise StaleModelError(
+            f"{symbol} in the library has {counts['in']} inputs and {counts['out']} outputs, the manifest "
+            f"{len(input_sizes)} and {len(outputs)}: the manifest does not describe this library; regenerate"
+        )
+    for i, size in enumerate(input_sizes):
+        rows, cols, _ = _sparsity(lib, symbol, "in", i)
+        if rows * cols != size:
+            raise StaleModelError(f"{symbol} input {i} is {rows}x{cols} in the library but {size} numbers in the "
+                                  "manifest: regenerate")
+    for i, (name, (rows, cols)) in enumerate(outputs):
+        shape = _sparsity(lib, symbol, "out", i)
+        if shape != (rows, cols, rows * cols):
+            raise StaleModelError(f"{symbol} output '{name}' is {shape[0]}x{shape[1]} with {shape[2]} nonzeros in "
+                                  f"the library but a dense {rows}x{cols} in the manifest: regenerate")
+
+
+def _check_structure(manifest, path: Path) -> None:
+    """The keys and types the bindings read, so an edited manifest is a message, not a KeyError."""
+    def fail(what: str):
+        raise StaleModelError(f"{path} is not what the code generator writes ({what}): regenerate it with "
+                              "`make generate`")
+
+    if not isinstance(manifest, dict):
+        fail("not a JSON object")
+    for key, kind in (("spec_model_hash", str), ("codegen_hash", str), ("functions", dict), ("files", dict)):
+        if not isinstance(manifest.get(key), kind):
+            fail(f"'{key}' missing or not a {kind.__name__}")
+    for name, info in manifest["functions"].items():
+        ok = (isinstance(info, dict) and isinstance(info.get("symbol"), str)
+              and all(isinstance(e, list) and len(e) == 2 and isinstance(e[0], str) and isinstance(e[1], int)
+                      for e in info.get("inputs", [None]))
+              and all(isinstance(e, list) and len(e) == 2 and isinstance(e[0], str)
+                      and isinstance(e[1], list) and len(e[1]) == 2 and all(isinstance(d, int) for d in e[1])
+                      for e in info.get("outputs", [None])))
+        if not ok:
+            fail(f"function '{name}' malformed")
+
+
+class CompiledModel:
+    """All generated functions of one spec, bound to shared input buffers q, qd, s, sd, sdd."""
+
+    def __init__(self, spec: Spec, source_dir: Path, cache_root: Path, build: bool = True):
+        """Bind the generated code in `source_dir` (a generated/<spec>/ folder, checked against the
+        spec and by content hash) compiled into the cache at `cache_root` (on first use).
+        acroboter.runtime.cache.load_model finds both for a spec. build=False: a missing library is a
+        NotBuiltError instead of a compilation (e.g. on a worker machine that must not compile)."""
+        self.spec = spec
+        self.layout: Layout = build_layout(spec)
+        self.source_dir = source_dir
+        manifest_path = source_dir / "manifest.json"
+        if not manifest_path.is_file():
+            raise StaleModelError(
+                f"no generated code for spec '{spec.name}' in {source_dir}: run `make generate`"
+            )
+        try:
+            self.manifest = json.loads(manifest_path.read_text())
+        except (OSError, ValueError) as err:
+            raise StaleModelError(f"{manifest_path} cannot be read ({err}): {_REGENERATE}") from None
+        _check_structure(self.manifest, manifest_path)
+        self._check_fresh(source_dir)
+        self._check_contents(source_dir)
+        if not build:
+            lib_path = library_path(spec.name, source_dir, cache_root)
+            if not is_current(lib_path):
+                raise NotBuiltError(f"no compiled library for spec '{spec.name}' at {lib_path}: build it first "
+                                    f"(`acroboter build {spec.name}` for an example, or load the model once with "
+                                    "build allowed)")
+        lib_path = ensure_built(spec.name, source_dir, cache_root)  # BuildError: cannot run (exit 3)
+        self.library_path = lib_path
+        try:
+            self.lib = ctypes.CDLL(str(lib_path))
+        except OSError as err:
+            raise StaleModelError(f"library {lib_path} cannot be loaded ({err}): run `make build` "
+                                  f"(`acroboter build {spec.name}`)") from None
+        expected = {**{k: self.manifest[k] for k in ("spec_model_hash", "codegen_hash")},
+                    "manifest_hash": manifest_hash(self.manifest)}
+        for what, value in expected.items():
+            try:
+                fn = getattr(self.lib, f"{spec.name}_{what}")
+            except AttributeError:
+                raise StaleModelError(f"library {lib_path} has no {spec.name}_{what}: it was not built from "
+                                      f"{source_dir}; run `make build` (`acroboter build {spec.name}`)"
+                                      ) from None
+            fn.restype = ctypes.c_char_p
+            if fn().decode() != value:
+                what_differs = (f"{manifest_path} does not describe this library (its functions, symbols or "
+                                "shapes were edited): regenerate it with `make generate`"
+                                if what == "manifest_hash" else
+                                f"library {lib_path} does not hold the code of {source_dir} (its embedded {what} "
+                                "differs, although its name carries the sources' hash: replaced or damaged): run "
+                                f"`make build` (`acroboter build {spec.name}`), or delete it and the next "
+                                "run builds it again")
+                raise StaleModelError(what_differs)
+
+        # One buffer per input name, shared by every function that reads that input.
+        self.buffers: dict[str, np.ndarray] = {}
+        # s, ṡ, s̈ are views of one block, so a single assignment sets all three.
+        ns = self.layout.n_signals
+        self.signals = np.zeros(3 * ns)
+        self.buffers.update(s=self.signals[:ns], sd=self.signals[ns : 2 * ns], sdd=self.signals[2 * ns :])
+        for info in self.manifest["functions"].values():
+            for name, size in info["inputs"]:
+                self.buffers.setdefault(name, np.zeros(size))
+        self.q, self.qd = self.buffers["q"], self.buffers["qd"]
+        self.s, self.sd, self.sdd = self.buffers["s"], self.buffers["sd"], self.buffers["sdd"]
+        self.p = self.buffers["p"]  # solver parameters, acroboter.codegen.structured.PARAMS
+        self.parameters_owner = None  # the controller whose gains are in p
+        self._inputs = (self.q, self.qd, self.s, self.sd, self.sdd)
+        self.functions: dict[str, BoundFunction] = {
+            name: BoundFunction(self.lib, info["symbol"], [self.buffers[i] for i, _ in info["inputs"]],
+                                info["outputs"])
+            for name, info in self.manifest["functions"].items()
+        }
+
+    def bind(self, name: str) -> BoundFunction:
+        """A second binding of function `name` with outputs of its own (inputs: the shared buffers,
+        re-pointable with point_input), e.g. to chain calls without copying."""
+        info = self.manifest["functions"][name]
+        return BoundFunction(self.lib, info["symbol"], [self.buffers[i] for i, _ in info["inputs"]], info["outputs"])
+
+    def _check_fresh(self, source_dir: Path) -> None:
+        if self.manifest["spec_model_hash"] != self.spec.model_hash():
+            raise StaleModelError(
+                f"generated code in {source_dir} was made from a different version of "
+                f"spec '{self.spec.name}': run `make generate` (then `make build`); for a spec outside "
+                "model_spec/ with a name of its own, `acroboter generate SPEC_FILE`"
+            )
+        if self.manifest["codegen_hash"] != codegen_hash():
+            raise StaleModelError(
+                f"generated code in {source_dir} was made by a different version of the "
+                "code generator: run `make generate` (for a spec outside model_spec/: "
+                "`acroboter generate SPEC_FILE`)"
+            )
+
+    def _check_contents(self, source_dir: Path) -> None:
+        """Every generated file is the one the generator wrote: its SHA-256 is the manifest's, and no
+        other C file sits beside them (the build compiles every *.c of the folder)."""
+        files = self.manifest.get("files")
+        if not isinstance(files, dict) or not files:
+            raise StaleModelError(f"{source_dir / 'manifest.json'} lists no content hashes (older code generator): "
+                                  f"{_REGENERATE}")
+        for name, digest in sorted(files.items()):
+            path = source_dir / name
+            if not path.is_file():
+                raise StaleModelError(f"{path} is missing: {_REGENERATE}")
+            if hashlib.sha256(path.read_bytes()).hexdigest() != digest:
+                raise StaleModelError(f"{path} is not what the code generator wrote (its content hash differs "
+                                      f"from manifest.json: edited by hand or half-written): {_REGENERATE}")
+        extra = sorted(p.name for p in source_dir.glob("*.c") if p.name not in files)
+        if extra:
+            raise StaleModelError(f"{source_dir} holds C files the code generator did not write ({', '.join(extra)}): "
+                                  f"remove them or {_REGENERATE}")
+
+    def set_inputs(self, q=None, qd=None, s=None, sd=None, sdd=None) -> None:
+        """Copy the given inputs into the shared buffers (others keep their values)."""
+        for buf, val in zip(self._inputs, (q, qd, s, sd, sdd), strict=True):
+            if val is not None:
+                buf[:] = val
+
+    def evaluate(self, name: str, q=None, qd=None, s=None, sd=None, sdd=None) -> dict[str, np.ndarray]:
+        """Convenience (not for hot loops): set inputs, call one function, return copies of its outputs."""
+        self.set_inputs(q, qd, s, sd, sdd)
+        fn = self.functions[name]
+        fn.call()
+        return {k: v.copy() for k, v in fn.outputs.items()}
+
+    def term(self, name: str, q=None, qd=None, s=None, sd=None, sdd=None) -> np.ndarray:
+        """One model term (e.g. 'mass_matrix', 'gamma') as a new array."""
+        return self.evaluate(name, q, qd, s, sd, sdd)[name]

@@ -1,0 +1,104 @@
+"""Initial state: the static equilibrium at the start of the path (docs/model.md §9).
+
+Unknowns (q, λ, u); equations: force balance c(q, 0) + φ_qᵀ λ = H u, the geometric constraints
+φ(q, s0) = 0 and the servo-constraints σ(q, s0) = 0 with the targets at the path's start. For a
+symmetric crane the spec's nominal configuration already solves this; for a general one the
+solve moves the connector and the cable lengths until the held unit is in balance.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from ..control.path import DesiredPath
+from ..model.layout import body_rotation, nominal_coordinates
+from ..model.spec import PositionTask, YawTask
+from ..runtime.compiled import CompiledModel
+
+
+class EquilibriumError(RuntimeError):
+    pass
+
+
+# The solve gives up after this long (a spec whose start has no equilibrium must say so quickly).
+EQUILIBRIUM_TIME_LIMIT_S = 5.0
+
+
+class _OutOfTime(Exception):
+    pass
+
+
+@dataclass
+class Equilibrium:
+    q: np.ndarray
+    multipliers: np.ndarray
+    inputs: np.ndarray
+    residual: float
+
+
+def start_targets(model: CompiledModel) -> tuple[np.ndarray, float]:
+    """Where the tracked point and yaw start: the spec's nominal configuration."""
+    spec = model.spec
+    position = next(t for t in spec.task if isinstance(t, PositionTask))
+    body = spec.body(position.body)
+    start_point = np.array(body.initial_position) + body_rotation(body.initial_yaw_deg) @ np.array(position.point)
+    yaw_task = next((t for t in spec.task if isinstance(t, YawTask)), None)
+    start_yaw = math.radians(spec.body(yaw_task.body).initial_yaw_deg) if yaw_task else 0.0
+    return start_point, start_yaw
+
+
+def desired_path(model: CompiledModel) -> DesiredPath:
+    start_point, start_yaw = start_targets(model)
+    return DesiredPath(model.spec, model.layout, start_point, start_yaw)
+
+
+def solve_equilibrium(model: CompiledModel, path: DesiredPath, tol: float = 1e-14) -> Equilibrium:
+    lay = model.layout
+    n, m, l = lay.n, lay.m, lay.l
+    s0, sd0, sdd0 = path.signal_arrays(0.0)
+    zero = np.zeros(n)
+    terms = model.functions["model_terms"]
+    out = terms.outputs
+
+    deadline = [math.inf]  # set when the iterative solve starts
+
+    def residual(z: np.ndarray) -> np.ndarray:
+        if time.perf_counter() > deadline[0]:
+            raise _OutOfTime
+        q, lam, u = z[:n], z[n : n + m], z[n + m :]
+        model.set_inputs(q, zero, s0, sd0, sdd0)
+        terms.call()
+        balance = out["bias_forces"] + out["phi_q"].T @ lam - out["input_matrix"] @ u
+        return np.concatenate([balance, out["phi"], out["sigma"]])
+
+    q0 = nominal_coordinates(model.spec, lay)
+    # Multipliers and inputs that best balance the nominal configuration: a good first guess.
+    model.set_inputs(q0, zero, s0, sd0, sdd0)
+    terms.call()
+    reactions = np.hstack([out["phi_q"].T, -out["input_matrix"]])
+    guess = np.linalg.lstsq(reactions, -out["bias_forces"], rcond=None)[0]
+    z0 = np.concatenate([q0, guess])
+    if np.abs(residual(z0)).max() > tol:
+        deadline[0] = time.perf_counter() + EQUILIBRIUM_TIME_LIMIT_S
+        try:
+            sol = least_squares(residual, z0, method="lm" if n + m + lay.k >= n + m + l else "trf",
+                                xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200 * z0.size)
+        except _OutOfTime:
+            raise EquilibriumError(
+                f"no static equilibrium found at the start of the path for spec '{model.spec.name}' within "
+                f"{EQUILIBRIUM_TIME_LIMIT_S:g} s: check the initial positions, cable lengths and the task"
+            ) from None
+        z0 = sol.x
+        deadline[0] = math.inf
+    r = np.abs(residual(z0)).max()
+    if not np.isfinite(r) or r > 1e-8:
+        raise EquilibriumError(
+            f"no static equilibrium found at the start of the path for spec '{model.spec.name}' "
+            f"(largest residual {r:.3g}): check the initial positions, cable lengths and the task"
+        )
+    return Equilibrium(q=z0[:n].copy(), multipliers=z0[n : n + m].copy(), inputs=z0[n + m :].copy(), residual=r)
