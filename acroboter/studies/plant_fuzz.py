@@ -328,7 +328,8 @@ def report(rows: list[dict], wall_s: float, workers: int, mujoco_timestep: float
              f"{mujoco_timestep:g} s (a disagreement confirmed at {CONFIRM_TIMESTEP:g} s), cable limits' damping "
              f"ratio {MUJOCO_DAMPRATIO:g}. Bounds: positions "
              f"{POSITION_BOUND_M * 1e6:g} µm outside ±{RETENSION_WINDOW_S * 1e3:g} ms of re-tensions; slack/taut "
-             "states equal outside ±1 plant step of a transition; the own plant's invariants (acroboter.sim.plant).", "",
+             "states equal outside ±1 plant step of a transition; the own plant's invariants "
+             "(acroboter.sim.plant).", "",
              f"**{len(rows) - len(failed)} of {len(rows)} agree** ({sum(bool(r['first_status']) for r in rows)} of "
              f"them only with MuJoCo at {CONFIRM_TIMESTEP:g} s); {len(failed)} fail. "
              f"{sum(bool(r['left']) for r in rows)} left sensible motion before their end (compared up to there).", "",
