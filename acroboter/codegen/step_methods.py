@@ -304,9 +304,9 @@ def _recovery_prelude(graph: StepGraph) -> dict[str, ca.SX]:
         e_map = mlm_bounded_terms(graph.model, graph.params)["servo_map"]
         k, l = graph.k, graph.l
         gram = ca.mtimes(e_map, e_map.T)
-        graph.bounds.check_nonsingular(gram, f"the servo-constraint map E E^T ({k}x{k}, E = sigma_q P H)")
-        ratio = graph.bounds.check_nonsingular(ca.mtimes([e_map, terms["hessian"], e_map.T]),
-                                               f"the projected fit in the task directions E G E^T ({k}x{k})")
+        check_nonsingular(graph, gram, f"the servo-constraint map E E^T ({k}x{k}, E = sigma_q P H)")
+        ratio = check_nonsingular(graph, ca.mtimes([e_map, terms["hessian"], e_map.T]),
+                                  f"the projected fit in the task directions E G E^T ({k}x{k})")
         graph.export.linear_solvers.append(
             f"SX Cholesky of the {k}x{k} matrices E G E^T (smallest/largest eigenvalue {ratio:.1e} at the nominal "
             "configuration) and E E^T of the input distribution (G = H^T P H, "
