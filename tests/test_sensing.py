@@ -1,4 +1,4 @@
-"""Measurement instead of state (acroboter/sensing.py, docs/sensing.md).
+"""Measurement instead of state (acroboter/sim/sensing.py, docs/sensing.md).
 
 (a) the projection onto φ(q) = 0 from noisy coordinates, on every shipped crane; (b) without sensing,
 or with an ideal one, every method is today's bit for bit (an in-process comparison, and digests

@@ -1,4 +1,4 @@
-"""Cables that only pull (acroboter/plant.py): slack and taut transitions against independent oracles.
+"""Cables that only pull (acroboter/sim/plant.py): slack and taut transitions against independent oracles.
 
 - free fall of the SU on slack winch cables (closed form with linear drag), and the SU dragging the
   drums on taut ones (the effective mass m + Σ I_r (∂L_i/∂z)² of the symmetric crane);

@@ -29,7 +29,7 @@ from ..control.path import DesiredPath, SampledTrajectory, TrajectoryPath
 from ..model.locations import example_spec
 from ..model.physical import parameter_names, parameter_values
 from ..model.settings import Gains
-from ..model.spec import MAX_ITERATIONS, RECOVERIES, Spec, integral_gain_problem, load_spec
+from ..model.spec import MAX_CONTROL_STEPS, MAX_ITERATIONS, RECOVERIES, Spec, integral_gain_problem, load_spec
 from ..runtime.cache import load_model
 from ..runtime.compiled import CompiledModel
 from ..sim.feasibility import Feasibility, check_path
@@ -276,21 +276,34 @@ class Crane:
         instant. The spec's input limits are not applied (they are what the user asks): the summary's
         `inputs_outside_limits` lists the instants outside them. The moving anchors follow
         `trajectory`, by default held where the spec's path starts (the climbing unit at rest).
-        `qd0`: initial velocities (default at rest). `plant`, `plant_params`, `mujoco_timestep` as in
+        `qd0`: initial velocities (default at rest), projected onto the constraints (the nearest velocity
+        in the mass matrix's metric with every constraint rate zero: a start that would stretch or
+        compress a cable at once is no state of the crane). `plant`, `plant_params`, `mujoco_timestep` as in
         `simulate`. A broken plant invariant (a slack cable stretched, a taut one pushing, energy not
         balanced) or a state that leaves any sensible motion ends the run there (`result.diverged_at`,
         the reason in `result.summary()` and `result.run.divergence`). Tracking figures are taken
         against the path the anchors follow."""
-        if not (isinstance(duration, numbers.Real) and math.isfinite(duration) and duration > 0):
+        if isinstance(duration, bool) or not (isinstance(duration, numbers.Real) and math.isfinite(duration)
+                                              and duration > 0):
             raise ValueError(f"duration: expected a positive number of seconds, found {duration!r}")
+        rate = self.spec.controller.rate_hz
+        if not 1 <= round(duration * rate) <= MAX_CONTROL_STEPS:
+            raise ValueError(f"duration: {duration:g} s is {round(duration * rate)} control steps at {rate:g} Hz: give "
+                             f"between one ({1 / rate:g} s) and {MAX_CONTROL_STEPS}")
         path = (held_path(self.spec, self.layout, self.path, float(duration)) if trajectory is None
                 else self.desired(trajectory, duration))
         if qd0 is not None:
-            qd0 = np.asarray(qd0, dtype=float)
-            if qd0.shape != (self.layout.n,) or not np.isfinite(qd0).all():
+            try:
+                qd0 = np.asarray(qd0, dtype=float)
+            except (TypeError, ValueError):
+                qd0 = None
+            if qd0 is None or qd0.shape != (self.layout.n,) or not np.isfinite(qd0).all():
                 raise ValueError(f"qd0: expected {self.layout.n} finite velocities (crane.coordinates' order)")
         engine = setup_default(self.model, path, plant_params, plant, mujoco_timestep)
         start = self.equilibrium(trajectory, duration)
+        if qd0 is not None:  # the own plant's projection, whichever plant runs (same parameters)
+            own = engine if plant == "own" else setup_default(self.model, path, plant_params)
+            qd0 = own.consistent_velocity(start.q, qd0)
         run = simulate_open_loop(self.model, path, engine, start.q, inputs, float(duration),
                                  self.spec.controller.rate_hz, self.spec.simulation.step, qd0=qd0, progress=progress)
         return Result(run, self.layout, self.scenario, self.name)

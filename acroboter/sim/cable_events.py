@@ -117,10 +117,7 @@ class CableEvents:
     """The event logic of Plant (see the module docstring); Plant provides the state it works on."""
 
     def _kinetic(self, q: np.ndarray, qd: np.ndarray) -> float:
-        self.model.q[:] = q
-        self.model.qd[:] = qd
-        self._energy.call()
-        return float(self._energy.outputs["kinetic"][0])
+        return self._energies(q, qd)[0]
 
     def _note(self, t: float, cable: int, kind: str, delta_kinetic: float = 0.0) -> None:
         self.transitions[cable] += 1
@@ -366,7 +363,7 @@ class CableEvents:
 
         g0, g1 = g(0.0), g(1.0)
         if g0 < -gap_tol:
-            f, lo, hi, f_lo, f_hi, offset = g, 0.0, 1.0, g0, g1, 0.0
+            f, lo, hi, f_lo, f_hi = g, 0.0, 1.0, g0, g1
         else:
             if g1 - g0 <= gap_tol:  # not coming up beyond where it started: no crossing in this step
                 return None
@@ -374,7 +371,7 @@ class CableEvents:
             def f(theta: float) -> float:
                 return (g(theta) - g0) / theta
 
-            lo, hi, f_hi, offset = THETA_MIN, 1.0, g1 - g0, g0
+            lo, hi, f_hi = THETA_MIN, 1.0, g1 - g0
             while True:
                 f_lo = f(lo)
                 if abs(f_lo) * lo > GAP_RESOLUTION or lo >= 0.1:
@@ -401,7 +398,6 @@ class CableEvents:
                 if side == 1:
                     f_lo *= 0.5
                 side = 1
-        del offset
         return theta
 
     def _locate(self, x_start, t: float, h: float, candidates: list[int], address: int | None):
@@ -490,7 +486,8 @@ class CableEvents:
 
     def _check_cables(self, t: float) -> None:
         """After a resolved substep: no slack cable is stretched beyond STRETCH_TOL (self._gap is the
-        substep's end), none taut pushes beyond push_tol (start_tension is its start)."""
+        substep's end). (That no taut cable pushes beyond push_tol is checked where the mask is decided,
+        at the end of _settle.)"""
         for c in self._modelled:
             if self._active[c] == 0.0 and self._gap[c] > STRETCH_TOL:
                 raise InvariantError(

@@ -30,6 +30,10 @@ SLACK_FORCE_N = 1e-9
 TAUT_GAP_M = 1e-9
 
 
+class DrumCapacityError(SimulationError):
+    """A winch paid out more cable than the MJCF drum holds: the crane has left any sensible motion."""
+
+
 def _mujoco():
     try:
         import mujoco
@@ -292,7 +296,7 @@ class MujocoPlant:
         for index, qpos, _, capacity in self._winches:
             if d.qpos[qpos] >= capacity - 1e-3:
                 name = self.layout.coordinates[index]
-                raise SimulationError(f"at t = {t:.3f} s {name} paid out {d.qpos[qpos]:.3f} m, more than the MJCF "
+                raise DrumCapacityError(f"at t = {t:.3f} s {name} paid out {d.qpos[qpos]:.3f} m, more than the MJCF "
                                       f"drum holds ({capacity:.3f} m): the crane has left any sensible motion")
 
 

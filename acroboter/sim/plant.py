@@ -46,7 +46,7 @@ from .cable_events import (  # noqa: F401 - the plant's errors, events and toler
 )
 
 # |energy balance residual| allowed: ENERGY_TOL_REL × (weight × longest cable + peak kinetic energy), see
-# Plant.energy_bound (2.6e-3 J at rest on the default crane; seen at most ~0.2 of it, docs/plant.md).
+# Plant.energy_bound (2.6e-3 J at rest on the default crane; what runs reach: docs/plant.md, plant-fuzz.md).
 ENERGY_TOL_REL = 1e-5
 # The plant's constraints count as closed below this max |φ| (m² for a cable row, |d|² − L²; unitless for
 # a body's axes): a start off them is checked for energy only from there (Plant._check_energy).
@@ -147,6 +147,7 @@ class Plant(CableEvents):
         self.energy_residual = 0.0  # J, at the end of the last advance (see energy_balance)
         self._energy_start, self._potential_scale, self._peak_kinetic = 0.0, 1.0, 0.0
         self.closing = False  # started off its constraints, Baumgarte still closing them (_check_energy)
+        self.energy_checked_from: float | None = 0.0
 
     def _parameter_vector(self, model) -> np.ndarray:
         """The `plant_params` input: the physical spec's values in the order the library takes them
@@ -196,6 +197,7 @@ class Plant(CableEvents):
         self._energy_start = self.mechanical_energy(x[:n], x[n : 2 * n])
         self.energy_residual = 0.0
         self.closing = self._constraint_violation(x, 0.0) > CLOSED_TOL
+        self.energy_checked_from = None if self.closing else 0.0  # s: when the energy check began
         return x
 
     def _constraint_violation(self, x: np.ndarray, t: float) -> float:
@@ -255,14 +257,9 @@ class Plant(CableEvents):
         """The residual of the energy balance at x (J): T + U − (T + U)₀ − (W_u + W_anchor − E_d +
         impact_energy), ≈ 0 to the integrator's accuracy when nothing is lost or created."""
         n = self.n
-        self.model.q[:] = x[:n]
-        self.model.qd[:] = x[n : 2 * n]
-        self._energy.call()
-        out = self._energy.outputs
-        kinetic = float(out["kinetic"][0])
+        kinetic, potential = self._energies(x[:n], x[n : 2 * n])
         self._peak_kinetic = max(self._peak_kinetic, kinetic)
-        mechanical = kinetic + float(out["potential"][0])
-        return mechanical - self._energy_start - (x[2 * n] + x[2 * n + 1] - x[2 * n + 2] + self.impact_energy)
+        return kinetic + potential - self._energy_start - (x[2 * n] + x[2 * n + 1] - x[2 * n + 2] + self.impact_energy)
 
     @property
     def energy_bound(self) -> float:
@@ -278,6 +275,7 @@ class Plant(CableEvents):
         if self.closing:
             if self._constraint_violation(x, t) <= CLOSED_TOL:
                 self.closing = False
+                self.energy_checked_from = t
                 self._energy_start += residual
                 self.energy_residual = 0.0
             return
@@ -306,8 +304,12 @@ class Plant(CableEvents):
 
     def mechanical_energy(self, q: np.ndarray, qd: np.ndarray) -> float:
         """T + U of the plant's crane (its parameters) at q, q̇."""
+        return sum(self._energies(q, qd))
+
+    def _energies(self, q: np.ndarray, qd: np.ndarray) -> tuple[float, float]:
+        """(T, U) of the plant's crane at q, q̇ (J): one call of its generated energy function."""
         self.model.q[:] = q
         self.model.qd[:] = qd
         self._energy.call()
         out = self._energy.outputs
-        return float(out["kinetic"][0] + out["potential"][0])
+        return float(out["kinetic"][0]), float(out["potential"][0])

@@ -62,6 +62,9 @@ class RunResult:
     # soft cable limits dissipate energy of their own) and the bound the plant holds it to.
     energy_residual: np.ndarray | None = None
     energy_bound: float | None = None
+    # From when (s) the residual is checked: 0, or once a plant that started off its constraints has
+    # closed them (Plant._check_energy); None: never within the run.
+    energy_checked_from: float | None = None
     # Open loop (acroboter.sim.open_loop): per input, the instants at which it was outside the spec's limits.
     outside_limits: dict[str, dict] | None = None
 
@@ -275,7 +278,8 @@ def simulate(
                        limit_state=rec_limit, saturated=rec_saturated, control_period=period,
                        plant_params=dict(getattr(plant, "parameters", {})), anchors=rec_anchor,
                        cable_gap=rec_gap, energy_residual=rec_residual,
-                       energy_bound=plant.energy_bound if checks_energy else None)
+                       energy_bound=plant.energy_bound if checks_energy else None,
+                       energy_checked_from=plant.energy_checked_from if checks_energy else None)
     if energy:
         names = ("mechanical", "work_inputs", "work_anchors", "dissipated")
         result.energy = {name: rec_energy[:, i].copy() for i, name in enumerate(names)}
@@ -380,8 +384,12 @@ def summarize(result: RunResult, scenario: Scenario, layout) -> dict:
         summary["cable_max_gap_m"] = {name: float(result.cable_gap[:, c].max())
                                       for c, name in enumerate(result.cable_names)}
     if result.energy_residual is not None and result.energy_residual.size:
-        summary["max_abs_energy_residual_J"] = float(np.abs(result.energy_residual).max())
+        # over the instants the plant checked (a plant that started off its constraints: from their closing)
+        start = result.energy_checked_from
+        checked = result.energy_residual[result.t >= start] if start is not None else result.energy_residual[:0]
+        summary["max_abs_energy_residual_J"] = float(np.abs(checked).max()) if checked.size else None
         summary["energy_residual_bound_J"] = result.energy_bound
+        summary["energy_checked_from_s"] = start
     if result.outside_limits is not None:
         summary["inputs_outside_limits"] = result.outside_limits
     summary["saturated"] = bool(saturated.any())

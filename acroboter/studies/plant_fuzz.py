@@ -30,7 +30,6 @@ drum paid out beyond what MuJoCo's model holds) is compared up to there, and the
 
 from __future__ import annotations
 
-import json
 import math
 import random
 from dataclasses import asdict, dataclass, field
@@ -74,17 +73,20 @@ class Experiment:
     velocity_scale: float = 0.0  # m/s
     seed: int | None = None  # the seed it was drawn from (make plant-fuzz), for the replay command
 
-    def replay_command(self) -> str:
+    def replay_command(self, mujoco_timestep: float = MUJOCO_TIMESTEP) -> str:
         if self.seed is not None:
-            return f"python -m acroboter.plant_fuzz --spec {self.spec} --seed {self.seed} --cases 1 --workers 1"
+            step = f" --mujoco-timestep {mujoco_timestep:g}" if mujoco_timestep != MUJOCO_TIMESTEP else ""
+            return (f"python -m acroboter.plant_fuzz --spec {self.spec} --seed {self.seed} --cases 1 --workers 1 "
+                    f"--out results/plant_fuzz/replay-{self.spec}-{self.seed}{step}")
         return ("python -c 'from acroboter.studies.plant_fuzz import Experiment, run_experiment; "
-                f"print(run_experiment(Experiment(**{json.dumps(asdict(self))})))'")
+                f"print(run_experiment(Experiment(**{asdict(self)!r})))'")
 
 
 def random_experiment(spec_name: str, static: dict[str, float], winches: list[str], rng: random.Random,
                       seed: int | None = None) -> Experiment:
     """An experiment on `spec_name` whose winch inputs (names `winches`) are random mixes around their
     static values (`static`: every input's static value)."""
+    # 2 decimals; the plants run whole control periods of it (round(duration / period) of them)
     duration = round(rng.uniform(*DURATION_S), 2)
     programs = {}
     for name in winches:
@@ -156,12 +158,13 @@ def run_experiment(experiment: Experiment, crane=None, mujoco_timestep: float = 
         return outcome
     finer = _compare(experiment, crane, confirm_timestep)
     finer.first_status = outcome.status
+    finer.replay = outcome.replay  # the replay runs the same two steps
     return finer
 
 
 def _compare(experiment: Experiment, crane, mujoco_timestep: float) -> Outcome:
     from ..api.crane import Crane
-    from ..sim.mujoco_plant import MujocoPlant
+    from ..sim.mujoco_plant import DrumCapacityError, MujocoPlant
     from ..sim.open_loop import held_path
     from ..sim.plant import Plant
 
@@ -180,7 +183,7 @@ def _compare(experiment: Experiment, crane, mujoco_timestep: float) -> Outcome:
     periods = int(round(experiment.duration / period))
     static = dict(zip(lay.inputs, start.inputs, strict=True))
     bodies = [lay.body_offset[b.name] for b in spec.bodies]
-    outcome = Outcome(experiment.spec, experiment.duration, "agrees", replay=experiment.replay_command(),
+    outcome = Outcome(experiment.spec, experiment.duration, "agrees", replay=experiment.replay_command(mujoco_timestep),
                       mujoco_timestep=mujoco_timestep)
     steps = periods * substeps
     diff = np.zeros(steps)
@@ -217,9 +220,12 @@ def _compare(experiment: Experiment, crane, mujoco_timestep: float) -> Outcome:
     except InvariantError as err:
         outcome.status = f"fails: invariant: {err}"
         return _finish(outcome, own)
-    except (_Stray, SimulationError) as err:  # MuJoCo's drum ran out, the crane flew off: compared up to there
+    except (_Stray, DrumCapacityError) as err:  # the crane flew off, a drum ran out: compared up to there
         outcome.left = str(err)
         steps = i
+    except SimulationError as err:  # MuJoCo failed otherwise (a non-finite state): no verdict is a failure
+        outcome.status = f"fails: MuJoCo: {err}"
+        return _finish(outcome, own)
     outcome.compared_s = steps * h
     retension = [e.t for e in own.events if e.kind == "taut"] + mj_changes
     times = h * np.arange(1, steps + 1)  # the end of each plant step
@@ -294,7 +300,7 @@ def experiment_of(name: str, seed: int) -> Experiment:
     crane = crane_of(name)
     lay = crane.layout
     static = {k: float(v) for k, v in zip(lay.inputs, crane.equilibrium().inputs, strict=True)}
-    winches = [name for name, act in zip(lay.inputs, crane.spec.actuators, strict=True)
+    winches = [input_name for input_name, act in zip(lay.inputs, crane.spec.actuators, strict=True)
                if isinstance(act, WinchTension)]
     return random_experiment(crane.spec.name, static, winches, random.Random(seed), seed)
 
