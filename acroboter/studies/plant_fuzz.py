@@ -340,7 +340,8 @@ def report(rows: list[dict], wall_s: float, workers: int, mujoco_timestep: float
              f"**{len(rows) - len(failed)} of {len(rows)} agree** ({sum(bool(r['first_status']) for r in rows)} of "
              f"them only with MuJoCo at {CONFIRM_TIMESTEP:g} s); {len(failed)} fail.", "",
              f"Coverage: {sum(r['compared_s'] for r in rows):.0f} s compared of "
-             f"{sum(r['duration'] for r in rows):.0f} s drawn; {sum(not r['left'] for r in rows)} cases compared to their end, the others up to where they left "
+             f"{sum(r['duration'] for r in rows):.0f} s drawn; {sum(not r['left'] for r in rows)} cases compared "
+             "to their end, the others up to where they left "
              f"sensible motion (a body {STRAY_M} m from its start or a cable {STRAY_M} m slack: "
              f"{sum(bool(r['left']) for r in rows)}); {sum(r['retensions'] for r in rows)} re-tensions and "
              f"{sum(r['transitions'] for r in rows)} slack/taut transitions of the own plant in all, in "
