@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 # Inside the checkout the cache of compiled libraries is build/cache/ (installed: the per-user cache).
 export ACROBOTER_CACHE_DIR := $(CURDIR)/build/cache
 
-.PHONY: run test setup build generate check-generated bench study sweep robustness plant-fuzz clean
+.PHONY: run test setup build generate check-generated mutation bench study sweep robustness plant-fuzz clean
 
 $(STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
@@ -28,6 +28,12 @@ generate: $(STAMP)
 # Regenerate into a temporary folder and compare file set and bytes with generated/.
 check-generated: $(STAMP)
 	$(PY) -m acroboter check
+
+# Mutation testing (mutmut, docs/mutation.md) of the runtime core modules in build/mutation/, two workers;
+# MODULES="control/recovery.py sim/sensing.py" restricts it (CPU-heavy: one module takes minutes to an hour).
+MODULES ?=
+mutation: build
+	$(PY) tools/mutation.py $(MODULES)
 
 run: build
 	$(PY) -m acroboter run

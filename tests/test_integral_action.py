@@ -64,10 +64,43 @@ def digest(a: np.ndarray) -> str:
     return hashlib.sha256(np.ascontiguousarray(a, dtype=float).tobytes()).hexdigest()
 
 
-def closed_loop_comparable(spec: str) -> None:
-    """The closed-loop digests also depend on the plant: compare them only with the baseline's plant."""
+RERECORD = ("the digests are of runs of the code before integral action (git e647694): to re-record them for "
+            "this environment, run that commit's closed loops (tests/data/integral_action_baseline.json's 'about') "
+            "in a worktree of it with this environment's packages and write the digests and environment here")
+
+
+def flat(figures: dict, prefix: str = "") -> dict:
+    """A summary's nested figures as one level ("cables.L1.max_tension_N": ...), for pytest.approx."""
+    out = {}
+    for key, value in figures.items():
+        if isinstance(value, dict):
+            out.update(flat(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def differing(got: dict, recorded: dict) -> list[str]:
+    """The figures of `recorded` that `got` misses: numbers beyond 1e-6 relative, anything else unequal."""
+    got, recorded = flat(got), flat(recorded)
+    out = []
+    for key, value in recorded.items():
+        other = got.get(key)
+        if isinstance(value, float) and isinstance(other, float | int) and not isinstance(other, bool):
+            if other != pytest.approx(value, rel=1e-6, abs=1e-9):
+                out.append(f"{key}: {other} (recorded {value})")
+        elif other != value:
+            out.append(f"{key}: {other} (recorded {value})")
+    return out
+
+
+def closed_loop_comparable(spec: str) -> bool:
+    """Whether the closed-loop digests apply here (the baseline's numpy, scipy, CasADi and machine). Where
+    they do not, the caller compares the recorded figures to a tolerance instead (never a silent skip)."""
     if not SAME_ENVIRONMENT:
-        pytest.skip(f"baseline recorded with {BASELINE['environment']}, this is {environment()}")
+        print(f"\n{spec}: baseline recorded with {BASELINE['environment']}, this is {environment()}: figures "
+              f"compared to 1e-6 instead of digests; {RERECORD}")
+    return SAME_ENVIRONMENT
     # The nominal plant is the folded step (plant_step_folded), the same arithmetic as the baseline's
     # plant_step: its C differs only by an (empty) parameter input, so the digests are compared as they are.
 
@@ -158,14 +191,19 @@ def test_ki_zero_steps_equal_the_code_before(cranes, spec, case):
 def test_ki_zero_closed_loop_equals_the_code_before(cranes, index):
     case = BASELINE["closed_loop"][index]
     spec, method = case["spec"], case["method"]
-    closed_loop_comparable(spec if spec != "saturating" else "acroboter")
+    exact = closed_loop_comparable(spec if spec != "saturating" else "acroboter")
     crane = cranes[spec]
     r = crane.simulate(method, duration=case["duration"], ki=0.0, **case["overrides"])
+    figures = {k: v for k, v in r.summary().items() if k not in TIMING and k in case["summary"]}
+    if not exact:  # another LAPACK rounds differently: the code before's figures, to a tolerance
+        assert not differing(figures, case["summary"]), (differing(figures, case["summary"]), RERECORD)
+        assert abs(int(r.saturated.sum()) - case["saturated_steps"]) <= 2, RERECORD
+        return
     assert {"u": digest(r.u), "q": digest(r.q), "qd": digest(r.qd)} == {k: case[k] for k in ("u", "q", "qd")}
     assert int(r.saturated.sum()) == case["saturated_steps"]
     # the figures the code before reported (later additions, such as the plant's gaps and energy
     # residual of issue 18, are not in the baseline)
-    assert {k: v for k, v in r.summary().items() if k not in TIMING and k in case["summary"]} == case["summary"]
+    assert figures == case["summary"]
 
 
 @pytest.mark.parametrize("method", ["mlm", "penalty", "iterative-3"])
@@ -223,11 +261,16 @@ def test_the_run_command_with_ki_zero_writes_what_it_wrote_before(tmp_path, caps
         assert summary["provenance"]["gains"]["ki"] == 0.0
     capsys.readouterr()
     assert csvs[False] == csvs[True]
-    closed_loop_comparable("acroboter")
-    assert {name: hashlib.sha256(data).hexdigest() for name, data in csvs[False].items()} == base["csv"]
+    exact = closed_loop_comparable("acroboter")
+    if exact:
+        assert {name: hashlib.sha256(data).hexdigest() for name, data in csvs[False].items()} == base["csv"]
     for method, figures in summary["methods"].items():
         recorded = base["methods"][method]  # the figures reported then (later additions are not in it)
-        assert {k: v for k, v in figures.items() if k not in TIMING and k in recorded} == recorded, method
+        got = {k: v for k, v in figures.items() if k not in TIMING and k in recorded}
+        if exact:
+            assert got == recorded, method
+        else:
+            assert not differing(got, recorded), (method, differing(got, recorded), RERECORD)
     assert sorted(summary) == base["summary_keys"]
 
 
