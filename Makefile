@@ -57,7 +57,7 @@ robustness: build
 	$(PY) -m acroboter robustness
 
 # Differential fuzzing of the plant against MuJoCo: 2,000 generated open-loop experiments over every example
-# spec (Dask, two local workers; about 30 min on 2 cores): results/plant_fuzz/report.md, docs/plant.md.
+# spec (Dask, two local workers; 53 min on the shared 2-core VM): results/plant_fuzz/report.md, docs/plant.md.
 plant-fuzz: build
 	$(PY) -m acroboter.plant_fuzz
 
