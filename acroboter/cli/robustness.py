@@ -34,7 +34,6 @@ from ..studies.grid import (
     MAX_RUNS,
     DaskMissingError,
     GridError,
-    check_duration,
     open_client,
     prepare,
     require_dask,
@@ -120,8 +119,7 @@ def robustness(spec_path: Path = DEFAULT_SPEC, *, samples: int = DEFAULT_SAMPLES
         raise ValueError(f"{samples} samples × {len(methods)} methods × 2 is more than {MAX_RUNS} runs")
     if scheduler or workers > 0:
         require_dask(WHAT)  # first: a missing extra costs no build
-    spec = prepare(spec_path)  # builds the library here if missing: the tasks only load it
-    check_duration(spec, duration)
+    spec = prepare(spec_path, duration)  # builds the library here if missing: the tasks only load it
     kp, kd = spec.controller.kp, spec.controller.kd
     ki = recommended_ki(kp, kd) if ki is None else float(ki)
     from ..model.spec import integral_gain_problem

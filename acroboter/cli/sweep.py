@@ -30,7 +30,6 @@ from ..studies.grid import (
     MAX_RUNS,
     DaskMissingError,
     GridError,
-    check_duration,
     open_client,
     parse_values,
     prepare,
@@ -112,8 +111,7 @@ def sweep(spec_path: Path = DEFAULT_SPEC, *, alphas: list[float] | None = None, 
     alphas = alphas or parse_values(DEFAULT_ALPHAS)
     omegas = omegas or parse_values(DEFAULT_OMEGAS)
     iterations = iterations or parse_iterations(DEFAULT_ITERATIONS)
-    spec = prepare(spec_path)  # builds the library here if missing: the tasks only load it
-    check_duration(spec, duration)
+    spec = prepare(spec_path, duration)  # builds the library here if missing: the tasks only load it
     pen = spec.controller.penalty
     cases = make_grid(alphas, omegas, iterations, alpha_mode, pen.alpha_geometric, pen.alpha_servo)
     t0 = time.perf_counter()

@@ -27,6 +27,7 @@ class EquilibriumError(RuntimeError):
 
 # The solve gives up after this long (a spec whose start has no equilibrium must say so quickly).
 EQUILIBRIUM_TIME_LIMIT_S = 5.0
+_clock = time.perf_counter  # the solve's clock (a test gives it a clock of its own)
 
 
 class _OutOfTime(Exception):
@@ -68,7 +69,7 @@ def solve_equilibrium(model: CompiledModel, path: DesiredPath, tol: float = 1e-1
     deadline = [math.inf]  # set when the iterative solve starts
 
     def residual(z: np.ndarray) -> np.ndarray:
-        if time.perf_counter() > deadline[0]:
+        if _clock() > deadline[0]:
             raise _OutOfTime
         q, lam, u = z[:n], z[n : n + m], z[n + m :]
         model.set_inputs(q, zero, s0, sd0, sdd0)
@@ -84,7 +85,7 @@ def solve_equilibrium(model: CompiledModel, path: DesiredPath, tol: float = 1e-1
     guess = np.linalg.lstsq(reactions, -out["bias_forces"], rcond=None)[0]
     z0 = np.concatenate([q0, guess])
     if np.abs(residual(z0)).max() > tol:
-        deadline[0] = time.perf_counter() + EQUILIBRIUM_TIME_LIMIT_S
+        deadline[0] = _clock() + EQUILIBRIUM_TIME_LIMIT_S
         try:
             sol = least_squares(residual, z0, method="lm" if n + m + lay.k >= n + m + l else "trf",
                                 xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200 * z0.size)

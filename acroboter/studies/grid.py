@@ -98,14 +98,16 @@ def require_dask(what: str) -> None:
         raise DaskMissingError(f"{what} needs dask ({missing} is not installed): {DASK_EXTRA}") from None
 
 
-def prepare(spec_path: Path):
-    """Load and validate the spec and build its library here, once (tasks only load it); returns the spec."""
+def prepare(spec_path: Path, duration: float | None = None):
+    """Load and validate the spec (and the duration against its rate: check_duration) and then build
+    its library here, once (tasks only load it); returns the spec. Nothing is built for a bad input."""
     from ..model.spec import SpecError, load_spec
     from ..runtime.cache import load_model
     from ..runtime.compiled import StaleModelError
 
     try:
         spec = load_spec(spec_path)
+        check_duration(spec, duration)
         load_model(spec)
     except (SpecError, StaleModelError) as err:
         raise GridError(str(err)) from None
