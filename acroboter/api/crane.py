@@ -39,6 +39,7 @@ from ..sim.sensing import check_measurable, make_estimator
 from ..sim.sensing import resolve as resolve_sensing
 from ..sim.simulation import Scenario, setup_default, simulate
 from ..sim.statics import Equilibrium, desired_path, solve_equilibrium, start_targets
+from .dynamics import evaluate
 
 # Untimed control steps at the start state before a timed run: the first calls page code and data in.
 WARM_UP_STEPS = 200
@@ -125,6 +126,41 @@ class Crane:
                 self._start = solve_equilibrium(self.model, self.path)
             return self._start
         return solve_equilibrium(self.model, self.desired(trajectory, duration))
+
+    # --- the dynamics terms at a state (acroboter.api.dynamics; docs/model.md §1-5) ---------------------
+    def mass_matrix(self, q) -> np.ndarray:
+        """M(q), (n, n): kg on the bodies' centres, kg·m² on their axes, the drums' reflected inertia (kg)
+        on the winch lengths (constant in natural coordinates)."""
+        return evaluate(self.model, self.path, "mass_matrix", q)
+
+    def bias_forces(self, q, qd, t: float = 0.0) -> np.ndarray:
+        """c(q, q̇, t), (n,): every generalized force but the inputs' and the constraints' (gravity,
+        damping, the velocity terms), on the left: M q̈ + c = H u − φ_qᵀ λ. N (N·m on the axes' rows)."""
+        return evaluate(self.model, self.path, "bias_forces", q, qd, t)
+
+    def input_matrix(self, q) -> np.ndarray:
+        """H(q), (n, l): the generalized force of each input per unit (`crane.inputs`, their units)."""
+        return evaluate(self.model, self.path, "input_matrix", q)
+
+    def constraints(self, q, t: float = 0.0) -> np.ndarray:
+        """φ(q, t), (m,): the geometric constraints (`crane.layout.constraints`): the bodies' axes
+        orthonormal (unitless) and each cable |p_a − p_b|² − L² (m²; ≤ 0 for a slack cable), the moving
+        anchors where the path has them at t. 0 on a consistent configuration."""
+        return evaluate(self.model, self.path, "constraints", q, t=t)
+
+    def constraint_jacobian(self, q, t: float = 0.0) -> np.ndarray:
+        """φ_q(q, t) = ∂φ/∂q, (m, n)."""
+        return evaluate(self.model, self.path, "constraint_jacobian", q, t=t)
+
+    def servo_error(self, q, t: float = 0.0) -> np.ndarray:
+        """σ(q, t), (k,): the servo-constraints' values (named in `crane.servo_constraints`) against the
+        spec's desired path at t: the tracked point's position error (m), yaw and level (unitless). 0 on
+        the path."""
+        return evaluate(self.model, self.path, "servo_error", q, t=t)
+
+    def servo_jacobian(self, q, t: float = 0.0) -> np.ndarray:
+        """σ_q(q, t) = ∂σ/∂q, (k, n)."""
+        return evaluate(self.model, self.path, "servo_jacobian", q, t=t)
 
     def mjcf(self, timestep: float | None = None, plant_params: Mapping[str, float] | None = None,
              pose: str = "spec") -> str:
