@@ -29,7 +29,7 @@ import numpy as np
 from ..model.locations import example_spec
 from ..model.spec import MAX_ITERATIONS
 from ..report.paper import PAPER_MATLAB_US
-from .entry import check_out_folder, guarded, whole
+from .entry import check_out_folder, guarded, spec_file, whole
 
 GOALS_US = {"mlm": 20.0, "penalty": 15.0, "iterative-5": 20.0}
 MIN_INSTANTS = 101  # the allocation check steps from instant 100 of the scenario
@@ -77,8 +77,9 @@ def stats(seconds: np.ndarray) -> dict:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="acroboter bench", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--spec", type=Path, default=example_spec("acroboter"),
-                        help="model spec (TOML) whose scenario is timed (default: %(default)s)")
+    parser.add_argument("--spec", type=spec_file, default=example_spec("acroboter"),
+                        help="model spec whose scenario is timed: a TOML file or an example's name (acroboter "
+                             "examples) (default: %(default)s)")
     parser.add_argument("--method", "--methods", dest="methods",
                         default="mlm,penalty,iterative-3,iterative-4,iterative-5",
                         help="comma-separated methods: mlm, penalty, iterative-N (default: %(default)s)")

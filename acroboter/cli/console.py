@@ -12,6 +12,7 @@
     acroboter animate      a video (MP4, GIF) of one method's run from its results folder
     acroboter mjcf         a spec's MJCF model for MuJoCo
     acroboter plant-fuzz   generated open-loop experiments, the own plant against MuJoCo (docs/plant.md)
+    acroboter examples     the example cranes (any of them is a --spec NAME), one line each
 
 `acroboter <command> --help` lists each command's options. -q shows warnings and errors only (no
 progress bars), -v adds debugging detail (cache paths, library paths). Exit codes: 0 done, 2 bad
@@ -39,6 +40,7 @@ COMMANDS: dict[str, tuple[str, str, tuple[str, ...]]] = {
     "animate": ("acroboter.cli.animate", "main", ()),
     "mjcf": ("acroboter.cli.mjcf", "main", ()),
     "plant-fuzz": ("acroboter.cli.plant_fuzz", "main", ()),
+    "examples": ("acroboter.cli.examples", "main", ()),
 }
 
 
@@ -78,14 +80,38 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 0
     args = parser.parse_args(argv)
-    configure_logging(args.verbosity)
+    arguments, verbosity = _noise_after_command(args.command, args.arguments, args.verbosity)
+    configure_logging(verbosity)
     module, function, prefix = COMMANDS[args.command]
     try:
         command = getattr(import_module(module), function)
     except KeyboardInterrupt:  # while the command's modules load (numpy, scipy): before any work
         print("interrupted", file=sys.stderr)
         return 130
-    return command([*prefix, *args.arguments])
+    return command([*prefix, *arguments])
+
+
+# The commands whose own options include -q/--quiet (no progress bars); -v is the console's alone.
+QUIET_OPTION = {"run", "sweep", "robustness", "animate", "mjcf", "plant-fuzz"}
+
+
+def _noise_after_command(command: str, arguments: list[str], verbosity: int) -> tuple[list[str], int]:
+    """-v/-q given after the command (`acroboter run -v`) act as before it: -v is taken out of the
+    command's arguments, -q too unless the command has a -q of its own (then both see it)."""
+    kept = []
+    for i, arg in enumerate(arguments):
+        if arg == "--":  # the rest belongs to the command as it is
+            kept += arguments[i:]
+            break
+        if arg in ("-v", "--verbose"):
+            verbosity = 1
+        elif arg in ("-q", "--quiet"):
+            verbosity = -1
+            if command in QUIET_OPTION:
+                kept.append(arg)
+        else:
+            kept.append(arg)
+    return kept, verbosity
 
 
 if __name__ == "__main__":

@@ -102,6 +102,26 @@ def number(low: float | None = None, high: float | None = None, *, low_open: boo
     return parse
 
 
+def spec_file(text: str) -> Path:
+    """A spec option: a TOML file's path, or the name of a shipped example (`acroboter examples`), so
+    that `--spec lab_crane` works from any folder; a name that is neither says so and suggests the
+    nearest example."""
+    import difflib
+
+    from ..model.locations import example_names, example_spec
+
+    path = Path(text)
+    if path.suffix == ".toml" or path.exists() or os.sep in text:
+        return path
+    names = example_names()
+    if text in names:
+        return example_spec(text)
+    near = difflib.get_close_matches(text, names, n=1)
+    raise argparse.ArgumentTypeError(
+        f"'{text}' is neither a spec file nor an example's name" + (f" (did you mean {near[0]}?)" if near else "")
+        + f"; the examples: {', '.join(names)} (`acroboter examples`)")
+
+
 def positive(high: float | None = None) -> Callable[[str], float]:
     return number(0.0, high, low_open=True)
 

@@ -20,7 +20,7 @@ from ..codegen.generate import generate
 from ..model.interrupts import remembered_interrupt
 from ..model.locations import checkout_root, example_spec, shipped_generated_folder, spec_folder
 from ..model.spec import Spec, SpecError, load_spec
-from .entry import check_out_folder, guarded, number, positive
+from .entry import check_out_folder, guarded, number, positive, spec_file
 
 SPEC_DIR = spec_folder()
 GENERATED_DIR = shipped_generated_folder()
@@ -205,7 +205,8 @@ def export_step_main(argv: list[str] | None = None) -> int:
         prog="acroboter export-step",
         description="Export one method's complete control step as self-contained C with a header.",
     )
-    parser.add_argument("--spec", type=Path, default=example_spec(), help="model spec (default: %(default)s)")
+    parser.add_argument("--spec", type=spec_file, default=example_spec(),
+                        help="model spec: a TOML file or an example's name (default: %(default)s)")
     parser.add_argument("--method", default="penalty", help="mlm, penalty or iterative-N (default: %(default)s)")
     parser.add_argument("--recovery", choices=RECOVERIES, default=None,
                         help="input recovery of the penalty methods (default: the spec's, normally projected)")

@@ -19,7 +19,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from .entry import file_write_problem, guarded, number
+from .entry import file_write_problem, guarded, number, spec_file
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -27,7 +27,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
     p = argparse.ArgumentParser(prog="acroboter mjcf", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("spec", type=Path, nargs="?", default=None,
+    p.add_argument("spec", type=spec_file, nargs="?", default=None,
                    help="model spec TOML (default: the paper's crane, model_spec/acroboter.toml)")
     p.add_argument("-o", "--out", type=Path, default=None,
                    help="the XML file to write (default: <spec name>.xml in the current folder; - for stdout)")

@@ -65,6 +65,7 @@ from .entry import (
     number,
     positive,
     progress_disabled,
+    spec_file,
     whole,
 )
 
@@ -250,7 +251,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                     "whose physical parameters are drawn around the model's (the controllers keep the model).",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    p.add_argument("--spec", type=Path, default=DEFAULT_SPEC, help="model spec (TOML)")
+    p.add_argument("--spec", type=spec_file, default=DEFAULT_SPEC,
+                   help="model spec: a TOML file or an example's name (acroboter examples)")
     p.add_argument("--samples", type=whole(1, MAX_SAMPLES), default=DEFAULT_SAMPLES, metavar="N",
                    help="number of plant samples")
     p.add_argument("--seed", type=whole(0), default=DEFAULT_SEED, metavar="S",

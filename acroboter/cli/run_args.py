@@ -9,7 +9,7 @@ from pathlib import Path
 
 from ..model.locations import example_spec
 from ..model.spec import MAX_ITERATIONS
-from .entry import name_value, number, positive
+from .entry import name_value, number, positive, spec_file
 
 DEFAULT_SPEC = example_spec("acroboter")
 
@@ -19,7 +19,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         prog="acroboter run",
         description="Simulate the crane under the inverse-dynamics controllers and report tracking and timing.",
     )
-    p.add_argument("--spec", type=Path, default=DEFAULT_SPEC, help="model spec (TOML) (default: %(default)s)")
+    p.add_argument("--spec", type=spec_file, default=DEFAULT_SPEC,
+                   help="model spec: a TOML file or an example's name (acroboter examples) (default: %(default)s)")
     p.add_argument("--method", action="append", metavar="METHOD",
                    help="mlm, penalty, iterative or iterative-N; repeat or comma-separate "
                         "(default: mlm, penalty and iterative with the spec's iteration counts)")

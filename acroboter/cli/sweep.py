@@ -58,6 +58,7 @@ from .entry import (
     number,
     positive,
     progress_disabled,
+    spec_file,
     whole,
 )
 
@@ -139,7 +140,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                     "the penalty numbers α and Ω vary, one closed-loop simulation per grid point on Dask.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    p.add_argument("--spec", type=Path, default=DEFAULT_SPEC, help="model spec (TOML)")
+    p.add_argument("--spec", type=spec_file, default=DEFAULT_SPEC,
+                   help="model spec: a TOML file or an example's name (acroboter examples)")
     p.add_argument("--alphas", default=DEFAULT_ALPHAS,
                    help="penalty numbers: comma-separated values or log ranges START:STOP[:PER_DECADE]")
     p.add_argument("--alpha-mode", choices=ALPHA_MODES, default="tied",
