@@ -16,6 +16,7 @@ A `trajectory` (a SampledTrajectory, or a function t -> (position, velocity, acc
 
 from __future__ import annotations
 
+import logging
 import math
 import numbers
 from collections.abc import Callable, Mapping
@@ -28,6 +29,7 @@ from ..control.controllers import make_controller
 from ..control.path import DesiredPath, SampledTrajectory, TrajectoryPath
 from ..model.locations import example_spec
 from ..model.physical import parameter_names, parameter_values
+from ..model.plausibility import plausibility_warnings
 from ..model.settings import Gains
 from ..model.spec import MAX_CONTROL_STEPS, MAX_ITERATIONS, RECOVERIES, Spec, integral_gain_problem, load_spec
 from ..runtime.cache import load_model
@@ -67,6 +69,10 @@ class Crane:
         self.scenario = Scenario.from_model(model)
         self._path: DesiredPath | None = None
         self._start: Equilibrium | None = None
+        # Numbers each valid but implausible together (a mass in grams, ...): said once, here, and kept.
+        self.warnings: list[str] = [f"{field}: {why}" for field, why in plausibility_warnings(spec)]
+        for warning in self.warnings:
+            logging.getLogger("acroboter").warning("spec '%s': %s", spec.name, warning)
         if spec.sensing is not None:  # a [sensing] that measures too little is refused here (SpecError)
             check_measurable(model, spec.sensing, source=str(source or spec.name))
 

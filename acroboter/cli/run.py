@@ -129,7 +129,7 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
             print(f"error: --duration {duration:g} s is {steps} control steps at {rate:g} Hz: give between one "
                   f"({1 / rate:g} s) and {MAX_CONTROL_STEPS} ({MAX_CONTROL_STEPS / rate:g} s)", file=sys.stderr)
             return 2
-        results, summaries, warnings = {}, {}, []
+        results, summaries, warnings = {}, {}, [f"spec: {w}" for w in crane.warnings]
         # Before the run: can the path be followed within the limits at all?
         feasibility = crane.check_path(duration, **overrides)
         if feasibility.feasible is False:
