@@ -85,7 +85,7 @@ def test_mlm_and_penalty_paths_overlap(full_runs):
     mlm, penalty = full_runs["mlm"][0], full_runs["penalty"][0]
     rows = slice(0, 3)
     gap = np.linalg.norm(mlm.sigma[:, rows] - penalty.sigma[:, rows], axis=1)  # same desired path
-    assert gap.max() < 0.5e-3
+    assert gap.max() < 0.03e-3  # measured 0.0146 mm (2026-12-02); 2x (was 0.5 mm)
 
 
 def test_the_run_follows_the_whole_path(full_runs, crane):
