@@ -204,7 +204,8 @@ def test_a_weak_winch_is_neither_infeasible_nor_saturated_in_the_run(tmp_path, c
     assert code == 0
     assert summary["path_feasibility"]["feasible"] is True
     for s in summary["methods"].values():
-        assert s["saturated"] is False and s["max_position_error_mm"] < 1.0
+        # measured 0.0326 (mlm) / 0.0288 mm (penalty), 2026-12-02; bound 1.5x (was 1.0 mm)
+        assert s["saturated"] is False and s["max_position_error_mm"] < 0.05
         assert s["inputs"]["tension_1"]["time_at_upper_limit_s"] > 5.0
     assert "not feasible" not in stdout
 
