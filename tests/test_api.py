@@ -42,7 +42,7 @@ def test_the_readme_example_runs_and_matches_the_cli(tmp_path):
     # Everything but the wall-clock figures is the same physics: equal to the last bit.
     timing = {"control_step_us", "sim_wall_s"}
     assert {k: v for k, v in api.items() if k not in timing} == {k: v for k, v in cli.items() if k not in timing}
-    assert api["max_position_error_mm"] < 0.1
+    assert api["max_position_error_mm"] < 0.05  # measured 0.0284 mm (2026-12-02); 1.8x (was 0.1)
     # The CSV is Result.to_csv: same header, same numbers.
     with (tmp_path / "penalty.csv").open() as f:
         rows = list(csv.reader(f))
@@ -155,7 +155,7 @@ def test_a_trajectory_function_is_followed(crane):
     result = crane.simulate("mlm", trajectory=circle, duration=T, warm_up=0)
     expected, _, _ = circle(result.time)
     assert np.abs(result.desired_position - expected).max() < 1e-12
-    assert result.summary()["max_position_error_mm"] < 1.0
+    assert result.summary()["max_position_error_mm"] < 0.2  # measured 0.104 mm (2026-12-02); 1.9x (was 1.0)
     assert result.time[-1] == pytest.approx(T)
 
 

@@ -67,11 +67,16 @@ def test_tensions_at_start_equal_the_static_ones(crane, method, rel):
 @pytest.mark.parametrize("method", METHODS)
 def test_every_method_tracks_inside_the_paper_bounds(full_runs, method):
     _, s = full_runs[method]
-    # The paper's bounds are 5.3 mm and 1.1°; with this model a correct implementation tracks far
-    # better, so hold it to a tenth of a millimetre and a hundredth of a degree.
-    assert s["max_position_error_mm"] < 0.1
-    assert s["max_yaw_error_deg"] < 0.01
-    assert s["max_tilt_deg"] < 0.5
+    # The paper's bounds are 5.3 mm and 1.1°; a correct implementation tracks far better. Measured
+    # 2026-12-02 (55 s path): max 0.0614..0.0621 mm, rms 0.0202..0.0213 mm, yaw 0.00019..0.00031°,
+    # tilt 0.0037° (mlm) / 0.155° (penalty, iterative). Bounds 1.3x the max, 1.4x the rms, 1.9x the
+    # yaw (maxima of a 55 s closed loop: room for another BLAS/numpy, not for a wrong law). With k_P
+    # in place of k_P² in the servo law (issue 19) they reach 0.088..0.100 mm, 0.040..0.043 mm rms
+    # and 0.00094..0.00107°: caught by each of the three.
+    assert s["max_position_error_mm"] < 0.08
+    assert s["rms_position_error_mm"] < 0.03
+    assert s["max_yaw_error_deg"] < 0.0006
+    assert s["max_tilt_deg"] < (0.006 if method == "mlm" else 0.25)  # 1.6x
     assert s["max_constraint_violation"] < 1e-6
     assert s["min_winch_tension_N"] > 0
 
@@ -80,7 +85,7 @@ def test_mlm_and_penalty_paths_overlap(full_runs):
     mlm, penalty = full_runs["mlm"][0], full_runs["penalty"][0]
     rows = slice(0, 3)
     gap = np.linalg.norm(mlm.sigma[:, rows] - penalty.sigma[:, rows], axis=1)  # same desired path
-    assert gap.max() < 0.5e-3
+    assert gap.max() < 0.03e-3  # measured 0.0146 mm (2026-12-02); 2x (was 0.5 mm)
 
 
 def test_the_run_follows_the_whole_path(full_runs, crane):

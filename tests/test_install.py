@@ -59,7 +59,8 @@ def test_the_installed_package_runs_the_paper_scenario_from_any_folder(installed
     assert proc.returncode == 0, proc.stdout + proc.stderr
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["duration_s"] == 2.0
-    assert all(s["max_position_error_mm"] < 0.1 for s in summary["methods"].values())
+    # measured 0.0282..0.0284 mm over these 2 s (2026-12-02); bound 1.8x (was 0.1)
+    assert all(s["max_position_error_mm"] < 0.05 for s in summary["methods"].values())
     assert summary["provenance"]["command_line"][:2] == ["acroboter", "run"]
     assert _files(site) == before  # nothing written under site-packages, not even a byte-code file
     libraries = list((root / "user-cache" / "acroboter" / "lib").glob("acroboter-*/libacroboter.so"))

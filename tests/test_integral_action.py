@@ -48,7 +48,12 @@ KP = KD = 5.0  # the default spec's (checked below)
 # (s + 1.5)(s² + 8.5 s + 12.25), roots -1.5, -1.839, -6.661 (docs/integral_action.md).
 POLE = 1.5
 KI = POLE * (KP**2 - 2 * KD * POLE + POLE**2)  # 18.375 1/s³
-SETTLING_MARGIN = 0.15  # measured settling within ±15 % of the linear model's prediction
+# The measured settling time (at the 50 Hz instants) against the roots' prediction: within two control
+# periods (0.04 s, 1 %). Measured 2026-12-02: 4.00 s against 3.992 s for mlm, penalty and iterative-3
+# (0.2 %: the crossing falls between two instants, so up to one period is sampling). The rectangle rule
+# for the integral gives 4.04 s (0.048 s off): caught, but by less than one period, so its robust catch
+# is tests/test_control_law.py.
+SETTLING_PERIODS = 2
 
 
 def environment() -> dict:
@@ -344,7 +349,8 @@ def test_integral_action_removes_the_steady_error_of_a_heavier_plant(heavy, meth
     # The linear oracle: the deficit d = k_P² σ_PD acting on σ̈ + 2k_D σ̇ + k_P² σ + k_I ∫σ.
     predicted = predicted_settling(KP, KD, KI, KP**2 * abs(error), 1e-3)
     assert 3.0 < predicted < 5.0
-    assert (1 - SETTLING_MARGIN) * predicted <= measured <= (1 + SETTLING_MARGIN) * predicted, (measured, predicted)
+    period = 1.0 / heavy[0].spec.controller.rate_hz
+    assert abs(measured - predicted) <= SETTLING_PERIODS * period + 1e-9, (measured, predicted)
 
 
 # --- (c) anti-windup ----------------------------------------------------------------------------------
@@ -442,7 +448,7 @@ def test_the_exported_step_refuses_integral_action():
 def test_the_api_simulates_with_ki_and_resets_z(cranes):
     crane = cranes["acroboter"]
     result = crane.simulate("penalty", duration=1.0, ki=KI)
-    assert result.summary()["max_position_error_mm"] < 0.1
+    assert result.summary()["max_position_error_mm"] < 0.04  # measured 0.0252 mm (2026-12-02); 1.6x
     controller = crane.controller("mlm", ki=KI)
     start = crane.equilibrium()
     offset = start.q.copy()

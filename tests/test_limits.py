@@ -56,8 +56,9 @@ def test_four_cable_crane_tracks_within_its_tension_limits(four_cable, four_cabl
     assert result.t[-1] == pytest.approx(55.0)
     assert np.all(tensions >= 5.0) and np.all(tensions <= 300.0), (tensions.min(), tensions.max())
     # the internal force is fixed: no pair of cables pulling against each other at kilonewtons
-    assert np.ptp(tensions) < 10.0
-    assert summary["max_position_error_mm"] < 1.0
+    assert np.ptp(tensions) < 0.6  # measured 0.27..0.31 N (2026-12-02); 1.9x
+    # measured 0.0614..0.0621 mm over the 55 s path, as on the three-cable crane; bound 1.3x
+    assert summary["max_position_error_mm"] < 0.08
     assert np.isfinite(result.u).all()
 
 
@@ -185,7 +186,7 @@ def test_redundancy_absorbs_one_weak_winch(tmp_path, four_cable):
     s = summarize(result, Scenario.from_model(model), model.layout)
     assert result.u[:, 0].max() <= 15.0 and (result.limit_state[:, 0] == 1).mean() > 0.9
     assert result.u[:, 1:4].max() > 22.0  # the others pull harder
-    assert s["max_position_error_mm"] < 1.0  # and the task is still met
+    assert s["max_position_error_mm"] < 0.05  # and the task is still met (measured 0.0326 mm, 2026-12-02; 1.5x)
     # on a limit, but not saturated: the servo-constraint accelerations are realised as asked
     assert s["inputs"]["tension_1"]["time_at_upper_limit_s"] > 9.0
     assert not result.saturated.any() and s["saturated"] is False
@@ -203,7 +204,8 @@ def test_a_weak_winch_is_neither_infeasible_nor_saturated_in_the_run(tmp_path, c
     assert code == 0
     assert summary["path_feasibility"]["feasible"] is True
     for s in summary["methods"].values():
-        assert s["saturated"] is False and s["max_position_error_mm"] < 1.0
+        # measured 0.0326 (mlm) / 0.0288 mm (penalty), 2026-12-02; bound 1.5x (was 1.0 mm)
+        assert s["saturated"] is False and s["max_position_error_mm"] < 0.05
         assert s["inputs"]["tension_1"]["time_at_upper_limit_s"] > 5.0
     assert "not feasible" not in stdout
 

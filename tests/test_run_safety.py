@@ -145,7 +145,8 @@ def test_a_one_input_crane_runs(tmp_path):
                           spec.controller.rate_hz, spec.simulation.step)
         s = summarize(result, Scenario.from_model(model), model.layout)
         assert result.t[-1] == pytest.approx(path.duration)
-        assert s["max_position_error_mm"] < 5.0 and s["min_winch_tension_N"] > 0
+        # measured 0.2324 / 0.2323 mm (2026-12-02); bound 1.7x (was 5.0)
+        assert s["max_position_error_mm"] < 0.4 and s["min_winch_tension_N"] > 0
 
 
 def test_a_long_run_needs_memory_for_its_records_only():
