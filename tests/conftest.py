@@ -128,6 +128,17 @@ def rigid_plant_rhs(model, path, u, zeta: float, omega: float):
     return rhs
 
 
+def build_in(root: Path, spec: Spec):
+    """(spec, compiled model, desired path) of a test spec, generated and compiled under `root` (a
+    temporary folder): test specs are not shipped, so neither their C nor their library is."""
+    from acroboter.codegen.generate import generate
+    from acroboter.sim.statics import desired_path
+
+    generate(spec, root / "generated")
+    model = load_model(spec, generated_dir=root / "generated", cache_dir=root / "build")
+    return spec, model, desired_path(model)
+
+
 def load_with_start(path: Path):
     """(spec, compiled model, desired path, static equilibrium at the start) of a spec file."""
     from acroboter.sim.statics import desired_path, solve_equilibrium

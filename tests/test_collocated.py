@@ -7,12 +7,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import build_in
 
-from acroboter.codegen.generate import generate
 from acroboter.control.controllers import Gains, make_controller
 from acroboter.model.spec import load_spec
-from acroboter.runtime.cache import load_model
-from acroboter.sim.statics import desired_path
 
 TOY = Path(__file__).resolve().parent / "specs" / "collocated_toy.toml"
 
@@ -20,11 +18,7 @@ TOY = Path(__file__).resolve().parent / "specs" / "collocated_toy.toml"
 @pytest.fixture(scope="module")
 def toy(tmp_path_factory):
     """The toy is a test spec: generated and compiled into a temporary folder."""
-    spec = load_spec(TOY)
-    root = tmp_path_factory.mktemp("toy")
-    generate(spec, root / "generated")
-    model = load_model(spec, generated_dir=root / "generated", cache_dir=root / "build")
-    return spec, model, desired_path(model)
+    return build_in(tmp_path_factory.mktemp("toy"), load_spec(TOY))
 
 
 def states(toy, count=4, seed=5, aligned=True):

@@ -25,16 +25,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import load_with_start
+from conftest import build_in, load_with_start
 
-from acroboter.codegen.generate import generate
 from acroboter.control.controllers import Gains, make_controller
 from acroboter.model.spec import load_spec
-from acroboter.runtime.cache import load_model
 from acroboter.sim.plant import Plant
 from acroboter.sim.sensing import Estimator, resolve
 from acroboter.sim.simulation import setup_default, simulate
-from acroboter.sim.statics import desired_path
 
 REPO = Path(__file__).resolve().parent.parent
 TOY = Path(__file__).resolve().parent / "specs" / "loaded_toy.toml"
@@ -290,11 +287,7 @@ def test_geometry_mismatch_keeps_the_penalty_constraint_term_acting(crane, metho
 
 @pytest.fixture(scope="module")
 def toy(tmp_path_factory):
-    spec = load_spec(TOY)
-    root = tmp_path_factory.mktemp("loaded_toy")
-    generate(spec, root / "generated")
-    model = load_model(spec, generated_dir=root / "generated", cache_dir=root / "build")
-    return spec, model, desired_path(model)
+    return build_in(tmp_path_factory.mktemp("loaded_toy"), load_spec(TOY))
 
 
 def toy_states(toy, count=3, seed=11):

@@ -25,11 +25,11 @@ from pathlib import Path
 import mpmath
 import numpy as np
 import pytest
+from conftest import build_in
 
 from acroboter.cli.generate import export_step_main as main
 from acroboter.codegen import step_methods
 from acroboter.codegen.export_step import ExportError, build_step, step_name, write_step
-from acroboter.codegen.generate import generate
 from acroboter.control.controllers import Gains, make_controller
 from acroboter.model.spec import load_spec, parse_spec
 from acroboter.runtime.cache import load_model
@@ -273,11 +273,7 @@ def redundant_crane(tmp_path_factory):
     data["name"] = "redundant_export"
     for body in data["bodies"]:
         body["redundant_constraints"] = True
-    spec = parse_spec(data)
-    root = tmp_path_factory.mktemp("redundant")
-    generate(spec, root / "generated")
-    model = load_model(spec, generated_dir=root / "generated", cache_dir=root / "build")
-    return spec, model, desired_path(model)
+    return build_in(tmp_path_factory.mktemp("redundant"), parse_spec(data))
 
 
 @pytest.mark.parametrize("method", ["penalty", "iterative-3"])
