@@ -49,9 +49,6 @@ class OpenLoopInputs:
     def saturation(self) -> bool:
         return False
 
-    def reset(self) -> None:
-        pass
-
     def outside_limits(self, lower: np.ndarray, upper: np.ndarray, input_names: list[str]) -> dict[str, dict]:
         """Per input outside its limits at some instant: how many instants, the first and the range."""
         out = {}
