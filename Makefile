@@ -11,7 +11,7 @@ export ACROBOTER_CACHE_DIR := $(CURDIR)/build/cache
 $(STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test,dask]'
+	$(PY) -m pip install --quiet -e '.[all,test]'
 	touch $(STAMP)
 
 setup: $(STAMP)
