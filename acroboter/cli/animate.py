@@ -13,7 +13,8 @@ in acroboter/animation/: `scene` reads the folder (the CSV's pose columns q and 
 every drawn point (pure numpy), `matplotlib_frames` and `mujoco_frames` draw frames, `encode` writes the MP4
 (imageio's ffmpeg) and the GIF (Pillow). `--renderer auto` uses MuJoCo's offscreen renderer (the crane's MJCF
 model) where it has an OpenGL context (EGL or OSMesa), else matplotlib, and says which and why
-(docs/animation.md).
+(docs/animation.md). The MP4 needs the animation extra, --renderer mujoco the mujoco extra (docs/extras.md);
+a GIF drawn with matplotlib needs only the core.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import time
 from functools import partial
 from pathlib import Path
 
+from ..model.extras import require
 from ..report.animation import matplotlib_frames, mujoco_frames
 from ..report.animation.encode import write_complete, write_gif, write_mp4
 from ..report.animation.mujoco_frames import GL_FIX, RendererUnavailable, mujoco_ready, probe_gl
@@ -118,6 +120,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                     "elsewhere")
     if args.gif is not None:
         check_output(p, args.gif, "--gif", ".gif", "for an MP4 use --out FILE.mp4")
+    # the options checked, the extras they need (MissingExtraError: one line with the `pip install`, exit 2);
+    # --renderer auto without mujoco draws with matplotlib, and a GIF needs only the core
+    if not args.no_mp4:
+        require("animation", "an MP4", "a GIF alone needs no extra: --no-mp4 --gif FILE.gif")
+    if args.renderer == "mujoco":
+        require("mujoco", "--renderer mujoco", "--renderer matplotlib needs no extra")
     return args
 
 

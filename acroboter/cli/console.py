@@ -3,7 +3,7 @@
     acroboter run          the paper's scenario (or any spec) under the controllers
     acroboter bench        control-step timings: compiled C against the casadi.Function path
     acroboter study        redundancy and non-collocation study over the example cranes
-    acroboter sweep        penalty-number sweep on a Dask cluster (pip install 'acroboter[dask]')
+    acroboter sweep        penalty-number sweep on a Dask cluster
     acroboter robustness   Monte Carlo over plant parameters: every method, with and without ki, on Dask
     acroboter generate     write a spec's C (generated/ in a checkout)
     acroboter check        regenerate into a temporary folder and compare with generated/
@@ -17,6 +17,10 @@
 `acroboter <command> --help` lists each command's options. -q shows warnings and errors only (no
 progress bars), -v adds debugging detail (cache paths, library paths). Exit codes: 0 done, 2 bad
 input, 3 cannot run, 130 interrupted.
+
+`pip install acroboter` is the core; MuJoCo (--plant mujoco, --view, mjcf, plant-fuzz), the MP4 encoder
+and Dask (sweep, robustness, plant-fuzz) are extras: pip install 'acroboter[all]' installs them
+(docs/extras.md). A command that needs a missing one says which, before any work (exit 2).
 """
 
 from __future__ import annotations
@@ -83,11 +87,25 @@ def main(argv: list[str] | None = None) -> int:
     arguments, verbosity = _noise_after_command(args.command, args.arguments, args.verbosity)
     configure_logging(verbosity)
     module, function, prefix = COMMANDS[args.command]
+    # A broken install (a core dependency missing): one line, not a traceback from deep in an import.
+    from ..model.extras import missing_core
+
+    if (problem := missing_core()) is not None:
+        print(f"acroboter: {problem}", file=sys.stderr)
+        return 3
     try:
         command = getattr(import_module(module), function)
     except KeyboardInterrupt:  # while the command's modules load (numpy, scipy): before any work
         print("interrupted", file=sys.stderr)
         return 130
+    except ImportError as err:  # found but does not import (a half-removed package, a missing library)
+        from .entry import core_import_problem
+
+        line = core_import_problem(err)
+        if line is None:
+            raise
+        print(f"acroboter: {line}", file=sys.stderr)
+        return 3
     return command([*prefix, *arguments])
 
 

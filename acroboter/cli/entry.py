@@ -3,13 +3,15 @@
 Every CLI's `main` is wrapped by `guarded`: the project's error classes become one line on stderr
 and the documented exit code, never a traceback:
 
-    2    bad input: a spec, an option, stale or tampered generated code, an unwritable --out
+    2    bad input: a spec, an option, stale or tampered generated code, an unwritable --out, an option
+         whose optional extra is not installed (the line names the `pip install` that fixes it)
     3    cannot run: the computation failed (a singular system, a failed build, a plant that
          found no consistent state, an I/O error while writing)
     130  interrupted (Ctrl-C): nothing half-written is left that looks complete
 
-An error no class names (a bug) is reported the same way, as "internal error", with exit 3; set
-ACROBOTER_TRACEBACK=1 to see its traceback. The option types check every number the same way
+A core dependency that does not import is one line naming it and its `pip install` (exit 3). An error no
+class names (a bug) is reported the same way, as "internal error", with exit 3; set ACROBOTER_TRACEBACK=1 to
+see its traceback. The option types check every number the same way
 (finite, in range) before any work.
 """
 
@@ -35,12 +37,13 @@ EXIT_INTERRUPTED = 130
 
 
 def _bad_input_errors() -> tuple[type[BaseException], ...]:
+    from ..model.extras import MissingExtraError
     from ..model.physical import PlantParameterError
     from ..model.spec import SpecError
     from ..runtime.compiled import StaleModelError  # imported late: `--help` stays instant
     from ..sim.statics import EquilibriumError
 
-    return SpecError, StaleModelError, EquilibriumError, PlantParameterError
+    return SpecError, StaleModelError, EquilibriumError, PlantParameterError, MissingExtraError
 
 
 def _cannot_run_errors() -> tuple[type[BaseException], ...]:
@@ -64,6 +67,9 @@ def guarded(main: Callable[..., int]) -> Callable[..., int]:
             print("interrupted", file=sys.stderr)
             return EXIT_INTERRUPTED
         except Exception as err:  # noqa: BLE001 - the boundary: every error becomes a message and a code
+            if (line := core_import_problem(err)) is not None:
+                print(f"error: {line}", file=sys.stderr)
+                return EXIT_CANNOT_RUN
             if isinstance(err, _bad_input_errors()):
                 print(f"error: {err}", file=sys.stderr)
                 return EXIT_BAD_INPUT
@@ -77,6 +83,22 @@ def guarded(main: Callable[..., int]) -> Callable[..., int]:
             return EXIT_CANNOT_RUN
 
     return wrapper
+
+
+def core_import_problem(err: BaseException) -> str | None:
+    """The one line for an installed package that does not import (a broken install: a core dependency
+    missing, or one of theirs), None for any other error (also an ImportError of the package itself: a bug)."""
+    from ..model.extras import MissingExtraError, core_line, is_core
+
+    if not isinstance(err, ImportError) or isinstance(err, MissingExtraError) or not err.name:
+        return None
+    top = err.name.split(".")[0]
+    if is_core(top):
+        return core_line(top)
+    if top == "acroboter":
+        return None
+    return (f"the installed package {top} does not import ({err}): a broken install, "
+            "pip install --force-reinstall acroboter repairs it")
 
 
 # --- option types (argparse `type=`): the same checks for every number of every command -------------

@@ -9,6 +9,7 @@ default its reference pose is the crane's static equilibrium at the start of the
 keyframe `static_start` whose ctrl holds it there (load it in MuJoCo's viewer: without the inputs
 the winches pay out and the load falls); `--pose spec` writes the spec's initial configuration
 instead, which is the XML checked in as generated/<spec>/<spec>.xml for the specs in model_spec/.
+It needs the mujoco extra (pip install 'acroboter[mujoco]'); without it, it says so before any work.
 """
 
 from __future__ import annotations
@@ -45,6 +46,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 @guarded
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    from ..model.extras import require
+
+    require("mujoco", "acroboter mjcf (MuJoCo loads the XML before it is written)",
+            "acroboter.Crane.from_toml(SPEC).mjcf() writes the XML without loading it")  # exit 2, before any work
     import mujoco
 
     from ..model.locations import example_spec

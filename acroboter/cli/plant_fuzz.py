@@ -1,6 +1,7 @@
 """`acroboter plant-fuzz` (`make plant-fuzz`, `python -m acroboter.plant_fuzz`): many generated open-loop
 experiments on every example spec, the own plant against MuJoCo, on a local Dask cluster, with a report
-of the verdict and the worst case of each measure (acroboter.studies.plant_fuzz, docs/plant.md)."""
+of the verdict and the worst case of each measure (acroboter.studies.plant_fuzz, docs/plant.md). It needs the
+mujoco extra, and the dask extra for more than one worker (docs/extras.md)."""
 
 from __future__ import annotations
 
@@ -11,10 +12,11 @@ from contextlib import nullcontext
 from functools import partial
 from pathlib import Path
 
+from ..model.extras import require
 from ..model.locations import example_names, example_spec
 from ..model.spec import load_spec
 from ..sim.simulation import check_mujoco_timestep
-from ..studies.grid import open_client, require_dask, run_cases, write_rows
+from ..studies.grid import open_client, run_cases, write_rows
 from ..studies.plant_fuzz import COLUMNS, MUJOCO_TIMESTEP, crane_of, report, run_case
 from .entry import EXIT_BAD_INPUT, check_out_folder, guarded, positive, progress_disabled, whole
 
@@ -38,6 +40,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--out", type=Path, default=Path("results/plant_fuzz"), help="output folder")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
+    # the extras first (MissingExtraError: one line with the `pip install`, exit 2): before any spec is read
+    require("mujoco", "acroboter plant-fuzz (MuJoCo is its oracle)")
+    if args.workers > 1:
+        require("dask", f"acroboter plant-fuzz --workers {args.workers}", "--workers 1 runs in this process without it")
     args.spec = getattr(args, "spec", None)
     try:  # it must divide every spec's plant step (the examples': 2 ms), checked before any work
         for name in args.spec or example_names():
@@ -62,8 +68,6 @@ def main(argv: list[str] | None = None) -> int:
     for name in names:  # build here, once: the workers only load
         crane_of(name)
     cases = [(names[i % len(names)], args.seed + i) for i in range(args.cases)]
-    if args.workers > 1:
-        require_dask("acroboter plant-fuzz")
     t0 = time.perf_counter()
     # The task lives in an importable module (acroboter.studies.plant_fuzz): it pickles as a reference
     # however this one is started, without the cranes loaded here.

@@ -32,7 +32,6 @@ from pathlib import Path
 from ..model.locations import example_spec
 from ..studies.grid import (
     MAX_RUNS,
-    DaskMissingError,
     GridError,
     open_client,
     prepare,
@@ -58,7 +57,6 @@ from ..studies.robustness_grid import (
 )
 from .entry import (
     EXIT_BAD_INPUT,
-    EXIT_CANNOT_RUN,
     check_out_folder,
     guarded,
     name_value,
@@ -73,6 +71,7 @@ DEFAULT_SPEC = example_spec("acroboter")
 DEFAULT_SAMPLES, DEFAULT_SEED, DEFAULT_DURATION = 200, 12, 20.0
 MAX_SAMPLES = 10_000
 WHAT = "acroboter robustness"
+NO_DASK = "--workers 0 runs in this process without it"
 
 
 @dataclass
@@ -119,7 +118,7 @@ def robustness(spec_path: Path = DEFAULT_SPEC, *, samples: int = DEFAULT_SAMPLES
     if samples * len(methods) * 2 > MAX_RUNS:
         raise ValueError(f"{samples} samples × {len(methods)} methods × 2 is more than {MAX_RUNS} runs")
     if scheduler or workers > 0:
-        require_dask(WHAT)  # first: a missing extra costs no build
+        require_dask(WHAT, NO_DASK)  # first: a missing extra costs no build
     spec = prepare(spec_path, duration)  # builds the library here if missing: the tasks only load it
     kp, kd = spec.controller.kp, spec.controller.kd
     ki = recommended_ki(kp, kd) if ki is None else float(ki)
@@ -282,7 +281,6 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures (and the worst sample's re-run)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar (the same as `acroboter -q robustness`)")
     args = p.parse_args(argv)
-    check_out_folder(p, args.out)
     try:
         args.ranges = {g: parse_range(getattr(args, f"{g}_range"), g) for g in GROUPS
                        if getattr(args, f"{g}_range") is not None}
@@ -304,6 +302,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
             p.error(f"--methods: unknown method '{m}': use mlm, penalty or iterative-N (1 <= N <= {MAX_ITERATIONS})")
     if not args.methods:
         p.error("--methods: no method given")
+    if args.scheduler or args.workers:  # the options checked, before --out is made: the one line is the error
+        require_dask(f"{WHAT} {'--scheduler' if args.scheduler else f'--workers {args.workers}'}", NO_DASK)
+    check_out_folder(p, args.out)
     return args
 
 
@@ -316,8 +317,6 @@ def main(argv: list[str] | None = None) -> int:
     where = (args.scheduler or (f"a local cluster of {args.workers} worker process(es) on 127.0.0.1"
                                 if args.workers else "this process"))
     try:
-        if args.scheduler or args.workers:
-            require_dask(WHAT)
         print(f"robustness: {args.samples} samples × {len(args.methods)} methods × 2 (ki) on {where}",
               file=sys.stderr)
         result = robustness(args.spec, samples=args.samples, seed=args.seed, duration=args.duration,
@@ -325,9 +324,6 @@ def main(argv: list[str] | None = None) -> int:
                             scheduler=args.scheduler, connect_timeout=args.connect_timeout, out=args.out,
                             plots=not args.no_plots, progress=not progress_disabled(args.quiet),
                             sensing=args.sensing, command_line=command_line)
-    except DaskMissingError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return EXIT_CANNOT_RUN
     except (GridError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -7,6 +7,7 @@ import argparse
 import math
 from pathlib import Path
 
+from ..model.extras import require
 from ..model.locations import example_spec
 from ..model.spec import MAX_ITERATIONS
 from .entry import name_value, number, positive, spec_file
@@ -73,6 +74,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     args = p.parse_args(argv)
     if args.mujoco_timestep is not None and args.plant != "mujoco":
         p.error("--mujoco-timestep needs --plant mujoco")
+    # the optional extras (MissingExtraError: one line with the `pip install`, exit 2), before any work
+    if args.plant == "mujoco":
+        require("mujoco", "--plant mujoco", "the default --plant own needs no extra")
+    if args.view:
+        require("mujoco", "--view (MuJoCo's viewer)", "leave out --view, or make a video with `acroboter animate`")
     if args.view:
         from ..report.viewer import display_problem
 

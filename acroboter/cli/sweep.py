@@ -28,7 +28,6 @@ from ..model.locations import example_spec
 from ..report.study_figures import sweep_figures
 from ..studies.grid import (
     MAX_RUNS,
-    DaskMissingError,
     GridError,
     open_client,
     parse_values,
@@ -107,7 +106,7 @@ def sweep(spec_path: Path = DEFAULT_SPEC, *, alphas: list[float] | None = None, 
           kd: float | None = None, mu: float | None = None) -> SweepResult:
     """The whole study as a function: build the model once here, run the grid on the cluster, and
     (with `out`) write sweep.csv and the figures. Raises GridError when it cannot run at all
-    (DaskMissingError without dask)."""
+    (MissingExtraError, an ImportError, without dask)."""
     require_dask(WHAT)  # first: a missing extra costs no build
     alphas = alphas or parse_values(DEFAULT_ALPHAS)
     omegas = omegas or parse_values(DEFAULT_OMEGAS)
@@ -162,13 +161,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar (the same as `acroboter -q sweep`)")
     args = p.parse_args(argv)
-    check_out_folder(p, args.out)
     try:
         args.alphas = parse_values(args.alphas, "--alphas")
         args.omegas = parse_values(args.omegas, "--omegas")
         args.iterations = parse_iterations(args.iterations)
     except ValueError as err:
         p.error(str(err))
+    require_dask(WHAT)  # the options checked, before --out is made: without dask the one line is the error (exit 2)
+    check_out_folder(p, args.out)
     return args
 
 
@@ -182,15 +182,11 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     where = args.scheduler or f"a local cluster of {args.workers} worker process(es) on 127.0.0.1"
     try:
-        require_dask(WHAT)  # before the first line of output: without dask the one line is the error
         print(f"sweep: {n_runs} runs on {where}", file=sys.stderr)
         result = sweep(args.spec, alphas=args.alphas, omegas=args.omegas, iterations=args.iterations,
                        alpha_mode=args.alpha_mode, duration=args.duration, workers=args.workers,
                        scheduler=args.scheduler, connect_timeout=args.connect_timeout, out=args.out,
                        plots=not args.no_plots, progress=not progress_disabled(args.quiet), tolerance=args.tolerance)
-    except DaskMissingError as err:  # a missing dependency: cannot run, not bad input
-        print(f"error: {err}", file=sys.stderr)
-        return EXIT_CANNOT_RUN
     except GridError as err:
         print(f"error: {err}", file=sys.stderr)
         return EXIT_BAD_INPUT

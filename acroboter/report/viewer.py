@@ -2,7 +2,8 @@
 
 The recorded natural coordinates of each method are set into the spec's MJCF model instant by
 instant (acroboter.sim.mujoco_plant.MujocoPlant.set_state), in real time, whichever plant simulated
-them; close the window to go on. Without a display `display_problem()` says why, before any work.
+them; close the window to go on. It needs the mujoco extra (checked with the options, acroboter.cli.run_args).
+Without a display `display_problem()` says why, before any work.
 """
 
 from __future__ import annotations
@@ -34,7 +35,11 @@ def display_problem() -> str | None:
 
 
 def replay(model, path, results: dict, speed: float = 1.0) -> None:
-    """Show each method's run (name -> acroboter.sim.result.Result) in turn in one viewer window."""
+    """Show each method's run (name -> acroboter.sim.result.Result) in turn in one viewer window (the mujoco
+    extra: MissingExtraError without it)."""
+    from ..model.extras import require
+
+    require("mujoco", "MuJoCo's viewer")
     import mujoco.viewer
 
     from ..sim.mujoco_plant import MujocoPlant

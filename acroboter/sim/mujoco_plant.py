@@ -35,10 +35,15 @@ class DrumCapacityError(SimulationError):
 
 
 def _mujoco():
+    """mujoco, or MissingExtraError (an ImportError naming `pip install 'acroboter[mujoco]'`) without it."""
+    from ..model.extras import require
+
+    require("mujoco", "the MuJoCo plant (MujocoPlant)")
     try:
         import mujoco
-    except ImportError:  # pragma: no cover - mujoco is a dependency; a broken install says so
-        raise SimulationError("the MuJoCo plant needs the mujoco package: pip install acroboter") from None
+    except ImportError as err:  # installed but broken (a missing shared library, say)
+        raise SimulationError(f"the mujoco package is installed but does not import ({err}): "
+                              "pip install --force-reinstall 'acroboter[mujoco]'") from None
     return mujoco
 
 

@@ -11,8 +11,8 @@ the redundancy study, a robustness Monte Carlo):
 - `open_client`: a Client to a running scheduler or to a LocalCluster on 127.0.0.1;
 - `write_rows` / `read_rows`: a grid's flat rows as CSV.
 
-dask is an optional extra (`pip install 'acroboter[dask]'`): it is imported only where a cluster is
-used, so importing this module, and every command's --help, works without it.
+dask is an optional extra (`pip install 'acroboter[dask]'`, acroboter.model.extras): it is imported only
+where a cluster is used, so importing this module, and every command's --help, works without it.
 """
 
 from __future__ import annotations
@@ -35,7 +35,6 @@ MAX_GRID_VALUES = 1000
 MAX_RUNS = 20_000
 # Set-ups kept per worker thread: a Monte Carlo over perturbed specs must not keep every model alive.
 MAX_SETUPS = 8
-DASK_EXTRA = "pip install 'acroboter[dask]'"
 
 
 class GridError(RuntimeError):
@@ -44,10 +43,6 @@ class GridError(RuntimeError):
 
 class MissingLibraryError(GridError):
     """A worker found no compiled model library: it must not build one."""
-
-
-class DaskMissingError(GridError):
-    """dask.distributed is not installed: the grid cannot run on a cluster (cannot run, not bad input)."""
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -87,15 +82,13 @@ def parse_values(text: str, what: str = "values") -> list[float]:
     return list(dict.fromkeys(values))
 
 
-def require_dask(what: str) -> None:
-    """Raise DaskMissingError naming the missing package and the install command, unless dask.distributed
-    imports. Called before any work, so a missing extra costs no build and no half-written folder."""
-    try:
-        import dask  # noqa: F401
-        import distributed  # noqa: F401
-    except ImportError as err:
-        missing = err.name or "dask"
-        raise DaskMissingError(f"{what} needs dask ({missing} is not installed): {DASK_EXTRA}") from None
+def require_dask(what: str, hint: str | None = None) -> None:
+    """Raise MissingExtraError (an ImportError: the missing package and `pip install 'acroboter[dask]'`)
+    unless dask and distributed are installed. Called before any work, so a missing extra costs no build and
+    no half-written folder; the command lines call it while checking their options (exit 2)."""
+    from ..model.extras import require
+
+    require("dask", what, hint)
 
 
 def prepare(spec_path: Path, duration: float | None = None):

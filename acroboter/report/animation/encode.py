@@ -1,4 +1,5 @@
-"""Writing frames to a video file: MP4 (imageio's ffmpeg, H.264 in yuv420p) and GIF (Pillow, one palette).
+"""Writing frames to a video file: MP4 (imageio's ffmpeg, H.264 in yuv420p: the animation extra) and GIF (Pillow,
+one palette: the core).
 
 Each writer takes an iterator of (H, W, 3) uint8 frames and returns how many it wrote; `write_complete` runs one
 through a temporary name, so an interrupted or failed render leaves no file that looks complete. Independent of
@@ -18,7 +19,11 @@ from ..progress import progress_disabled
 
 
 def write_mp4(frames: Iterator[np.ndarray], path: Path, fps: float, total: int, quiet: bool) -> int:
-    """H.264 in yuv420p (plays everywhere); even frame sizes, so no resizing. Returns the frame count."""
+    """H.264 in yuv420p (plays everywhere); even frame sizes, so no resizing. Returns the frame count. Needs the
+    animation extra (imageio and its ffmpeg): MissingExtraError without it."""
+    from ...model.extras import require
+
+    require("animation", "an MP4", "a GIF needs no extra")
     import imageio.v2 as imageio
     from tqdm import tqdm
 

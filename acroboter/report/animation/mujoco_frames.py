@@ -53,10 +53,10 @@ def probe_gl(timeout: float = 60.0) -> tuple[str | None, str]:
     """(MUJOCO_GL value that works, why) by creating a tiny mujoco.Renderer in a subprocess (a failing GL
     library can abort the process; this one stays clean). MUJOCO_GL from the environment is tried alone.
     mujoco is not imported here: it picks its GL backend from MUJOCO_GL once, when first imported."""
-    import importlib.util
+    from ...model.extras import install_line, missing
 
-    if importlib.util.find_spec("mujoco") is None:
-        return None, "mujoco is not installed"
+    if missing("mujoco") is not None:
+        return None, f"mujoco is not installed ({install_line('mujoco')})"
     given = os.environ.get("MUJOCO_GL")
     reasons = []
     for backend in [given] if given else ["egl", "osmesa"]:
@@ -78,7 +78,11 @@ def probe_gl(timeout: float = 60.0) -> tuple[str | None, str]:
 
 def _mujoco_module():
     """mujoco with the GL backend of MUJOCO_GL (set by choose_renderer). mujoco reads MUJOCO_GL when first
-    imported: where it was imported before (by another part of the program), its context class is replaced."""
+    imported: where it was imported before (by another part of the program), its context class is replaced.
+    Without the mujoco extra: MissingExtraError."""
+    from ...model.extras import require
+
+    require("mujoco", "the MuJoCo renderer", "the matplotlib renderer needs no extra")
     backend = os.environ.setdefault("MUJOCO_GL", "egl")
     if backend == "osmesa":
         os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
