@@ -16,12 +16,30 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from acroboter.model.extras import install_line, missing
 from acroboter.model.layout import Layout, nominal_coordinates
 from acroboter.model.spec import Spec, load_spec
 from acroboter.runtime.cache import load_model
 from acroboter.runtime.compiled import CompiledModel
 
 REPO = Path(__file__).resolve().parent.parent
+# A test that needs an optional extra carries its marker (registered in pyproject.toml); without the extra it is
+# skipped, and the reason (which extra, the pip line) shows in the summary (-ra). `make test` installs them all.
+EXTRA_MARKERS = {"needs_mujoco": "mujoco", "needs_animation": "animation", "needs_dask": "dask"}
+
+
+def missing_extra_reason(item) -> str | None:
+    """Why `item` cannot run here: the first extra it is marked as needing that is not installed."""
+    for marker, extra in EXTRA_MARKERS.items():
+        if item.get_closest_marker(marker) is not None and (package := missing(extra)) is not None:
+            return f"the {extra} extra is not installed ({package}): {install_line(extra)}"
+    return None
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if (reason := missing_extra_reason(item)) is not None:
+            item.add_marker(pytest.mark.skip(reason=reason))
 SPEC_DIR = REPO / "model_spec"
 SHIPPED_SPECS = sorted(SPEC_DIR.glob("*.toml"))
 SHIPPED_NAMES = [p.stem for p in SHIPPED_SPECS]

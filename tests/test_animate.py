@@ -38,6 +38,7 @@ def _columns(path):
     return rows[0], rows[1:]
 
 
+@pytest.mark.needs_animation
 def test_mp4_decodes_with_one_frame_per_instant(results, tmp_path):
     import imageio.v2 as imageio
 
@@ -52,6 +53,7 @@ def test_mp4_decodes_with_one_frame_per_instant(results, tmp_path):
     assert not list(tmp_path.glob(".*partial*"))
 
 
+@pytest.mark.needs_animation
 def test_default_output_and_gif(results):
     assert animate.main([str(results), "--gif", str(results / "a.gif"), "--gif-width", "200", "--fps", "5",
                          "--renderer", "matplotlib", "-q"]) == 0
@@ -154,6 +156,7 @@ def _fails(argv, capsys, *fragments):
     return err
 
 
+@pytest.mark.needs_animation
 def test_bad_input_exits_2(results, tmp_path, capsys):
     _fails([str(tmp_path / "nowhere"), "-q"], capsys, "nothing at", "results folder")
     _fails([str(results), "--method", "mlm", "-q"], capsys, "--method mlm", "penalty")
@@ -188,6 +191,8 @@ def results_2s(tmp_path_factory):
     return out
 
 
+@pytest.mark.needs_mujoco
+@pytest.mark.needs_animation
 def test_mujoco_mp4_decodes_with_one_frame_per_instant(gl, results_2s, tmp_path, monkeypatch):
     import imageio.v2 as imageio
 
@@ -220,6 +225,7 @@ def _project(frames, point):
     return np.array([width / 2 + f * (p @ right) / (p @ forward), height / 2 - f * (p @ up) / (p @ forward)])
 
 
+@pytest.mark.needs_mujoco
 def test_mujoco_draws_a_slack_cable_where_the_cable_is(gl, results_2s, monkeypatch):
     """The same instant with cable L2 taut and then slack: the image changes only along L2 as an independent
     pinhole projects its recorded ends, and the taut tendon has the colormap's colour of its tension."""
@@ -248,6 +254,8 @@ def test_mujoco_draws_a_slack_cable_where_the_cable_is(gl, results_2s, monkeypat
     assert distance.max() < 4, distance.max()
 
 
+@pytest.mark.needs_mujoco
+@pytest.mark.needs_animation
 def test_renderer_choice_without_gl(results, tmp_path, monkeypatch, capsys, caplog):
     # patched where choose_renderer looks it up
     monkeypatch.setattr(animate, "probe_gl", lambda: (None, "MUJOCO_GL=egl: no EGL device"))
@@ -291,6 +299,7 @@ def test_outputs_are_checked_before_any_work(results, tmp_path, capsys, monkeypa
     _refused([r, "--gif", str(tmp_path / "a.gif"), "--gif-width", "3840", "-q"], capsys, "between 64 and 1920")
 
 
+@pytest.mark.needs_animation
 def test_an_existing_folder_as_output_gets_the_default_name(results, tmp_path, caplog):
     with caplog.at_level("INFO", logger="acroboter"):
         assert animate.main([str(results), "--out", str(tmp_path), "--gif", str(tmp_path), "--fps", "0.5",
@@ -311,6 +320,7 @@ def _diverged_copy(results, tmp_path, at=0.9):
     return folder
 
 
+@pytest.mark.needs_animation
 def test_a_diverged_run_says_so(results, tmp_path, caplog):
     from acroboter.report.animation.matplotlib_frames import render_rows
 
@@ -331,6 +341,7 @@ def test_a_diverged_run_says_so(results, tmp_path, caplog):
     assert frames_obj.note.get_text() == "diverged at t = 0.90 s"
 
 
+@pytest.mark.needs_mujoco
 def test_mujoco_diverged_note_and_gif_colours(gl, results_2s, tmp_path, monkeypatch):
     """The MuJoCo renderer draws the divergence note, and a tendon's colour in the decoded GIF is its
     colormap's colour (the cables lit flat, a palette that keeps them): the main cable (~177 N) stays yellow."""

@@ -1,5 +1,9 @@
 """Installed use: a wheel in a fresh virtual environment runs from any folder, writes nothing under
-site-packages, caches per user, and two concurrent first runs of a new crane build one library."""
+site-packages, caches per user, and two concurrent first runs of a new crane build one library.
+
+The wheel is installed without extras (`pip install acroboter`: the core, docs/extras.md): MuJoCo, imageio and
+Dask are not there, the controllers and the own plant run, and a command that needs an extra exits 2 with the
+`pip install` line that fixes it."""
 
 from __future__ import annotations
 
@@ -65,6 +69,42 @@ def test_the_installed_package_runs_the_paper_scenario_from_any_folder(installed
     assert _files(site) == before  # nothing written under site-packages, not even a byte-code file
     libraries = list((root / "user-cache" / "acroboter" / "lib").glob("acroboter-*/libacroboter.so"))
     assert len(libraries) == 1  # in the per-user cache
+
+
+def test_the_core_install_has_no_extra(installed, tmp_path):
+    python, *_ = installed
+    code = ("import importlib.util as u; "
+            "print([m for m in ('mujoco', 'imageio', 'imageio_ffmpeg', 'dask', 'distributed') if u.find_spec(m)])")
+    proc = subprocess.run([str(python), "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=60)
+    assert proc.returncode == 0 and proc.stdout.strip() == "[]", proc.stdout + proc.stderr
+    proc = subprocess.run([str(python), "-c", "import mujoco"], capture_output=True, text=True, cwd=tmp_path,
+                          timeout=60)
+    assert proc.returncode == 1 and "No module named 'mujoco'" in proc.stderr
+
+
+def test_the_core_runs_the_lab_crane_from_another_folder(installed, tmp_path):
+    python, site, env, _ = installed
+    before = _files(site)
+    proc = _run(python, ["run", "--spec", "lab_crane", "--duration", "2", "--out", "out", "--no-plots"], tmp_path, env)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["duration_s"] == 2.0 and set(summary["methods"]) >= {"mlm", "penalty"}
+    assert _files(site) == before
+
+
+@pytest.mark.parametrize("args, extra", [
+    (["run", "--plant", "mujoco"], "mujoco"),
+    (["mjcf", "lab_crane"], "mujoco"),
+    (["sweep", "--spec", "lab_crane"], "dask"),
+    (["animate", "."], "animation"),
+])
+def test_a_command_that_needs_a_missing_extra_exits_2_with_the_pip_line(installed, tmp_path, args, extra):
+    python, site, env, _ = installed
+    proc = _run(python, args, tmp_path, env, timeout=120)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    (line,) = proc.stderr.splitlines()  # one line, no traceback
+    assert line.startswith("error: ") and line.endswith(f": pip install 'acroboter[{extra}]'"), line
+    assert list(tmp_path.iterdir()) == []  # before any work: no results folder, no XML
 
 
 def test_version_and_check_of_the_shipped_code(installed, tmp_path):

@@ -11,9 +11,13 @@ import subprocess
 import sys
 from pathlib import Path
 
-import mujoco
 import numpy as np
 import pytest
+
+try:
+    import mujoco
+except ImportError:  # the mujoco extra is not installed: every test here is skipped (needs_mujoco)
+    mujoco = None
 
 from acroboter import Crane
 from acroboter.control.path import TrajectoryPath
@@ -21,6 +25,8 @@ from acroboter.model.mjcf_model import MjcfError, check_representable, joint_lay
 from acroboter.model.spec import BodyThrust, BodyTorque, WinchTension, load_spec
 from acroboter.sim.mujoco_plant import MujocoPlant
 from acroboter.sim.plant import Plant
+
+pytestmark = pytest.mark.needs_mujoco
 
 ROOT = Path(__file__).resolve().parent.parent
 SPECS = sorted((ROOT / "model_spec").glob("*.toml"))

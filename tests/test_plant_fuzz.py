@@ -54,6 +54,7 @@ def the_issues_inputs(crane):
 # --- the issue's reproduction: a cascade that used to leave the main cable slack and stretched -------
 
 
+@pytest.mark.needs_mujoco
 def test_the_cascade_of_the_issue_keeps_every_invariant_and_agrees_with_mujoco(crane):
     """Winch 1 snaps taut at 0.712 s and hands the load back and forth with the main cable for ~70 ms.
     It used to mark the main cable slack while it stretched to 1.25 mm and to create 0.296 J."""
@@ -105,6 +106,7 @@ def _check(outcome):
     assert outcome.max_energy_ratio <= 1.0
 
 
+@pytest.mark.needs_mujoco
 @settings(max_examples=6, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 @given(name=st.sampled_from(SPECS), rng=st.randoms(use_true_random=False))
 def test_random_open_loop_experiments_agree_with_mujoco(name, rng):
@@ -120,6 +122,7 @@ def test_random_open_loop_experiments_agree_with_mujoco(name, rng):
 
 @pytest.mark.parametrize("name, seed", [("acroboter", 78), ("acroboter_4cable", 73), ("lab_crane", 101),
                                         ("acroboter_4input", 26)])
+@pytest.mark.needs_mujoco
 def test_seeded_experiments_with_cascades_agree(name, seed):
     """Seeds of make plant-fuzz whose experiments hand loads between cables (dozens of re-tensions)."""
     from acroboter.studies.plant_fuzz import crane_of
@@ -129,6 +132,7 @@ def test_seeded_experiments_with_cascades_agree(name, seed):
     assert outcome.transitions > 30
 
 
+@pytest.mark.needs_mujoco
 def test_a_cascade_that_used_to_chatter_forever_resolves():
     """Kept from an earlier generator's draw: the main cable at contact, separating at 2e-5 m/s after an
     impact, was located at θ = 1e-9 where its gap's change (4e-18 m) is round-off; the impact there
@@ -176,6 +180,7 @@ def test_bad_open_loop_inputs_are_refused_before_any_work(crane, inputs, message
         crane.simulate_open_loop(inputs, 0.5)
 
 
+@pytest.mark.needs_mujoco
 def test_the_mujoco_plant_takes_open_loop_inputs_beyond_the_limits(crane):
     """MuJoCo would clip a negative winch input to its ctrlrange; open loop it takes it as asked."""
     static = crane.equilibrium().inputs
@@ -205,6 +210,7 @@ def test_a_broken_invariant_ends_a_closed_loop_run_with_exit_3(tmp_path, monkeyp
     assert code == 3
 
 
+@pytest.mark.needs_mujoco
 def test_plant_fuzz_command_writes_its_report(tmp_path):
     out = tmp_path / "fuzz"
     proc = subprocess.run([sys.executable, "-m", "acroboter.plant_fuzz", "--cases", "2", "--workers", "1",
@@ -232,6 +238,7 @@ def test_a_plant_that_starts_off_its_constraints_is_held_to_the_balance_once_the
     assert summary["max_abs_energy_residual_J"] == np.abs(residual[closed:]).max()  # the checked part only
 
 
+@pytest.mark.needs_mujoco
 def test_plant_fuzz_refuses_a_mujoco_step_that_does_not_divide_before_any_work(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "acroboter.plant_fuzz", "--mujoco-timestep", "3e-4", "--cases", "2",
                            "--workers", "1", "--out", str(tmp_path / "fuzz")], capture_output=True, text=True,
@@ -240,6 +247,7 @@ def test_plant_fuzz_refuses_a_mujoco_step_that_does_not_divide_before_any_work(t
     assert not (tmp_path / "fuzz").exists()
 
 
+@pytest.mark.needs_mujoco
 def test_the_replay_of_a_drawn_experiment_is_a_command_that_runs():
     """Hypothesis' experiments have no seed: their replay is a python -c line that rebuilds them."""
     experiment = Experiment("acroboter", 0.1, {"tension_1": [["sine", 1.0, 2.0, 0.5]]}, velocity_seed=3)

@@ -23,8 +23,7 @@ REPO = Path(__file__).resolve().parent.parent
 SPEC = REPO / "model_spec" / "acroboter.toml"
 SAMPLES, DURATION, SEED = 3, 1.0, 7
 N_ROWS = SAMPLES * len(rg.DEFAULT_METHODS) * 2
-needs_dask = pytest.mark.skipif(importlib.util.find_spec("distributed") is None,
-                                reason="dask.distributed is not installed (pip install 'acroboter[dask]')")
+needs_dask = pytest.mark.needs_dask  # skipped without the extra (tests/conftest.py)
 
 
 def run_cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:

@@ -193,6 +193,7 @@ def test_a_run_where_no_method_runs_keeps_the_earlier_results(tmp_path):
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
 
 
+@pytest.mark.needs_dask
 def test_a_sweep_in_which_no_run_succeeds_is_not_a_success(tmp_path):
     bad = tmp_path / "acroboter.toml"
     bad.write_text((REPO / "model_spec" / "acroboter.toml").read_text().replace(

@@ -10,7 +10,6 @@ and the CLI without dask installed (an optional extra) for its one-line error.
 from __future__ import annotations
 
 import csv
-import importlib.util
 import math
 import socket
 import subprocess
@@ -20,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from acroboter.cli import sweep as sw
+from acroboter.model.extras import MissingExtraError
 from acroboter.studies import grid, judging
 from acroboter.studies import penalty_grid as pg
 
@@ -28,8 +28,7 @@ SPEC = REPO / "model_spec" / "acroboter.toml"
 ALPHAS, OMEGAS, ITERATIONS, DURATION = [1e3, 1e7], [10.0], [1, 3], 1.0
 N_RUNS = 1 + len(ALPHAS) * len(OMEGAS) * len(ITERATIONS)
 # dask is an optional extra (acroboter[dask]): the tests that start a cluster need it.
-needs_dask = pytest.mark.skipif(importlib.util.find_spec("distributed") is None,
-                                reason="dask.distributed is not installed (pip install 'acroboter[dask]')")
+needs_dask = pytest.mark.needs_dask
 # Python code that makes dask and distributed unimportable, as if they were not installed.
 WITHOUT_DASK = "import sys; sys.modules['dask'] = None; sys.modules['distributed'] = None; "
 
@@ -183,7 +182,7 @@ def test_cases_run_in_process_in_order():
 
 def test_import_and_help_need_no_dask():
     """Importing the sweep loads no dask; with dask unimportable, `acroboter sweep --help` still works."""
-    code = "import sys, acroboter.sweep; print(sorted({'dask', 'distributed'} & set(sys.modules)))"
+    code = "import sys, acroboter.sweep; print(sorted(m for m in ('dask', 'distributed') if sys.modules.get(m)))"
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60)
     assert proc.returncode == 0 and proc.stdout.strip() == "[]", proc.stdout + proc.stderr
     code = WITHOUT_DASK + "from acroboter.cli.console import main; sys.exit(main(['sweep', '--help']))"
@@ -193,14 +192,16 @@ def test_import_and_help_need_no_dask():
 
 
 def test_a_sweep_without_dask_says_what_to_install(monkeypatch, capsys, tmp_path):
-    """No dask: one line naming the cause and the fix, exit 3 (cannot run), before any work."""
-    monkeypatch.setitem(sys.modules, "dask", None)  # `import dask` now raises ImportError
+    """No dask: one line naming the cause and the fix, exit 2 (a missing extra), before any work: not even
+    --out is made."""
+    monkeypatch.setitem(sys.modules, "dask", None)  # as if not installed: find_spec finds nothing
     monkeypatch.setitem(sys.modules, "distributed", None)
-    assert sw.main(["--out", str(tmp_path / "out"), "--quiet"]) == 3
+    assert sw.main(["--out", str(tmp_path / "out"), "--quiet"]) == 2
     captured = capsys.readouterr()
     assert captured.err.splitlines() == [
-        "error: acroboter sweep needs dask (dask is not installed): pip install 'acroboter[dask]'"]
-    assert captured.out == "" and list((tmp_path / "out").iterdir()) == []
-    with pytest.raises(grid.DaskMissingError, match="acroboter\\[dask\\]"):  # the function API alike
+        "error: acroboter sweep needs the dask extra (dask is not installed): pip install 'acroboter[dask]' "
+        "(in this checkout: make setup)"]
+    assert captured.out == "" and not (tmp_path / "out").exists()
+    with pytest.raises(MissingExtraError, match="acroboter\\[dask\\]"):  # the function API alike (an ImportError)
         sw.sweep(SPEC, out=tmp_path / "api")
     assert not (tmp_path / "api").exists()
