@@ -79,7 +79,6 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         require("mujoco", "--plant mujoco", "the default --plant own needs no extra")
     if args.view:
         require("mujoco", "--view (MuJoCo's viewer)", "leave out --view, or make a video with `acroboter animate`")
-    if args.view:
         from ..report.viewer import display_problem
 
         args.view_problem = display_problem()
