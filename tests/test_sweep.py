@@ -182,7 +182,7 @@ def test_cases_run_in_process_in_order():
 
 def test_import_and_help_need_no_dask():
     """Importing the sweep loads no dask; with dask unimportable, `acroboter sweep --help` still works."""
-    code = "import sys, acroboter.sweep; print(sorted(m for m in ('dask', 'distributed') if sys.modules.get(m)))"
+    code = "import sys, acroboter.sweep; print(sorted({'dask', 'distributed'} & set(sys.modules)))"
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60)
     assert proc.returncode == 0 and proc.stdout.strip() == "[]", proc.stdout + proc.stderr
     code = WITHOUT_DASK + "from acroboter.cli.console import main; sys.exit(main(['sweep', '--help']))"
