@@ -3,7 +3,8 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
-# Inside the checkout the cache of compiled libraries is build/cache/ (installed: the per-user cache).
+# Inside the checkout the cache of compiled libraries is build/cache/ (installed: the per-user cache);
+# .venv/bin/acroboter finds it by itself, the export only makes it explicit for the tools run here.
 export ACROBOTER_CACHE_DIR := $(CURDIR)/build/cache
 
 .PHONY: run test setup build generate check-generated mutation bench study sweep robustness plant-fuzz clean
@@ -35,8 +36,10 @@ MODULES ?=
 mutation: build
 	$(PY) tools/mutation.py $(MODULES)
 
-run: build
+# The paper's scenario: compiles only the default crane's library (in parallel, a bar per file), on first use.
+run: $(STAMP)
 	$(PY) -m acroboter run
+	@echo "the command line: $(CURDIR)/$(VENV)/bin/acroboter (or: source $(VENV)/bin/activate; acroboter --help)"
 
 test: build
 	$(PY) -m ruff check acroboter tests setup.py
