@@ -43,7 +43,7 @@ run: $(STAMP)
 
 test: build
 	$(PY) -m ruff check acroboter tests setup.py
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n auto --dist loadfile
 
 bench: build
 	$(PY) -m acroboter bench
