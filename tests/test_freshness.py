@@ -253,7 +253,7 @@ def test_make_run_on_a_built_checkout_only_runs():
     if shutil.which("make") is None or not (REPO / ".venv" / ".installed").is_file():
         pytest.skip("not a checkout set up by make")
     proc = subprocess.run(["make", "-n", "--no-print-directory", "run"], cwd=REPO, capture_output=True, text=True,
-                          timeout=60)
+                          timeout=300)
     assert proc.returncode == 0, proc.stderr
     commands = [line.strip() for line in proc.stdout.splitlines() if line.strip()]
     assert commands[0] == ".venv/bin/python -m acroboter run", commands
