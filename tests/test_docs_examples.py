@@ -366,3 +366,35 @@ def test_the_docstring_examples_run(name, code, tmp_path, monkeypatch):
     monkeypatch.setenv("MPLBACKEND", "Agg")
     with contextlib.redirect_stdout(io.StringIO()):
         exec(compile(code, f"<docstring of {name}>", "exec"), {"__name__": "__docs_example__"})  # noqa: S102
+
+
+def test_the_spec_reference_names_every_field():
+    """docs/spec.md names (in code spans) every field of every table of the spec's schema."""
+    import typing
+
+    import pydantic
+
+    from acroboter.model.spec import Spec
+
+    text = re.sub(r"```.*?```", "", (REPO / "docs" / "spec.md").read_text(), flags=re.S)
+    named = {word for span in re.findall(r"`([^`]+)`", text) for word in re.findall(r"\w+", span)}
+    missing, seen = [], set()
+
+    def models(annotation):
+        if isinstance(annotation, type) and issubclass(annotation, pydantic.BaseModel):
+            yield annotation
+        for argument in typing.get_args(annotation):
+            yield from models(argument)
+
+    def walk(model, path):
+        if model in seen:
+            return
+        seen.add(model)
+        for name, field in model.model_fields.items():
+            if name not in named:
+                missing.append(f"{path}.{name}")
+            for sub in models(field.annotation):
+                walk(sub, f"{path}.{name}")
+
+    walk(Spec, "spec")
+    assert not missing, f"docs/spec.md does not name {missing}"
