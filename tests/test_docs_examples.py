@@ -189,6 +189,7 @@ def _call_until_parsed(main, argv: list[str], parse: bool) -> tuple[argparse.Arg
         if _console_parser(self):
             return original(self, args, namespace)
         if parse:
+            self.allow_abbrev = False  # a documented option is written out: `--plant-param` is not `--plant-parameter`
             original(self, args, namespace)
         reached.append(self)
         raise _Parsed
