@@ -7,12 +7,12 @@ STAMP := $(VENV)/.installed
 # .venv/bin/acroboter finds it by itself, the export only makes it explicit for the tools run here.
 export ACROBOTER_CACHE_DIR := $(CURDIR)/build/cache
 
-.PHONY: run test setup build generate check-generated mutation bench study sweep robustness plant-fuzz clean
+.PHONY: run test setup build generate check-generated mutation bench study sweep robustness plant-fuzz docs clean
 
 $(STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test,dask]'
+	$(PY) -m pip install --quiet -e '.[test,dask,docs]'
 	touch $(STAMP)
 
 setup: $(STAMP)
@@ -63,6 +63,11 @@ robustness: build
 # spec (Dask, two local workers; 53 min on the shared 2-core VM): results/plant_fuzz/report.md, docs/plant.md.
 plant-fuzz: build
 	$(PY) -m acroboter.plant_fuzz
+
+# The documentation site (docs/, mkdocs.yml) into build/site/; --strict: a broken link, a missing API reference or a
+# docstring the reference cannot read fails the build.
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs build --strict
 
 clean:
 	rm -rf build results
