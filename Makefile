@@ -3,15 +3,16 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
-# Inside the checkout the cache of compiled libraries is build/cache/ (installed: the per-user cache).
+# Inside the checkout the cache of compiled libraries is build/cache/ (installed: the per-user cache);
+# .venv/bin/acroboter finds it by itself, the export only makes it explicit for the tools run here.
 export ACROBOTER_CACHE_DIR := $(CURDIR)/build/cache
 
-.PHONY: run test setup build generate check-generated mutation bench study sweep robustness plant-fuzz clean
+.PHONY: run test setup build generate check-generated mutation bench study sweep robustness plant-fuzz docs clean
 
 $(STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[all,test]'
+	$(PY) -m pip install --quiet -e '.[all,test,docs]'
 	touch $(STAMP)
 
 setup: $(STAMP)
@@ -35,12 +36,14 @@ MODULES ?=
 mutation: build
 	$(PY) tools/mutation.py $(MODULES)
 
-run: build
+# The paper's scenario: compiles only the default crane's library (in parallel, a bar per file), on first use.
+run: $(STAMP)
 	$(PY) -m acroboter run
+	@echo "the command line: $(CURDIR)/$(VENV)/bin/acroboter (or: source $(VENV)/bin/activate; acroboter --help)"
 
 test: build
 	$(PY) -m ruff check acroboter tests setup.py
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n auto --dist loadfile
 
 bench: build
 	$(PY) -m acroboter bench
@@ -60,6 +63,11 @@ robustness: build
 # spec (Dask, two local workers; 53 min on the shared 2-core VM): results/plant_fuzz/report.md, docs/plant.md.
 plant-fuzz: build
 	$(PY) -m acroboter.plant_fuzz
+
+# The documentation site (docs/, mkdocs.yml) into build/site/; --strict: a broken link, a missing API reference or a
+# docstring the reference cannot read fails the build.
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs build --strict
 
 clean:
 	rm -rf build results

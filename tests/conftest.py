@@ -45,6 +45,30 @@ SHIPPED_SPECS = sorted(SPEC_DIR.glob("*.toml"))
 SHIPPED_NAMES = [p.stem for p in SHIPPED_SPECS]
 
 
+def numeric_environment() -> dict:
+    """What decides the last bits of a run: the packages, and the CPU (numpy's BLAS and glibc's libm pick
+    their kernels by vendor and SIMD features; an Intel machine and an AMD one differ by 1e-10 N in u).
+    Golden digests apply only where this is the environment they were recorded in."""
+    import platform
+
+    import casadi
+    import scipy
+
+    vendor, flags = "", set()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "vendor_id" and not vendor:
+                vendor = value.strip()
+            elif key.strip() == "flags" and not flags:
+                flags = set(value.split())
+    except OSError:
+        vendor = platform.processor()
+    simd = " ".join(f for f in ("avx2", "fma", "avx512f") if f in flags)
+    return {"python": platform.python_version(), "machine": platform.machine(), "numpy": np.__version__,
+            "scipy": scipy.__version__, "casadi": casadi.__version__, "cpu": f"{vendor} {simd}".strip()}
+
+
 def raw_spec(name: str = "acroboter") -> dict:
     """A fresh (deep-copied) dict of a shipped spec's TOML, to mutate in a test."""
     return copy.deepcopy(_raw_cache(name))

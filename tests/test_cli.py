@@ -1,4 +1,4 @@
-"""End to end: `python -m acroboter.run` writes what the README promises; bad input exits cleanly."""
+"""End to end: `python -m acroboter.run` writes what docs/run.md promises; bad input exits cleanly."""
 
 from __future__ import annotations
 

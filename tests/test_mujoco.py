@@ -387,7 +387,7 @@ def test_view_replays_the_run_in_mujocos_viewer_on_a_virtual_display(tmp_path):
         assert (out / "mlm.csv").is_file()  # the results were written before the window opened
     finally:
         os.killpg(proc.pid, signal.SIGTERM)  # the viewer stays open until its window is closed
-        proc.wait(timeout=30)
+        proc.wait(timeout=300)
 
 
 def test_a_heavier_load_on_mujoco_sags_as_on_the_own_plant(cranes):

@@ -80,7 +80,7 @@ def test_penalty_methods_track_redundant_systems_as_the_default(name, method, de
 def test_noncollocated_projected_recovery_tracks():
     result, s = short_run("acroboter_4input", "penalty", recovery="projected")
     assert result.diverged_at is None
-    assert s["max_position_error_mm"] < 25.0  # drifts to ~20 mm over the whole path, see the README
+    assert s["max_position_error_mm"] < 25.0  # drifts to ~20 mm over the whole path, see docs/studies.md
     assert s["min_winch_tension_N"] > 0
 
 

@@ -115,14 +115,14 @@ def test_unreachable_scheduler_is_a_clear_error():
     with socket.socket() as s:  # a port nobody listens on
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    proc = run_cli("--scheduler", f"tcp://127.0.0.1:{port}", "--connect-timeout", "2", "--no-plots", timeout=60)
+    proc = run_cli("--scheduler", f"tcp://127.0.0.1:{port}", "--connect-timeout", "2", "--no-plots", timeout=300)
     assert proc.returncode == 2
     assert "cannot connect to the Dask scheduler" in proc.stderr and f"127.0.0.1:{port}" in proc.stderr
     assert "Traceback" not in proc.stderr
 
 
 def test_help_and_bad_options():
-    proc = run_cli("--help", timeout=30)
+    proc = run_cli("--help", timeout=300)
     assert proc.returncode == 0
     for option in ("--spec", "--alphas", "--alpha-mode", "--omegas", "--iterations", "--duration", "--out",
                    "--scheduler", "--workers", "--no-plots"):
@@ -130,7 +130,7 @@ def test_help_and_bad_options():
     for args, words in ((["--alphas", "1e3:abc"], "--alphas"),
                         (["--iterations", "0"], "between 1 (the plain penalty method) and 1000"),
                         (["--workers", "0"], "--workers"), (["--duration", "-1"], "--duration")):
-        proc = run_cli(*args, timeout=30)
+        proc = run_cli(*args, timeout=300)
         assert proc.returncode == 2 and words in proc.stderr and "Traceback" not in proc.stderr
 
 
@@ -183,10 +183,10 @@ def test_cases_run_in_process_in_order():
 def test_import_and_help_need_no_dask():
     """Importing the sweep loads no dask; with dask unimportable, `acroboter sweep --help` still works."""
     code = "import sys, acroboter.sweep; print(sorted({'dask', 'distributed'} & set(sys.modules)))"
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=300)
     assert proc.returncode == 0 and proc.stdout.strip() == "[]", proc.stdout + proc.stderr
     code = WITHOUT_DASK + "from acroboter.cli.console import main; sys.exit(main(['sweep', '--help']))"
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert "--scheduler" in proc.stdout and "Traceback" not in proc.stderr
 

@@ -425,7 +425,7 @@ def test_energy_balance_across_slack_and_taut_transitions(crane):
 
 
 def test_the_non_collocated_crane_under_mlm_keeps_its_cables_consistent():
-    """acroboter_4input under MLM: its zero dynamics swing up (README, "The non-collocated four-input
+    """acroboter_4input under MLM: its zero dynamics swing up (docs/studies.md, "The non-collocated four-input
     crane"), and from about 24.7 s the winch cables go slack and snap taut dozens of times, some in
     cascades microseconds apart (a slack cable's drum reels in at u/I_r ≈ 600 m/s²). Oracles: the
     complementarity at every instant (a taut cable pulls, a slack one carries nothing and is not

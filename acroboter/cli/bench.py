@@ -137,7 +137,7 @@ def main(argv: list[str] | None = None) -> int:
             terms.call()
             row[i] = clock() - t0
     model_terms_us = stats(samples)
-    print(f"benchmarking on {platform.processor() or platform.machine()}, {spec.name}, "
+    print(f"benchmarking on {_processor()}, {spec.name}, "
           f"{path.duration:g} s scenario ...", file=sys.stderr)
     controllers = {}
     for m in methods:  # a method that cannot handle this spec is left out, with its reason
@@ -217,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     doc = {
         "spec": spec.name,
-        "machine": {"processor": platform.processor(), "machine": platform.machine(),
+        "machine": {"processor": _processor(), "machine": platform.machine(),
                     "python": platform.python_version(), "cores": _cores()},
         "date": time.strftime("%Y-%m-%d"),
         "model_terms_us": model_terms_us,
@@ -308,6 +308,18 @@ def format_limits_table(limits: dict) -> str:
             f"{r['extra_us_saturated']:17.1f}"
         )
     return "\n".join(lines)
+
+
+def _processor() -> str:
+    """The CPU's model name (platform.processor() is empty on Linux; /proc/cpuinfo says it)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "model name":
+                return value.strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
 
 
 def _cores() -> int | None:

@@ -27,7 +27,7 @@ import traceback
 from collections.abc import Callable
 from pathlib import Path
 
-from ..report.progress import (
+from ..runtime.progress import (
     progress_disabled as progress_disabled,  # every command's --quiet (shared with the animation)
 )
 

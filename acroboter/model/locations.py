@@ -7,9 +7,11 @@ Two ways to run the package, one set of rules:
 - installed from a wheel: the same files ship inside the package (``acroboter/examples/``, copied
   there by the wheel build), read-only.
 
-Compiled libraries, and the C of any spec that is not a shipped example, go to a per-user cache
-(``platformdirs.user_cache_dir("acroboter")``), never into the package: ``ACROBOTER_CACHE_DIR`` or
-the CLIs' ``--cache-dir`` move it (the Makefile points it at the checkout's ``build/cache/``).
+Compiled libraries, and the C of any spec that is not a shipped example, go to a cache, never into
+the package: in a checkout its ``build/cache/`` (what ``make build`` fills, so ``.venv/bin/acroboter``
+finds the libraries ``make`` compiled), installed the per-user cache
+(``platformdirs.user_cache_dir("acroboter")``); ``ACROBOTER_CACHE_DIR`` or the CLIs' ``--cache-dir``
+move it.
 """
 
 from __future__ import annotations
@@ -59,12 +61,16 @@ def example_spec(name: str = "acroboter") -> Path:
 
 def cache_dir(override: str | os.PathLike | None = None) -> Path:
     """The cache for compiled libraries and generated C: `override`, else $ACROBOTER_CACHE_DIR, else
-    the per-user cache folder of the platform (~/.cache/acroboter on Linux)."""
+    the checkout's build/cache/ when running from one, else the per-user cache folder of the platform
+    (~/.cache/acroboter on Linux)."""
     if override is not None:
         return Path(override).expanduser().resolve()
     env = os.environ.get(CACHE_ENV)
     if env:
         return Path(env).expanduser().resolve()
+    root = checkout_root()
+    if root is not None:
+        return root / "build" / "cache"
     import platformdirs
 
     return Path(platformdirs.user_cache_dir("acroboter", appauthor=False))

@@ -2,7 +2,7 @@
 the spec still runs, and the warning names the field and why. What is an error and what a warning:
 a number outside its physical range (a negative mass, a NaN, a zero-length cable) is an error of the
 spec (SpecError, exit 2); a mass a hundred times its neighbours', a fixed cable that its ends do not
-fit at the start, a drum heavier than the load are warnings (README, "Model a new crane").
+fit at the start, a drum heavier than the load are warnings (docs/spec.md).
 """
 
 from __future__ import annotations

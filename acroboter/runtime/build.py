@@ -20,11 +20,12 @@ import shutil
 import subprocess
 import sys
 import tempfile
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from contextlib import contextmanager
 from pathlib import Path
 
 from ..model.locations import cache_dir, shipped_generated_folder
+from .progress import progress_disabled
 
 log = logging.getLogger(__name__)
 # -O2 and IEEE semantics: never -ffast-math, the dynamics must be reproducible to the last bit.
@@ -61,8 +62,19 @@ def is_current(lib: Path) -> bool:
     return hashlib.sha256(lib.read_bytes()).hexdigest() == digest.read_text().strip()
 
 
+def compile_jobs() -> int:
+    """Translation units compiled at once: the cores this process may use (gcc is single-threaded)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 2
+
+
 def build(spec_name: str, source_dir: Path, cache_root: Path) -> Path:
-    """Compile source_dir/*.c into library_path(...), replacing what is there (atomically)."""
+    """Compile source_dir/*.c into library_path(...), replacing what is there (atomically): one gcc per
+    translation unit, compile_jobs() at once, a progress bar per file on a terminal (tqdm, stderr)."""
+    from tqdm import tqdm
+
     sources = sorted(source_dir.glob("*.c"))
     if not sources:
         raise BuildError(f"no generated C for spec '{spec_name}' in {source_dir}: run `make generate` first")
@@ -81,8 +93,17 @@ def build(spec_name: str, source_dir: Path, cache_root: Path) -> Path:
                 raise BuildError(f"compiling {src.name} failed:\n{result.stderr}")
             return obj
 
-        with ThreadPoolExecutor(max_workers=os.cpu_count() or 2) as pool:
-            objects = list(pool.map(compile_one, sources))
+        # largest first: the big translation units (the penalty terms) bound the wall time
+        ordered = sorted(sources, key=lambda src: src.stat().st_size, reverse=True)
+        with ThreadPoolExecutor(max_workers=compile_jobs()) as pool, \
+                tqdm(total=len(sources), unit="file", desc=f"compiling {spec_name}", file=sys.stderr,
+                     disable=progress_disabled(), leave=False) as bar:
+            futures = {pool.submit(compile_one, src): src for src in ordered}
+            for future in as_completed(futures):
+                future.result()  # a failed file raises here (BuildError with gcc's message)
+                bar.set_postfix_str(futures[future].name, refresh=False)
+                bar.update()
+        objects = [staging / (src.stem + ".o") for src in sources]  # link order: sorted, deterministic
         built = staging / lib.name
         result = subprocess.run([compiler, "-shared", *CFLAGS, *map(str, objects), "-lm", "-o", str(built)],
                                 capture_output=True, text=True)

@@ -72,7 +72,8 @@ import numpy as np
 
 
 class SimulationError(RuntimeError):
-    pass
+    """The plant cannot go on: no consistent cable state, a broken invariant, a state that turned
+    non-finite. A run reports it as a divergence (its time, exit 3 from the command line)."""
 
 
 class InvariantError(SimulationError):

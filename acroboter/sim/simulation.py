@@ -316,7 +316,7 @@ def tilt_deg(result: RunResult, scenario: Scenario) -> np.ndarray:
 
 
 def summarize(result: RunResult, scenario: Scenario, layout) -> dict:
-    """The per-method figures of summary.json (see the README, `python -m acroboter.run`)."""
+    """The per-method figures of summary.json (see docs/run.md, `acroboter run`)."""
     pos_err = np.linalg.norm(result.sigma[:, scenario.position_rows], axis=1)  # m (position_error_mm ÷ 1e3)
     summary = {
         "max_position_error_mm": 1e3 * float(pos_err.max()),

@@ -22,7 +22,8 @@ from ..runtime.compiled import CompiledModel
 
 
 class EquilibriumError(RuntimeError):
-    pass
+    """No static equilibrium at the start of the path (within EQUILIBRIUM_TIME_LIMIT_S, or to a residual
+    of 1e-8): the message names the spec and what to check."""
 
 
 # The solve gives up after this long (a spec whose start has no equilibrium must say so quickly).
@@ -36,6 +37,11 @@ class _OutOfTime(Exception):
 
 @dataclass
 class Equilibrium:
+    """The static equilibrium at the start of a path, at rest (`Crane.equilibrium()`): the natural
+    coordinates `q` (in `crane.coordinates` order), the constraint multipliers `multipliers` (λ), the
+    `inputs` u that hold it (in `crane.inputs` order: N, N·m) and the largest `residual` of the force
+    balance, the constraints and the servo-constraints there."""
+
     q: np.ndarray
     multipliers: np.ndarray
     inputs: np.ndarray

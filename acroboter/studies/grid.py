@@ -243,9 +243,12 @@ def open_client(scheduler: str | None = None, workers: int = 2, connect_timeout:
     if workers < 1:
         raise GridError("the local cluster needs at least one worker")
     # Processes, one thread each: a task holds the GIL for its whole run, and a model is per thread.
+    # Logs at CRITICAL only: a failed case comes back through its future (a row saying why), and on a
+    # loaded machine the workers' heartbeats to a scheduler that is shutting down log CommClosedError
+    # tracebacks that are noise, not a failure of the study.
     with (
         LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                     dashboard_address=None, silence_logs=logging.ERROR) as cluster,
+                     dashboard_address=None, silence_logs=logging.CRITICAL) as cluster,
         Client(cluster) as client,
     ):
         yield client

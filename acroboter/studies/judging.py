@@ -12,7 +12,7 @@ crane's model allows at these gains). A run that is not good falls in one catego
     large      finished, neither of the above, and still outside the tolerance
 
 `format_table` is the error table the sweep prints; `findings` the lines below it (and in the
-README): per method the contiguous α range that is good, and how the runs below and above it break
+docs/studies.md): per method the contiguous α range that is good, and how the runs below and above it break
 down, then how much Ω matters and how many runs did not finish.
 """
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..progress import progress_disabled
+from ...runtime.progress import progress_disabled
 
 
 def write_mp4(frames: Iterator[np.ndarray], path: Path, fps: float, total: int, quiet: bool) -> int:
