@@ -1,8 +1,14 @@
-"""`python -m acroboter.animate`: forwards to acroboter.cli.animate (the `acroboter animate` command)."""
+"""`python -m acroboter.animate`: the same as `acroboter animate` (through the console: its -q/-v, its check of
+the core dependencies, its error boundary)."""
 
 import sys
 
-from .cli.animate import main
+from .cli.console import main as _console
+
+
+def main(argv: list[str] | None = None) -> int:
+    return _console(["animate", *(sys.argv[1:] if argv is None else argv)])
+
 
 if __name__ == "__main__":
     sys.exit(main())

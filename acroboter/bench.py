@@ -1,8 +1,14 @@
-"""`python -m acroboter.bench`: forwards to acroboter.cli.bench (the `acroboter bench` command)."""
+"""`python -m acroboter.bench`: the same as `acroboter bench` (through the console: its -q/-v, its check of
+the core dependencies, its error boundary)."""
 
 import sys
 
-from .cli.bench import main
+from .cli.console import main as _console
+
+
+def main(argv: list[str] | None = None) -> int:
+    return _console(["bench", *(sys.argv[1:] if argv is None else argv)])
+
 
 if __name__ == "__main__":
     sys.exit(main())

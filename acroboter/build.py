@@ -1,8 +1,14 @@
-"""`python -m acroboter.build`: forwards to acroboter.runtime.build (compile the example specs' libraries)."""
+"""`python -m acroboter.build`: the same as `acroboter build` (through the console: its -q/-v, its check of
+the core dependencies, its error boundary)."""
 
 import sys
 
-from .runtime.build import main
+from .cli.console import main as _console
+
+
+def main(argv: list[str] | None = None) -> int:
+    return _console(["build", *(sys.argv[1:] if argv is None else argv)])
+
 
 if __name__ == "__main__":
     sys.exit(main())

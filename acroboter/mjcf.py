@@ -1,8 +1,14 @@
-"""`python -m acroboter.mjcf`: forwards to acroboter.cli.mjcf (the `acroboter mjcf` command)."""
+"""`python -m acroboter.mjcf`: the same as `acroboter mjcf` (through the console: its -q/-v, its check of
+the core dependencies, its error boundary)."""
 
 import sys
 
-from .cli.mjcf import main
+from .cli.console import main as _console
+
+
+def main(argv: list[str] | None = None) -> int:
+    return _console(["mjcf", *(sys.argv[1:] if argv is None else argv)])
+
 
 if __name__ == "__main__":
     sys.exit(main())

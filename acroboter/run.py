@@ -1,8 +1,14 @@
-"""`python -m acroboter.run`: forwards to acroboter.cli.run (the `acroboter run` command)."""
+"""`python -m acroboter.run`: the same as `acroboter run` (through the console: its -q/-v, its check of
+the core dependencies, its error boundary)."""
 
 import sys
 
-from .cli.run import main
+from .cli.console import main as _console
+
+
+def main(argv: list[str] | None = None) -> int:
+    return _console(["run", *(sys.argv[1:] if argv is None else argv)])
+
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -1,8 +1,14 @@
-"""`python -m acroboter.study`: forwards to acroboter.cli.study (the `acroboter study` command)."""
+"""`python -m acroboter.study`: the same as `acroboter study` (through the console: its -q/-v, its check of
+the core dependencies, its error boundary)."""
 
 import sys
 
-from .cli.study import main
+from .cli.console import main as _console
+
+
+def main(argv: list[str] | None = None) -> int:
+    return _console(["study", *(sys.argv[1:] if argv is None else argv)])
+
 
 if __name__ == "__main__":
     sys.exit(main())
