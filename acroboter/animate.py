@@ -1,14 +1,9 @@
-"""`python -m acroboter.animate`: the same as `acroboter animate` (through the console: its -q/-v, its check of
-the core dependencies, its error boundary)."""
+"""`python -m acroboter.animate` is `acroboter animate` (the console's -q/-v, core check and error boundary)."""
 
 import sys
 
-from .cli.console import main as _console
+from .cli.console import forward
 
-
-def main(argv: list[str] | None = None) -> int:
-    return _console(["animate", *(sys.argv[1:] if argv is None else argv)])
-
-
+main = forward("animate")
 if __name__ == "__main__":
     sys.exit(main())

@@ -1,14 +1,9 @@
-"""`python -m acroboter.bench`: the same as `acroboter bench` (through the console: its -q/-v, its check of
-the core dependencies, its error boundary)."""
+"""`python -m acroboter.bench` is `acroboter bench` (the console's -q/-v, core check and error boundary)."""
 
 import sys
 
-from .cli.console import main as _console
+from .cli.console import forward
 
-
-def main(argv: list[str] | None = None) -> int:
-    return _console(["bench", *(sys.argv[1:] if argv is None else argv)])
-
-
+main = forward("bench")
 if __name__ == "__main__":
     sys.exit(main())

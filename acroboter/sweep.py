@@ -1,14 +1,9 @@
-"""`python -m acroboter.sweep`: the same as `acroboter sweep` (through the console: its -q/-v, its check of
-the core dependencies, its error boundary)."""
+"""`python -m acroboter.sweep` is `acroboter sweep` (the console's -q/-v, core check and error boundary)."""
 
 import sys
 
-from .cli.console import main as _console
+from .cli.console import forward
 
-
-def main(argv: list[str] | None = None) -> int:
-    return _console(["sweep", *(sys.argv[1:] if argv is None else argv)])
-
-
+main = forward("sweep")
 if __name__ == "__main__":
     sys.exit(main())

@@ -109,6 +109,16 @@ def main(argv: list[str] | None = None) -> int:
     return command([*prefix, *arguments])
 
 
+def forward(command: str):
+    """main(argv=None) of `python -m acroboter.<command>`: the console with that command, so the module
+    form gets the same -q/-v, core-dependency check and error boundary as `acroboter <command>`."""
+
+    def forwarded(argv: list[str] | None = None) -> int:
+        return main([command, *(sys.argv[1:] if argv is None else argv)])
+
+    return forwarded
+
+
 # The commands whose own options include -q/--quiet (no progress bars); -v is the console's alone.
 QUIET_OPTION = {"run", "sweep", "robustness", "animate", "mjcf", "plant-fuzz"}
 
