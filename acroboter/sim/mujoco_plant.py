@@ -119,6 +119,7 @@ class MujocoPlant:
         self._ctrl_low, self._ctrl_high, _ = self.physical_spec.input_limits()
         self.cable_gap = np.zeros(nc)  # m, > 0 stretched: tendon length − its limit, end of the last advance
         self.limits_enforced = True
+        self.ledger = None  # a ConstraintWork (acroboter.sim.mujoco_energy) books every MuJoCo step's constraint work
 
     def set_cable_dampratio(self, ratio: float) -> None:
         """The damping ratio of the cables' soft limits (the MJCF's is CABLE_DAMPRATIO, critical). At
@@ -226,14 +227,21 @@ class MujocoPlant:
         d.ctrl[:] = u
         mj.mj_forward(m, d)
         self._read_tensions()
-        if self._anchors:
-            rows = self.path.table(start + self.timestep * np.arange(count))
+        ledger = self.ledger
+        if ledger is not None:
+            ledger.start()
+        if self._anchors or ledger is not None:
+            rows = self.path.table(start + self.timestep * np.arange(count)) if self._anchors else None
             for j in range(count):
-                self._prescribe(rows[j])
+                if rows is not None:
+                    self._prescribe(rows[j])
                 mj.mj_step(m, d)
+                if ledger is not None:
+                    ledger.after_step(self.timestep)  # leaves MuJoCo forwarded at the new state
         else:
             mj.mj_step(m, d, count)
-        mj.mj_forward(m, d)
+        if ledger is None:
+            mj.mj_forward(m, d)
         self._check(start + duration)
         self.natural_state(x)
 
