@@ -315,7 +315,7 @@ def impact_losses(events, mj_changes: list[float], mj_work: np.ndarray, h: float
             continue
         lo, hi = first * h - 1e-12, last * h + 1e-12
         own_loss = -sum(e.delta_kinetic for e in events if lo < e.t <= hi)
-        losses.append((own_loss, -(mj_work[last] - mj_work[first])))
+        losses.append((float(own_loss), float(mj_work[first] - mj_work[last])))
     return losses
 
 
