@@ -264,7 +264,7 @@ def _single_snap(crane, slack_m=1e-8, speed=2.0, mujoco_timestep=None, periods=1
     from acroboter.sim.mujoco_plant import MujocoPlant
     from acroboter.sim.open_loop import held_path
     from acroboter.sim.plant import Plant
-    from acroboter.studies.plant_fuzz import MUJOCO_DAMPRATIO, MUJOCO_TIMESTEP
+    from acroboter.studies.plant_fuzz import MUJOCO_TIMESTEP, cable_dampratio
 
     spec, lay = crane.spec, crane.layout
     start = crane.equilibrium()
@@ -273,7 +273,7 @@ def _single_snap(crane, slack_m=1e-8, speed=2.0, mujoco_timestep=None, periods=1
     own = Plant(crane.model, path, spec.simulation.baumgarte_zeta, spec.simulation.baumgarte_omega)
     engine = MujocoPlant(crane.model, path, timestep=mujoco_timestep or MUJOCO_TIMESTEP)
     engine.release_limits()
-    engine.set_cable_dampratio(MUJOCO_DAMPRATIO)
+    engine.set_cable_dampratio(cable_dampratio(engine.timestep))
     ledger = ConstraintWork(engine)
     i, c = lay.winch_index["L3"], own.cable_names.index("L3")
     q0, qd0 = start.q.copy(), np.zeros(own.n)
