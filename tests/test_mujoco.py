@@ -363,6 +363,7 @@ def test_view_without_a_display_says_so_before_any_work(tmp_path, display, messa
     assert not (tmp_path / "v").exists()
 
 
+@pytest.mark.needs_display
 def test_view_replays_the_run_in_mujocos_viewer_on_a_virtual_display(tmp_path):
     """Where Xvfb is installed (not on CI's machine: skipped there): the viewer opens and replays."""
     import os
