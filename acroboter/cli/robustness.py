@@ -166,7 +166,7 @@ def robustness(spec_path: Path = DEFAULT_SPEC, *, samples: int = DEFAULT_SAMPLES
             _write(folder.staging, result, spec, spec_path, seed, duration, ranges, methods, plots, command_line,
                    sensing)
             folder.publish()
-            result.files = [out / p.relative_to(folder.staging) for p in result.files]
+            result.files = [folder.out / p.relative_to(folder.staging) for p in result.files]
     return result
 
 

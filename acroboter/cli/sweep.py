@@ -128,7 +128,7 @@ def sweep(spec_path: Path = DEFAULT_SPEC, *, alphas: list[float] | None = None, 
             if plots:
                 staged += sweep_figures(folder.staging, rows, alpha_mode, tolerance)
             folder.publish()
-            result.files = [out / p.relative_to(folder.staging) for p in staged]
+            result.files = [folder.out / p.relative_to(folder.staging) for p in staged]
     return result
 
 
