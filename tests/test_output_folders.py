@@ -44,6 +44,8 @@ COMMANDS = {
                    {"plant_fuzz.csv", "report.md"},
                    ["--cases", "1", "--workers", "1", "--spec", "acroboter", "-q"], {"plant_fuzz.csv", "report.md"}),
 }
+NEEDS = {"sweep": pytest.mark.needs_dask, "plant-fuzz": pytest.mark.needs_mujoco}  # the extras (tests/conftest.py)
+EVERY = [pytest.param(c, marks=[NEEDS[c]] if c in NEEDS else []) for c in COMMANDS]
 # A user's own files named like some command's results (the issue's list and more)
 LOOKALIKES = ["mlm.csv", "penalty.csv", "iterative-3.csv", "inputs.png", "summary.json", "sweep.csv", "report.md",
               "bench.json", "robustness.csv", "samples.csv", "plant_fuzz.csv", "animation_x.gif",
@@ -53,8 +55,6 @@ LOOKALIKES = ["mlm.csv", "penalty.csv", "iterative-3.csv", "inputs.png", "summar
 
 def call(command: str, args: list[str]) -> int:
     """The command's exit code, as `acroboter <command> ARGS` gives it (argparse's exit included)."""
-    if command == "plant-fuzz":
-        pytest.importorskip("mujoco")
     module = importlib.import_module(f"acroboter.cli.{COMMANDS[command][0]}")
     try:
         return module.main(args)
@@ -79,7 +79,7 @@ def put(folder: Path, names) -> dict[str, bytes]:
     return files(folder)
 
 
-@pytest.mark.parametrize("command", COMMANDS)
+@pytest.mark.parametrize("command", EVERY)
 def test_user_files_survive_and_a_narrower_rerun_leaves_nothing_of_the_wider_one(command, tmp_path, capsys):
     _, wide, wrote, narrow, narrower = COMMANDS[command]
     out = tmp_path / "out"
@@ -97,7 +97,7 @@ def test_user_files_survive_and_a_narrower_rerun_leaves_nothing_of_the_wider_one
         assert not (out / "noncollocated" / "table.md").exists() and (out / "noncollocated" / "notes.txt").exists()
 
 
-@pytest.mark.parametrize("command", COMMANDS)
+@pytest.mark.parametrize("command", EVERY)
 def test_a_users_file_under_a_results_name_is_refused_before_any_work(command, tmp_path, capsys, monkeypatch):
     _, _, _, narrow, narrower = COMMANDS[command]
     out = tmp_path / "out"
@@ -110,7 +110,7 @@ def test_a_users_file_under_a_results_name_is_refused_before_any_work(command, t
     assert files(out) == before
 
 
-@pytest.mark.parametrize("command", COMMANDS)
+@pytest.mark.parametrize("command", EVERY)
 @pytest.mark.parametrize("given", ["", "a file"])
 def test_an_empty_or_unusable_out_is_refused_before_any_work(command, given, tmp_path, capsys, monkeypatch):
     _, _, _, narrow, _ = COMMANDS[command]
@@ -127,7 +127,7 @@ def test_an_empty_or_unusable_out_is_refused_before_any_work(command, given, tmp
     assert files(tmp_path) == before and [p.name for p in tmp_path.iterdir()] == list(before)
 
 
-@pytest.mark.parametrize("command", COMMANDS)
+@pytest.mark.parametrize("command", EVERY)
 @pytest.mark.parametrize("failure, code", [(OSError(28, "No space left on device"), 3), (KeyboardInterrupt(), 130)])
 def test_a_failed_or_interrupted_run_leaves_the_folder_as_it_was(command, failure, code, tmp_path, capsys,
                                                                 monkeypatch):
@@ -154,7 +154,7 @@ def test_a_failed_or_interrupted_run_leaves_the_folder_as_it_was(command, failur
         assert not (tmp_path / "fresh").exists()
 
 
-@pytest.mark.parametrize("command", COMMANDS)
+@pytest.mark.parametrize("command", EVERY)
 def test_a_killed_runs_staging_folder_is_cleaned_at_the_next_start(command, tmp_path, capsys):
     _, _, _, narrow, narrower = COMMANDS[command]
     out = tmp_path / "out"
