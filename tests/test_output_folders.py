@@ -111,7 +111,7 @@ def test_a_users_file_under_a_results_name_is_refused_before_any_work(command, t
 
 
 @pytest.mark.parametrize("command", EVERY)
-@pytest.mark.parametrize("given", ["", "a file"])
+@pytest.mark.parametrize("given", ["", "a file", "unwritable"])
 def test_an_empty_or_unusable_out_is_refused_before_any_work(command, given, tmp_path, capsys, monkeypatch):
     _, _, _, narrow, _ = COMMANDS[command]
     monkeypatch.chdir(tmp_path)
@@ -119,6 +119,8 @@ def test_an_empty_or_unusable_out_is_refused_before_any_work(command, given, tmp
     if given == "a file":
         target = str(tmp_path / "results.txt")
         Path(target).write_text("mine")
+    elif given == "unwritable":
+        target = "/proc/acroboter-out"  # no folder can be made there, not even by root
     before = files(tmp_path)
     monkeypatch.setattr(outputs.ResultsFolder, "publish", lambda self: pytest.fail("the work ran"))
     assert call(command, [*narrow, "--out", target]) == 2
