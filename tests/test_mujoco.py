@@ -334,7 +334,7 @@ def test_a_mujoco_step_that_does_not_divide_is_refused_before_any_work(tmp_path)
 def test_run_with_the_mujoco_plant_writes_the_same_folder(tmp_path):
     out = tmp_path / "mj"
     out.mkdir()
-    (out / "animation_penalty.mp4").write_bytes(b"an earlier run's video")  # stale once the run is replaced
+    (out / "animation_penalty.mp4").write_bytes(b"a video of the user's")  # no manifest lists it: it stays
     proc = subprocess.run([sys.executable, "-m", "acroboter.run", "--plant", "mujoco", "--method", "penalty",
                            "--duration", "2", "--out", str(out), "-q"], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
@@ -345,7 +345,7 @@ def test_run_with_the_mujoco_plant_writes_the_same_folder(tmp_path):
     assert summary["provenance"]["plant"]["engine"] == "mujoco"
     assert summary["provenance"]["plant"]["mujoco_version"] == mujoco.__version__
     assert {"penalty.csv", "summary.json", "tracking_errors.png", "path_3d.png"} <= {p.name for p in out.iterdir()}
-    assert not (out / "animation_penalty.mp4").exists()
+    assert (out / "animation_penalty.mp4").read_bytes() == b"a video of the user's"  # docs/run.md
     assert "cold cache" in proc.stdout  # the step times are not the controllers' warm ones
 
 

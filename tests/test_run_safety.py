@@ -62,7 +62,8 @@ def test_a_rerun_replaces_the_earlier_runs_files_and_nothing_else(tmp_path):
     second = run_cli("--duration", "0.5", "--method", "iterative-3", "--no-plots", "--out", str(out))
     assert second.returncode == 0, second.stderr
     names = sorted(p.name for p in out.iterdir())
-    assert names == ["iterative-3.csv", "my_notes.txt", "summary.json"]  # no CSV or figure of the first run
+    # no CSV or figure of the first run; the manifest lists this run's files (docs/run.md)
+    assert names == [".acroboter-outputs.json", "iterative-3.csv", "my_notes.txt", "summary.json"]
     assert list(json.loads((out / "summary.json").read_text())["methods"]) == ["iterative-3"]
 
 

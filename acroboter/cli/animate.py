@@ -33,6 +33,7 @@ from ..report.animation.encode import write_complete, write_gif, write_mp4
 from ..report.animation.mujoco_frames import GL_FIX, RendererUnavailable, mujoco_ready, probe_gl
 from ..report.animation.scene import AnimationInputError, diverged_note, frame_rows, load
 from .entry import file_write_problem, folder_write_problem, guarded, positive, whole
+from .outputs import MANIFEST, out_path, record_file, recorded
 
 log = logging.getLogger("acroboter")
 
@@ -83,12 +84,12 @@ def _size(text: str) -> tuple[int, int]:
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="acroboter animate", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("results", type=Path, metavar="RESULTS_DIR", help="a folder written by `acroboter run --out`")
+    p.add_argument("results", type=out_path, metavar="RESULTS_DIR", help="a folder written by `acroboter run --out`")
     p.add_argument("--method", default=None, help="the method to show (default: the first in summary.json that ran)")
-    p.add_argument("--out", type=Path, default=None, metavar="FILE.mp4",
+    p.add_argument("--out", type=out_path, default=None, metavar="FILE.mp4",
                    help="the MP4 to write, or an existing folder for FOLDER/animation_<method>.mp4 "
                         "(default: RESULTS_DIR/animation_<method>.mp4)")
-    p.add_argument("--gif", type=Path, default=None, metavar="FILE.gif",
+    p.add_argument("--gif", type=out_path, default=None, metavar="FILE.gif",
                    help="also write a GIF for a README, or into an existing folder as FOLDER/animation_<method>.gif "
                         "(--gif-fps, --gif-speed, --gif-width; default: none)")
     p.add_argument("--no-mp4", action="store_true", help="write only the GIF (with --gif)")
@@ -176,13 +177,28 @@ def _animate(args: argparse.Namespace) -> int:
         return None if note is None else max(0, len(rows) - max(1, round(NOTE_SECONDS * fps)))
 
     written = []
+    # Into a folder, the video is animation_<method>.<ext>, recorded in the folder's manifest (docs/run.md): the
+    # next animate, or the next run into a run folder, replaces it. A file of that name the manifest does not
+    # list is the user's: refused (exit 2), before any frame is drawn.
+    folders = {}
     if not args.no_mp4:
         out = args.out if args.out is not None else args.results
-        out = out / f"animation_{data.method}.mp4" if out.is_dir() else out
+        if out.is_dir():
+            folders[out / f"animation_{data.method}.mp4"] = (out, "--out" if args.out is not None else "RESULTS_DIR")
+            out = out / f"animation_{data.method}.mp4"
+    if args.gif is not None and args.gif.is_dir():
+        folders[args.gif / f"animation_{data.method}.gif"] = (args.gif, "--gif")
+    for path, (folder, option) in folders.items():
+        if (path.exists() or path.is_symlink()) and not recorded(folder, path, ("animate",)):
+            raise AnimationInputError(f"{option} {folder} holds {path.name}, which no earlier `acroboter animate` "
+                                      f"wrote there (it is not in {MANIFEST}); move it away, or give a file name")
+    if not args.no_mp4:
         rows = frame_rows(data.scene.t, args.fps, args.speed)
         start = time.perf_counter()
         count = write_complete(write_mp4, frames(data.scene, data.spec, rows, args.size, data.method,
                                                  note_from(rows, args.fps)), out, args.fps, len(rows), args.quiet)
+        if out in folders:
+            record_file(folders[out][0], out, "animate")
         written.append(f"{out} ({_frames(count)}, {args.size[0]}x{args.size[1]}, "
                        f"{time.perf_counter() - start:.1f} s)")
     if args.gif is not None:
@@ -196,6 +212,8 @@ def _animate(args: argparse.Namespace) -> int:
         count = write_complete(gif, frames(data.scene, data.spec, rows, (width, height), data.method,
                                            note_from(rows, args.gif_fps)), gif_out, args.gif_fps, len(rows),
                                args.quiet)
+        if gif_out in folders:
+            record_file(folders[gif_out][0], gif_out, "animate")
         written.append(f"{gif_out} ({_frames(count)}, {width}x{height}, {gif_out.stat().st_size / 1e6:.2f} MB, "
                        f"{time.perf_counter() - start:.1f} s)")
     stops = "" if note is None else f" (it {note}: the video stops there, short of the scenario's end)"

@@ -29,7 +29,8 @@ import numpy as np
 from ..model.locations import example_spec
 from ..model.spec import MAX_ITERATIONS
 from ..report.paper import PAPER_MATLAB_US
-from .entry import check_out_folder, guarded, spec_file, whole
+from .entry import guarded, spec_file, whole
+from .outputs import ResultsFolder, out_path, results_folder
 
 GOALS_US = {"mlm": 20.0, "penalty": 15.0, "iterative-5": 20.0}
 MIN_INSTANTS = 101  # the allocation check steps from instant 100 of the scenario
@@ -88,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="states timed on the casadi.Function path (b) (it is slow)")
     parser.add_argument("--limits-spec", type=Path, default=example_spec("acroboter_4cable"),
                         help="crane on which the cost of input limits is timed (default: %(default)s)")
-    parser.add_argument("--out", type=Path, default=Path("results"), help="folder for bench.json")
+    parser.add_argument("--out", type=out_path, default=Path("results"), help="folder for bench.json")
     args = parser.parse_args(argv)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     for m in methods:
@@ -97,8 +98,11 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"unknown method '{m}': use mlm, penalty or iterative-N (1 <= N <= {MAX_ITERATIONS})")
     if not methods:
         parser.error("--methods names no method")
-    check_out_folder(parser, args.out)
+    with results_folder(args.out, "bench", expected=["bench.json"]) as folder:  # checked before any work
+        return _bench(args, methods, folder)
 
+
+def _bench(args: argparse.Namespace, methods: list[str], folder: ResultsFolder) -> int:
     from ..api.crane import Crane
     from ..control.controllers import SingularSystemError, make_controller
     from ..control.recovery import RecoveryError
@@ -214,7 +218,6 @@ def main(argv: list[str] | None = None) -> int:
     print(f"plant RK4 step (one ctypes call): spec's numbers folded in {plant_step['folded_us']:.2f} us, physical "
           f"parameters as an input {plant_step['parametric_us']:.2f} us (x{plant_step['ratio']:.2f}, quietest of "
           f"{plant_step['passes']} interleaved passes)")
-    args.out.mkdir(parents=True, exist_ok=True)
     doc = {
         "spec": spec.name,
         "machine": {"processor": _processor(), "machine": platform.machine(),
@@ -225,7 +228,8 @@ def main(argv: list[str] | None = None) -> int:
         "limits": limits,
         "plant_step": plant_step,
     }
-    (args.out / "bench.json").write_text(json.dumps(doc, indent=2) + "\n")
+    (folder.staging / "bench.json").write_text(json.dumps(doc, indent=2) + "\n")
+    folder.publish()
     print(f"written {args.out / 'bench.json'}")
     return 0
 

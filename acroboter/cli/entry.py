@@ -42,8 +42,9 @@ def _bad_input_errors() -> tuple[type[BaseException], ...]:
     from ..model.spec import SpecError
     from ..runtime.compiled import StaleModelError  # imported late: `--help` stays instant
     from ..sim.statics import EquilibriumError
+    from .outputs import OutputFolderError
 
-    return SpecError, StaleModelError, EquilibriumError, PlantParameterError, MissingExtraError
+    return SpecError, StaleModelError, EquilibriumError, PlantParameterError, MissingExtraError, OutputFolderError
 
 
 def _cannot_run_errors() -> tuple[type[BaseException], ...]:
@@ -165,13 +166,19 @@ def whole(low: int = 1, high: int | None = None) -> Callable[[str], int]:
 
 
 def check_out_folder(parser: argparse.ArgumentParser, out: Path, option: str = "--out") -> None:
-    """--out must be creatable and writable: found before any work, not after it (parser.error: exit 2)."""
+    """--out must be creatable and writable: found before any work, not after it (parser.error: exit 2).
+    A folder made for the check is removed again (the command makes it when it writes)."""
+    from .outputs import missing_folders, remove_if_empty
+
+    made = missing_folders(out)
     try:
         out.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=out):
             pass
     except OSError as err:
         parser.error(f"cannot write into {option} {out}: {err.strerror or err}")
+    finally:
+        remove_if_empty(made)
 
 
 def folder_write_problem(folder: Path) -> str | None:

@@ -21,6 +21,7 @@ from ..model.interrupts import remembered_interrupt
 from ..model.locations import checkout_root, example_spec, shipped_generated_folder, spec_folder
 from ..model.spec import Spec, SpecError, load_spec
 from .entry import check_out_folder, guarded, number, positive, spec_file
+from .outputs import no_empty_folder_left, out_path
 
 SPEC_DIR = spec_folder()
 GENERATED_DIR = shipped_generated_folder()
@@ -165,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("command", choices=["generate", "check"],
                         help="generate the C, or check generated/ is fresh")
     parser.add_argument("specs", nargs="*", help="spec files (default: every model_spec/*.toml)")
-    parser.add_argument("--out", type=Path, default=None,
+    parser.add_argument("--out", type=out_path, default=None,
                         help="the folder written (generate; default: generated/ in a checkout, else ./generated) "
                              "or compared (check; default: the shipped generated/)")
     parser.add_argument("--no-compile-check", action="store_true",
@@ -177,7 +178,8 @@ def main(argv: list[str] | None = None) -> int:
         check_out_folder(parser, args.out)
     try:
         if args.command == "generate":
-            return cmd_generate(_specs(args.specs), args.out, check_compiles=not args.no_compile_check)
+            with no_empty_folder_left(args.out):  # a failed generate leaves no empty --out it made
+                return cmd_generate(_specs(args.specs), args.out, check_compiles=not args.no_compile_check)
         return cmd_check(_specs(args.specs), args.out, whole_tree=not args.specs)
     except SpecError as err:
         print(err, file=sys.stderr)
@@ -221,7 +223,7 @@ def export_step_main(argv: list[str] | None = None) -> int:
                         help="penalty methods: solve the (m+k) x (m+k) multiplier matrix D^-1 + J M^-1 J^T, or the "
                         "n x n penalty matrix A = M + J^T D J; the same iterates. auto: multipliers, unless the "
                         "spec has redundant constraints (then matrix) (default: %(default)s)")
-    parser.add_argument("--out", type=Path, default=None,
+    parser.add_argument("--out", type=out_path, default=None,
                         help=f"output folder (default: {DEFAULT_EMBEDDED}/<spec>_<method>/)")
     args = parser.parse_args(argv)
     if args.out is not None:
@@ -237,7 +239,8 @@ def export_step_main(argv: list[str] | None = None) -> int:
     try:
         spec_name = load_spec(args.spec).name
         out = args.out if args.out is not None else DEFAULT_EMBEDDED / f"{spec_name}_{args.method}"
-        written = export_step(args.spec, args.method, out, args.mlm_system, args.penalty_system, **overrides)
+        with no_empty_folder_left(out):
+            written = export_step(args.spec, args.method, out, args.mlm_system, args.penalty_system, **overrides)
     except (SpecError, ExportError, OSError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

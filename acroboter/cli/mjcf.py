@@ -21,6 +21,7 @@ import tempfile
 from pathlib import Path
 
 from .entry import file_write_problem, guarded, number, spec_file
+from .outputs import out_path
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -30,7 +31,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("spec", type=spec_file, nargs="?", default=None,
                    help="model spec TOML (default: the paper's crane, model_spec/acroboter.toml)")
-    p.add_argument("-o", "--out", type=Path, default=None,
+    p.add_argument("-o", "--out", type=out_path, default=None,
                    help="the XML file to write (default: <spec name>.xml in the current folder; - for stdout)")
     p.add_argument("--timestep", type=number(0, MAX_TIMESTEP, low_open=True), default=DEFAULT_TIMESTEP,
                    help="MuJoCo's time step in s; the cables' constraint time constant is two steps "

@@ -18,7 +18,8 @@ from ..model.spec import load_spec
 from ..sim.simulation import check_mujoco_timestep
 from ..studies.grid import open_client, run_cases, write_rows
 from ..studies.plant_fuzz import COLUMNS, MUJOCO_TIMESTEP, crane_of, report, run_case
-from .entry import EXIT_BAD_INPUT, check_out_folder, guarded, positive, progress_disabled, whole
+from .entry import EXIT_BAD_INPUT, guarded, positive, progress_disabled, whole
+from .outputs import ResultsFolder, out_path, results_folder
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -37,7 +38,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="MuJoCo's step, s (must divide the plant step)")
     p.add_argument("--workers", type=whole(1, 64), default=2, help="worker processes of the local Dask cluster "
                    "(1: in this process, no Dask)")
-    p.add_argument("--out", type=Path, default=Path("results/plant_fuzz"), help="output folder")
+    p.add_argument("--out", type=out_path, default=Path("results/plant_fuzz"), help="output folder")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
     # the extras first (MissingExtraError: one line with the `pip install`, exit 2): before any spec is read
@@ -51,15 +52,19 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                 check_mujoco_timestep(load_spec(example_spec(name)).simulation.step, args.mujoco_timestep)
     except ValueError as err:
         p.error(f"--mujoco-timestep: {err}")
-    check_out_folder(p, args.out)
     return args
 
 
 @guarded
 def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    with results_folder(args.out, "plant-fuzz", expected=["plant_fuzz.csv", "report.md"]) as folder:
+        return _fuzz(args, folder)  # --out checked before any work
+
+
+def _fuzz(args: argparse.Namespace, folder: ResultsFolder) -> int:
     from tqdm import tqdm
 
-    args = parse_args(argv)
     names = args.spec or example_names()
     unknown = [n for n in names if n not in example_names()]
     if unknown:
@@ -85,10 +90,10 @@ def main(argv: list[str] | None = None) -> int:
 
         rows = run_cases(task, cases, client, name="plant-fuzz", on_done=done)
     wall = time.perf_counter() - t0
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_rows(args.out / "plant_fuzz.csv", rows, COLUMNS)
+    write_rows(folder.staging / "plant_fuzz.csv", rows, COLUMNS)
     text = report(rows, wall, args.workers, args.mujoco_timestep)
-    (args.out / "report.md").write_text(text, encoding="utf-8")
+    (folder.staging / "report.md").write_text(text, encoding="utf-8")
+    folder.publish()
     print(text)
     print(f"results in {args.out}/ (plant_fuzz.csv, report.md)")
     return 0 if all(r["passed"] for r in rows) else 1

@@ -25,6 +25,7 @@ import math
 import platform
 import sys
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -57,7 +58,6 @@ from ..studies.robustness_grid import (
 )
 from .entry import (
     EXIT_BAD_INPUT,
-    check_out_folder,
     guarded,
     name_value,
     number,
@@ -66,6 +66,7 @@ from .entry import (
     spec_file,
     whole,
 )
+from .outputs import out_path, results_folder
 
 DEFAULT_SPEC = example_spec("acroboter")
 DEFAULT_SAMPLES, DEFAULT_SEED, DEFAULT_DURATION = 200, 12, 20.0
@@ -119,51 +120,58 @@ def robustness(spec_path: Path = DEFAULT_SPEC, *, samples: int = DEFAULT_SAMPLES
         raise ValueError(f"{samples} samples × {len(methods)} methods × 2 is more than {MAX_RUNS} runs")
     if scheduler or workers > 0:
         require_dask(WHAT, NO_DASK)  # first: a missing extra costs no build
-    spec = prepare(spec_path, duration)  # builds the library here if missing: the tasks only load it
-    kp, kd = spec.controller.kp, spec.controller.kd
-    ki = recommended_ki(kp, kd) if ki is None else float(ki)
-    from ..model.spec import integral_gain_problem
+    # `out` checked before any work (OutputFolderError); the files are staged and swapped in at the end
+    expected = ["robustness.csv", "samples.csv", "summary.json"]
+    with results_folder(out, "robustness", expected=expected) if out is not None else nullcontext() as folder:
+        spec = prepare(spec_path, duration)  # builds the library here if missing: the tasks only load it
+        kp, kd = spec.controller.kp, spec.controller.kd
+        ki = recommended_ki(kp, kd) if ki is None else float(ki)
+        from ..model.spec import integral_gain_problem
 
-    if ki <= 0 or (problem := integral_gain_problem(kp, kd, ki)) is not None:
-        raise ValueError(f"--ki: {problem if ki > 0 else 'expected a positive number (the ki of the integral rows)'}")
-    if sensing is not None:  # checked here, before any task: a bad group or value is bad input
-        from ..model.spec import SpecError
-        from ..sim.sensing import resolve
+        if ki <= 0 or (problem := integral_gain_problem(kp, kd, ki)) is not None:
+            problem = problem if ki > 0 else "expected a positive number (the ki of the integral rows)"
+            raise ValueError(f"--ki: {problem}")
+        if sensing is not None:  # checked here, before any task: a bad group or value is bad input
+            from ..model.spec import SpecError
+            from ..sim.sensing import resolve
 
-        try:
-            resolve(spec, sensing, source="--sensing-*")
-        except SpecError as err:
-            raise ValueError(str(err)) from None
-    drawn = [draw_sample(spec, seed, i, ranges) for i in range(samples)]
-    task = functools.partial(run_sample, Path(spec_path).read_text(encoding="utf-8"), str(spec_path),
-                             duration=duration, methods=tuple(methods), kis=(0.0, ki), sensing=sensing)
-    t0 = time.perf_counter()
-    with tqdm(total=samples, unit="sample", desc="robustness", file=sys.stderr, disable=not progress,
-              smoothing=0.0) as bar:
-        def done(_sample, _rows):
-            bar.update(1)
+            try:
+                resolve(spec, sensing, source="--sensing-*")
+            except SpecError as err:
+                raise ValueError(str(err)) from None
+        drawn = [draw_sample(spec, seed, i, ranges) for i in range(samples)]
+        task = functools.partial(run_sample, Path(spec_path).read_text(encoding="utf-8"), str(spec_path),
+                                 duration=duration, methods=tuple(methods), kis=(0.0, ki), sensing=sensing)
+        t0 = time.perf_counter()
+        with tqdm(total=samples, unit="sample", desc="robustness", file=sys.stderr, disable=not progress,
+                  smoothing=0.0) as bar:
+            def done(_sample, _rows):
+                bar.update(1)
 
-        if scheduler or workers > 0:
-            with open_client(scheduler, workers, connect_timeout) as client:
-                n_workers = worker_count(client) if scheduler else workers
-                per_sample = run_cases(task, drawn, client, name="robustness", on_done=done, on_error=crashed_rows)
-        else:
-            n_workers = 0
-            per_sample = run_cases(task, drawn, None, on_done=done, on_error=crashed_rows)
-    wall = time.perf_counter() - t0
-    rows = [row for block in per_sample for row in block]
-    result = RobustnessResult(rows, drawn, wall, n_workers, ki)
-    from ..report.robustness_report import summarize
+            if scheduler or workers > 0:
+                with open_client(scheduler, workers, connect_timeout) as client:
+                    n_workers = worker_count(client) if scheduler else workers
+                    per_sample = run_cases(task, drawn, client, name="robustness", on_done=done,
+                                           on_error=crashed_rows)
+            else:
+                n_workers = 0
+                per_sample = run_cases(task, drawn, None, on_done=done, on_error=crashed_rows)
+        wall = time.perf_counter() - t0
+        rows = [row for block in per_sample for row in block]
+        result = RobustnessResult(rows, drawn, wall, n_workers, ki)
+        from ..report.robustness_report import summarize
 
-    result.summary = summarize(rows, methods, (0.0, ki))
-    if out is not None:
-        _write(out, result, spec, spec_path, seed, duration, ranges, methods, plots, command_line, sensing)
+        result.summary = summarize(rows, methods, (0.0, ki))
+        if folder is not None:
+            _write(folder.staging, result, spec, spec_path, seed, duration, ranges, methods, plots, command_line,
+                   sensing)
+            folder.publish()
+            result.files = [folder.out / p.relative_to(folder.staging) for p in result.files]
     return result
 
 
 def _write(out: Path, result: RobustnessResult, spec, spec_path, seed, duration, ranges, methods, plots,
            command_line, sensing) -> None:
-    out.mkdir(parents=True, exist_ok=True)
     cols = columns(result.samples[0])
     write_rows(out / "robustness.csv", result.rows, cols)
     sample_rows = [{"sample": s.index, "draws": s.draws, "mass_error": s.mass_error,
@@ -271,7 +279,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="measurement delay in whole control periods (default: none)")
     p.add_argument("--sensing-seed", type=whole(0), default=None, metavar="N",
                    help="seed of the measurement noise (the same for every sample; default: the spec's, 0)")
-    p.add_argument("--out", type=Path, default=Path("results/robustness"), help="output folder")
+    p.add_argument("--out", type=out_path, default=Path("results/robustness"), help="output folder")
     p.add_argument("--scheduler", metavar="ADDRESS", default=None,
                    help="use the running Dask scheduler at ADDRESS instead of a local cluster; its workers need "
                         "this checkout with the model library built")
@@ -304,7 +312,6 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         p.error("--methods: no method given")
     if args.scheduler or args.workers:  # the options checked, before --out is made: the one line is the error
         require_dask(f"{WHAT} {'--scheduler' if args.scheduler else f'--workers {args.workers}'}", NO_DASK)
-    check_out_folder(p, args.out)
     return args
 
 

@@ -14,47 +14,16 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
-import shutil
 import sys
-import tempfile
 from pathlib import Path
 
-from ..model.interrupts import deferred_interrupt
 from ..model.locations import example_spec
 from ..model.spec import MAX_CONTROL_STEPS
 from .entry import guarded, progress_disabled
+from .outputs import ResultsFolder, results_folder
 from .run_args import expand_methods, parse_args
 
 FIGURES = ("path_3d.png", "tracking_errors.png", "servo_errors.png", "inputs.png", "control_step_time.png")
-
-
-def _is_run_file(path: Path) -> bool:
-    """A file of an earlier run in --out: its summary, figures, method CSVs, and the animations
-    `acroboter animate` wrote there by default (they show the earlier run)."""
-    stem = path.stem
-    method = stem in ("mlm", "penalty") or (stem.startswith("iterative-") and stem[10:].isdigit())
-    animation = stem.startswith("animation_") and path.suffix in (".mp4", ".gif")
-    return path.name == "summary.json" or path.name in FIGURES or (path.suffix == ".csv" and method) or animation
-
-
-def _staging_folder(out: Path) -> Path:
-    """A temporary folder inside --out for this run's files (proves --out writable before any work)."""
-    out.mkdir(parents=True, exist_ok=True)
-    return Path(tempfile.mkdtemp(prefix=".run-", dir=out))
-
-
-def _publish(staging: Path, out: Path) -> None:
-    """Replace the earlier run's files in --out with this run's: figures and CSVs first, summary last.
-    Ctrl-C waits for the few renames (deferred_interrupt), so --out is never left half-replaced."""
-    with deferred_interrupt():
-        for old in out.iterdir():
-            if old.is_file() and _is_run_file(old):
-                old.unlink()
-        new = sorted(staging.iterdir(), key=lambda p: p.name == "summary.json")
-        for path in new:
-            os.replace(path, out / path.name)
-        staging.rmdir()
 
 
 @guarded
@@ -69,23 +38,17 @@ def main(argv: list[str] | None = None) -> int:
         return 3
     existed = args.out.exists()
     try:
-        staging = _staging_folder(args.out)
-    except OSError as err:
-        print(f"error: cannot write results into --out {args.out}: {err.strerror or err}", file=sys.stderr)
-        return 2
-    try:
-        return _run(args, staging)
+        # --out checked now (exit 2); the results are staged and swapped in at the end (docs/run.md). The
+        # videos `acroboter animate` wrote into this folder show the earlier run: they go with its files.
+        with results_folder(args.out, "run", expected=["summary.json"], replaces=("animate",)) as folder:
+            return _run(args, folder)
     except KeyboardInterrupt:
         earlier = f"the earlier ones in {args.out} are as they were" if existed else f"{args.out} was not created"
         print(f"interrupted: no results written ({earlier})", file=sys.stderr)
         return 130
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)  # gone already when the results were published
-        if not existed and args.out.is_dir() and not any(args.out.iterdir()):
-            args.out.rmdir()  # a run that wrote nothing leaves no empty folder it made
 
 
-def _run(args: argparse.Namespace, staging: Path) -> int:
+def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
     # Imports after parsing: --help stays instant.
     import numpy as np
     from tqdm import tqdm
@@ -115,6 +78,8 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
                 return 2
         sensing = crane.sensing(args.sensing)  # SpecError naming the field (exit 2), before any work
         methods = expand_methods(args.method, args.iterations or spec.controller.penalty.iterations)
+        # a file of the user's under a result's name: refused now, before the simulation (exit 2)
+        folder.claim([f"{m}.csv" for m in methods] + ([] if args.no_plots else list(FIGURES)))
         try:
             gains = crane.gains(**overrides)
         except ValueError as err:  # e.g. --ki past the stability bound of the spec's (or given) kp, kd
@@ -172,7 +137,7 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
               file=sys.stderr)
         return 3
     args.sensing_used = sensing
-    out: Path = staging  # published into args.out at the end, in one go
+    out: Path = folder.staging  # published into args.out at the end, in one go
     paper = is_paper_crane(spec)
     for name, r in results.items():
         r.to_csv(out / f"{name}.csv", state=args.state)
@@ -186,7 +151,7 @@ def _run(args: argparse.Namespace, staging: Path) -> int:
         write_figures(out, {m: r.run for m, r in results.items()}, crane.scenario,
                       {m: s for m, s in summaries.items() if m in results},
                       input_labels, lay.servo_constraints, input_limits=spec.input_limits()[:2], paper=paper)
-    _publish(staging, args.out)
+    folder.publish()
     # Printed once the results are in place: a table on screen always has its files.
     engine = plant_provenance(args, spec)
     plant_text = (f"plant RK4 h = {step * 1e3:g} ms" if engine["engine"] == "own" else

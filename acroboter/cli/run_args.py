@@ -11,6 +11,7 @@ from ..model.extras import require
 from ..model.locations import example_spec
 from ..model.spec import MAX_ITERATIONS
 from .entry import name_value, number, positive, spec_file
+from .outputs import out_path
 
 DEFAULT_SPEC = example_spec("acroboter")
 
@@ -64,7 +65,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--view", action="store_true",
                    help="after the run, replay it in MuJoCo's interactive viewer (needs a display)")
     p.add_argument("--duration", type=positive(1e6), default=None, help="simulated seconds (default: the whole path)")
-    p.add_argument("--out", type=Path, default=Path("results"), help="output folder (default: %(default)s)")
+    p.add_argument("--out", type=out_path, default=Path("results"), help="output folder (default: %(default)s)")
     p.add_argument("--state", action="store_true",
                    help="add the rates q̇ of the natural coordinates to each CSV (q is always there)")
     p.add_argument("--cache-dir", type=Path, default=None,

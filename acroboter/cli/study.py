@@ -23,7 +23,8 @@ from ..model.locations import spec_folder
 from ..model.spec import MAX_CONTROL_STEPS
 from ..report.study_figures import case_label, position_error_figure
 from ..studies.grid import run_cases, setup
-from .entry import check_out_folder, guarded, positive, progress_disabled
+from .entry import guarded, positive, progress_disabled
+from .outputs import ResultsFolder, out_path, results_folder
 
 # The study's cranes run at 50 Hz: the record cap in seconds.
 STUDY_RATE_HZ = 50.0
@@ -133,12 +134,19 @@ def main(argv: list[str] | None = None) -> int:
                         help="which study to run (default: %(default)s)")
     parser.add_argument("--duration", type=positive(STUDY_MAX_DURATION_S), default=None,
                         help=f"simulated seconds, at most {STUDY_MAX_DURATION_S:g} (default: the whole path)")
-    parser.add_argument("--out", type=Path, default=Path("results/study"), help="output folder (default: %(default)s)")
+    parser.add_argument("--out", type=out_path, default=Path("results/study"),
+                        help="output folder (default: %(default)s)")
     args = parser.parse_args(argv)
     if args.duration is not None and round(args.duration * STUDY_RATE_HZ) < 1:
         parser.error(f"--duration {args.duration:g} s is no control step at {STUDY_RATE_HZ:g} Hz: give at least "
                      f"{1 / STUDY_RATE_HZ:g} s")
-    check_out_folder(parser, args.out)
+    studies = [s for s in ("redundant", "noncollocated") if args.which in (s, "all")]
+    expected = [f"{s}/{name}" for s in studies for name in ("table.md", "summary.json", "position_error.png")]
+    with results_folder(args.out, "study", expected=expected) as folder:  # checked before any work
+        return _study(args, folder)
+
+
+def _study(args: argparse.Namespace, folder: ResultsFolder) -> int:
     from tqdm import tqdm
 
     from ..model.spec import SpecError
@@ -151,16 +159,17 @@ def main(argv: list[str] | None = None) -> int:
             if args.which in ("redundant", "all"):
                 cases = study_redundant(args.duration, bar.update)
                 print("## Redundant constraints and a redundant task\n")
-                print(_write(args.out, "redundant", cases, "Redundant constraints and task: position error",
+                print(_write(folder.staging, "redundant", cases, "Redundant constraints and task: position error",
                              with_spec=True))
             if args.which in ("noncollocated", "all"):
                 cases = study_noncollocated(args.duration, bar.update)
                 print("\n## Non-collocated four-input crane\n")
-                print(_write(args.out, "noncollocated", cases, "Four inputs (non-collocated): position error",
+                print(_write(folder.staging, "noncollocated", cases, "Four inputs (non-collocated): position error",
                              with_spec=False))
     except (SpecError, StaleModelError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    folder.publish()
     print(f"\nresults in {args.out}/")
     return 0
 

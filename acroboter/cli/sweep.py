@@ -21,6 +21,7 @@ import argparse
 import functools
 import sys
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -52,7 +53,6 @@ from .entry import (
     EXIT_BAD_INPUT,
     EXIT_CANNOT_RUN,
     EXIT_INTERRUPTED,
-    check_out_folder,
     guarded,
     number,
     positive,
@@ -60,6 +60,7 @@ from .entry import (
     spec_file,
     whole,
 )
+from .outputs import out_path, results_folder
 
 DEFAULT_SPEC = example_spec("acroboter")
 DEFAULT_ALPHAS = "1e1:1e16"
@@ -111,20 +112,23 @@ def sweep(spec_path: Path = DEFAULT_SPEC, *, alphas: list[float] | None = None, 
     alphas = alphas or parse_values(DEFAULT_ALPHAS)
     omegas = omegas or parse_values(DEFAULT_OMEGAS)
     iterations = iterations or parse_iterations(DEFAULT_ITERATIONS)
-    spec = prepare(spec_path, duration)  # builds the library here if missing: the tasks only load it
-    pen = spec.controller.penalty
-    cases = make_grid(alphas, omegas, iterations, alpha_mode, pen.alpha_geometric, pen.alpha_servo)
-    t0 = time.perf_counter()
-    with open_client(scheduler, workers, connect_timeout) as client:
-        n_workers = worker_count(client) if scheduler else workers
-        rows = run_sweep(client, Path(spec_path), cases, duration, progress=progress, kp=kp, kd=kd, mu=mu)
-    result = SweepResult(rows, time.perf_counter() - t0, n_workers)
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        write_rows(out / "sweep.csv", rows, COLUMNS)
-        result.files.append(out / "sweep.csv")
-        if plots:
-            result.files += sweep_figures(out, rows, alpha_mode, tolerance)
+    # `out` checked before any work (OutputFolderError); the files are staged and swapped in at the end
+    with results_folder(out, "sweep", expected=["sweep.csv"]) if out is not None else nullcontext() as folder:
+        spec = prepare(spec_path, duration)  # builds the library here if missing: the tasks only load it
+        pen = spec.controller.penalty
+        cases = make_grid(alphas, omegas, iterations, alpha_mode, pen.alpha_geometric, pen.alpha_servo)
+        t0 = time.perf_counter()
+        with open_client(scheduler, workers, connect_timeout) as client:
+            n_workers = worker_count(client) if scheduler else workers
+            rows = run_sweep(client, Path(spec_path), cases, duration, progress=progress, kp=kp, kd=kd, mu=mu)
+        result = SweepResult(rows, time.perf_counter() - t0, n_workers)
+        if folder is not None:
+            staged = [folder.staging / "sweep.csv"]
+            write_rows(staged[0], rows, COLUMNS)
+            if plots:
+                staged += sweep_figures(folder.staging, rows, alpha_mode, tolerance)
+            folder.publish()
+            result.files = [folder.out / p.relative_to(folder.staging) for p in staged]
     return result
 
 
@@ -152,7 +156,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--duration", type=positive(1e6), default=None, help="simulated seconds (default: the whole path)")
     p.add_argument("--tolerance", type=number(1.0, low_open=True), default=2.0,
                    help="a run is 'good' when its max position error is within this factor of MLM's")
-    p.add_argument("--out", type=Path, default=Path("results/sweep"), help="output folder")
+    p.add_argument("--out", type=out_path, default=Path("results/sweep"), help="output folder")
     p.add_argument("--scheduler", metavar="ADDRESS", default=None,
                    help="use the running Dask scheduler at ADDRESS (e.g. tcp://10.0.0.5:8786) instead of a local "
                         "cluster; its workers need this checkout with the model library built")
@@ -168,7 +172,6 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     except ValueError as err:
         p.error(str(err))
     require_dask(WHAT)  # the options checked, before --out is made: without dask the one line is the error (exit 2)
-    check_out_folder(p, args.out)
     return args
 
 

@@ -1,0 +1,288 @@
+"""The one output-folder contract of every command that writes a results folder (docs/run.md).
+
+    with results_folder(args.out, "sweep", expected=["sweep.csv"]) as folder:   # --out checked: exit 2 if unusable
+        ...                                  # the work; write into folder.staging
+        folder.publish()                     # swapped in; without this call (a return, an error, Ctrl-C) nothing is
+
+- `--out` is checked before any work: an empty name, an existing file, a folder that cannot be created or
+  written into is an OutputFolderError naming the option (exit 2); the check creates the folder and a
+  staging dot-folder inside it, so it proves what it says.
+- The results are written into the staging folder and swapped in by `publish`: the files this command's
+  earlier run wrote there (listed in the folder's manifest, MANIFEST) are removed, the new ones moved in
+  (summary.json last), and the manifest's entry for this command rewritten, with Ctrl-C held back.
+  Nothing is removed by its name: a file the manifest does not list is the user's (or an earlier
+  version's) and stays. A new result whose name is taken by such a file is refused (exit 2, naming it)
+  rather than written over it: before any work for the names a command knows then (`expected`,
+  `claim`), at the latest before anything is replaced.
+- Without `publish` (an error, a return code, Ctrl-C) the staging folder goes, the folder is as it was,
+  and a folder this call created is removed again when it is empty.
+- A staging folder whose process is gone (a run killed with SIGKILL) is removed at the next start.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import tempfile
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+from ..model.interrupts import deferred_interrupt
+
+MANIFEST = ".acroboter-outputs.json"
+STAGING_PREFIX = ".acroboter-staging-"
+FORMAT = 1
+
+
+class OutputFolderError(Exception):
+    """An output folder that cannot be used (bad input, exit 2): the message names the option."""
+
+
+def read_manifest(out: Path) -> dict[str, dict[str, list[str]]]:
+    """The manifest's entries, command -> {"files": [...], "folders": [...]} (paths relative to `out`);
+    {} without one. An unreadable or foreign manifest counts as none: then nothing is removed."""
+    try:
+        doc = json.loads((out / MANIFEST).read_text(encoding="utf-8"))
+        commands = doc["commands"]
+        return {str(c): {"files": [str(f) for f in e.get("files", [])],
+                         "folders": [str(f) for f in e.get("folders", [])]} for c, e in commands.items()}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return {}
+
+
+def write_manifest(out: Path, commands: dict[str, dict[str, list[str]]]) -> None:
+    """Replace the manifest in one rename (no manifest when no command has an entry)."""
+    path = out / MANIFEST
+    commands = {c: e for c, e in commands.items() if e["files"] or e["folders"]}
+    if not commands:
+        path.unlink(missing_ok=True)
+        return
+    doc = {"format": FORMAT, "about": "the files acroboter commands wrote into this folder; a command's next "
+                                      "run replaces its own, nothing else (docs/run.md)", "commands": commands}
+    tmp = out / f"{MANIFEST}.tmp"
+    tmp.write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def _inside(out: Path, relative: str) -> Path | None:
+    """`out / relative` for a manifest path that stays inside `out` (None for one that does not)."""
+    parts = Path(relative).parts
+    if not parts or Path(relative).is_absolute() or ".." in parts:
+        return None
+    return out.joinpath(*parts)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process: alive
+        return True
+    return True
+
+
+def clean_stale_staging(out: Path) -> None:
+    """Remove the staging folders of runs whose process is gone (killed before they could clean up)."""
+    with contextlib.suppress(OSError):
+        for entry in out.iterdir():
+            name = entry.name
+            if not name.startswith(STAGING_PREFIX) or not entry.is_dir() or entry.is_symlink():
+                continue
+            pid = name[len(STAGING_PREFIX):].split("-")[-2:-1]  # .acroboter-staging-<command>-<pid>-<random>
+            if pid and pid[0].isdigit() and int(pid[0]) != os.getpid() and not _alive(int(pid[0])):
+                shutil.rmtree(entry, ignore_errors=True)
+
+
+class ResultsFolder:
+    """An output folder opened for one command's run (use `results_folder`)."""
+
+    def __init__(self, out: Path | str, command: str, option: str = "--out", replaces: Iterable[str] = ()):
+        if str(out) == "":
+            raise OutputFolderError(f"{option}: an empty folder name; give a folder, e.g. {option} results")
+        self.out = Path(out)
+        self.command = command
+        self.option = option
+        self.replaces = (command, *replaces)  # entries whose files this run's results replace
+        self.created: list[Path] = []  # folders this call made, outermost first
+        self.staging: Path = Path()
+        self.published = False
+
+    def _error(self, problem: str) -> OutputFolderError:
+        return OutputFolderError(f"cannot write results into {self.option} {self.out}: {problem}")
+
+    def open(self, expected: Iterable[str] = ()) -> None:
+        out = self.out
+        try:
+            if out.exists() and not out.is_dir():
+                raise self._error("it is a file, not a folder")
+            self.created = missing_folders(out)
+            out.mkdir(parents=True, exist_ok=True)
+            clean_stale_staging(out)
+            self.staging = Path(tempfile.mkdtemp(prefix=f"{STAGING_PREFIX}{self.command}-{os.getpid()}-", dir=out))
+        except OSError as err:
+            self._remove_created()
+            raise self._error(err.strerror or str(err)) from None
+        except OutputFolderError:
+            self._remove_created()
+            raise
+        try:
+            self.claim(expected)
+        except OutputFolderError:
+            self.discard()
+            raise
+
+    def ours(self) -> set[str]:
+        """The files (relative paths) the manifest lists for the entries this run replaces."""
+        manifest = read_manifest(self.out)
+        return {f for c in self.replaces for f in manifest.get(c, {}).get("files", [])}
+
+    def claim(self, names: Iterable[str]) -> None:
+        """Refuse (OutputFolderError) when a result to be written under one of `names` (relative paths) would
+        replace a file, or sit where a file or folder is, that no earlier run of this command wrote."""
+        ours = self.ours()
+        for name in names:
+            target = _inside(self.out, name)
+            if target is None:
+                raise ValueError(f"not a path inside the output folder: {name}")
+            if name in ours:
+                continue
+            if target.is_symlink() or target.exists():
+                raise self._error(f"it holds {name}, which no earlier `acroboter {self.command}` wrote there "
+                                  f"(it is not in {MANIFEST}); move it away or choose another {self.option}")
+            for parent in list(Path(name).parents)[:-1]:  # a path like study's redundant/table.md
+                where = self.out / parent
+                if where.exists() and not where.is_dir():
+                    raise self._error(f"{parent} is a file where this run writes a folder; move it away")
+
+    def publish(self) -> list[Path]:
+        """Swap the staged results in; returns their paths in the output folder."""
+        out, staging = self.out, self.staging
+        new = sorted((str(p.relative_to(staging)) for p in staging.rglob("*") if not p.is_dir()),
+                     key=lambda n: (Path(n).name == "summary.json", n))  # the summary last
+        self.claim(new)  # a user's file under a new result's name stays; the results are refused instead
+        manifest = read_manifest(out)
+        old_files = [f for c in self.replaces for f in manifest.get(c, {}).get("files", [])]
+        old_folders = {f for c in self.replaces for f in manifest.get(c, {}).get("folders", [])}
+        with deferred_interrupt():
+            # first the union: killed at any point from here, the next run still knows every file as its own
+            write_manifest(out, {**manifest, self.command: {"files": sorted(set(old_files) | set(new)),
+                                                            "folders": sorted(old_folders)}})
+            for name in old_files:
+                target = _inside(out, name)
+                if target is not None and (target.is_file() or target.is_symlink()):
+                    target.unlink()
+            folders = set()
+            for name in new:
+                target = out / name
+                for parent in reversed(list(Path(name).parents)[:-1]):
+                    if not (out / parent).is_dir():
+                        (out / parent).mkdir()
+                        folders.add(str(parent))
+                    elif str(parent) in old_folders:
+                        folders.add(str(parent))
+                os.replace(staging / name, target)
+            for name in sorted(old_folders - folders, key=lambda n: -len(Path(n).parts)):  # deepest first
+                target = _inside(out, name)
+                if target is not None and target.is_dir() and not target.is_symlink():
+                    with contextlib.suppress(OSError):
+                        target.rmdir()  # only when empty: a file the user put there keeps it
+            entries = {c: e for c, e in manifest.items() if c not in self.replaces}
+            entries[self.command] = {"files": new, "folders": sorted(folders)}
+            write_manifest(out, entries)
+            shutil.rmtree(staging, ignore_errors=True)
+        self.published = True
+        return [out / name for name in new]
+
+    def discard(self) -> None:
+        """Leave the folder as it was: the staging folder goes, and a folder this call made if it is empty."""
+        if self.staging != Path():
+            shutil.rmtree(self.staging, ignore_errors=True)
+        self._remove_created()
+
+    def _remove_created(self) -> None:
+        remove_if_empty(self.created)
+
+
+@contextlib.contextmanager
+def results_folder(out: Path | str, command: str, *, option: str = "--out", expected: Iterable[str] = (),
+                   replaces: Iterable[str] = ()) -> Iterator[ResultsFolder]:
+    """Open `out` for `command`'s results (checked now: OutputFolderError, exit 2) and yield it; the
+    results written into `.staging` are swapped in by `.publish()`, else the folder stays as it was.
+    `replaces`: other commands whose earlier files this run's results make stale (run: animate's videos)."""
+    folder = ResultsFolder(out, command, option, replaces)
+    folder.open(expected)
+    try:
+        yield folder
+    finally:
+        if not folder.published:
+            folder.discard()
+
+
+def record_file(folder: Path, path: Path, command: str) -> None:
+    """Add one file written straight into `folder` (animate's videos in a run folder) to the manifest's
+    entry for `command`, so that the command's next run, or the run it shows, may replace it."""
+    try:
+        name = str(path.resolve().relative_to(folder.resolve()))
+    except ValueError:
+        return  # written elsewhere: not this folder's
+    manifest = read_manifest(folder)
+    entry = manifest.setdefault(command, {"files": [], "folders": []})
+    if name not in entry["files"]:
+        entry["files"].append(name)
+    with deferred_interrupt():
+        write_manifest(folder, manifest)
+
+
+def recorded(folder: Path, path: Path, commands: Iterable[str]) -> bool:
+    """Whether the manifest of `folder` lists `path` under one of `commands`."""
+    try:
+        name = str(path.resolve().relative_to(folder.resolve()))
+    except ValueError:
+        return False
+    manifest = read_manifest(folder)
+    return any(name in manifest.get(c, {}).get("files", []) for c in commands)
+
+
+def out_path(text: str) -> Path:
+    """The argparse type of every output option (--out, -o, --gif, RESULTS_DIR): an empty name is refused
+    (Path('') would silently be the current folder)."""
+    import argparse
+
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty name (it would be the current folder): give a folder or file")
+    return Path(text)
+
+
+def missing_folders(out: Path) -> list[Path]:
+    """The folders of `out`'s path that do not exist yet, outermost first."""
+    missing = []
+    for folder in (out, *out.parents):
+        if folder.exists() or folder.is_symlink():
+            break
+        missing.append(folder)
+    return list(reversed(missing))
+
+
+def remove_if_empty(folders: list[Path]) -> None:
+    """Remove the folders (outermost first, as `missing_folders` gives them) a failed command made, innermost
+    first, while they are empty."""
+    for folder in reversed(folders):
+        try:
+            folder.rmdir()
+        except OSError:
+            break
+
+
+@contextlib.contextmanager
+def no_empty_folder_left(out: Path) -> Iterator[None]:
+    """For a command with a staging of its own (generate, export-step): a failure or Ctrl-C leaves no empty
+    folder that the command made."""
+    made = missing_folders(out)
+    try:
+        yield
+    except BaseException:
+        remove_if_empty(made)
+        raise

@@ -1,0 +1,232 @@
+"""The one output-folder contract (acroboter.cli.outputs, docs/run.md), the same cases for every command that
+writes a results folder (issue 24 item 1): a user's files named like results survive, a narrower re-run
+leaves nothing of the wider one, an empty or unusable --out is refused before any work, a failed or
+interrupted run leaves the folder as it was (and no folder it made), a killed run's staging folder goes.
+
+The commands run in this process (their `main`, behind the error boundary) with cheap arguments."""
+
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from acroboter.cli import outputs
+from acroboter.cli.outputs import MANIFEST, STAGING_PREFIX
+
+REPO = Path(__file__).resolve().parent.parent
+
+RUN_FIGURES = {"path_3d.png", "tracking_errors.png", "servo_errors.png", "inputs.png", "control_step_time.png"}
+STUDY = {f"{s}/{n}" for s in ("redundant", "noncollocated") for n in ("table.md", "summary.json", "position_error.png")}
+SWEEP = ["--alphas", "1e3", "--omegas", "10", "--iterations", "1", "--duration", "0.2", "--workers", "1", "-q"]
+ROBUST = ["--samples", "1", "--workers", "0", "--duration", "0.2", "--methods", "penalty", "-q"]
+
+# command: (module, wide arguments, what they write, narrower arguments, what those write)
+COMMANDS = {
+    "run": ("run", ["--duration", "0.2", "--method", "mlm,penalty", "-q"],
+            {"mlm.csv", "penalty.csv", "summary.json"} | RUN_FIGURES,
+            ["--duration", "0.2", "--method", "penalty", "--no-plots", "-q"], {"penalty.csv", "summary.json"}),
+    "bench": ("bench", ["--methods", "penalty,mlm", "--repeats", "1", "--casadi-states", "1"], {"bench.json"},
+              ["--methods", "penalty", "--repeats", "1", "--casadi-states", "1"], {"bench.json"}),
+    "study": ("study", ["all", "--duration", "0.1"], STUDY,
+              ["redundant", "--duration", "0.1"], {n for n in STUDY if n.startswith("redundant/")}),
+    "sweep": ("sweep", SWEEP, {"sweep.csv", "sweep_condition.png", "sweep_constraints.png",
+                               "sweep_tracking_error.png"}, [*SWEEP, "--no-plots"], {"sweep.csv"}),
+    "robustness": ("robustness", ROBUST, {"robustness.csv", "samples.csv", "summary.json", "robustness_cdf.png",
+                                          "robustness_success.png", "robustness_worst.png"},
+                   [*ROBUST, "--no-plots"], {"robustness.csv", "samples.csv", "summary.json"}),
+    "plant-fuzz": ("plant_fuzz", ["--cases", "1", "--workers", "1", "--spec", "acroboter", "-q"],
+                   {"plant_fuzz.csv", "report.md"},
+                   ["--cases", "1", "--workers", "1", "--spec", "acroboter", "-q"], {"plant_fuzz.csv", "report.md"}),
+}
+NEEDS = {"sweep": pytest.mark.needs_dask, "plant-fuzz": pytest.mark.needs_mujoco}  # the extras (tests/conftest.py)
+EVERY = [pytest.param(c, marks=[NEEDS[c]] if c in NEEDS else []) for c in COMMANDS]
+# A user's own files named like some command's results (the issue's list and more)
+LOOKALIKES = ["mlm.csv", "penalty.csv", "iterative-3.csv", "inputs.png", "summary.json", "sweep.csv", "report.md",
+              "bench.json", "robustness.csv", "samples.csv", "plant_fuzz.csv", "animation_x.gif",
+              "animation_penalty.mp4", "sweep_condition.png", "redundant/table.md", "noncollocated/notes.txt",
+              ".hidden"]
+
+
+def call(command: str, args: list[str]) -> int:
+    """The command's exit code, as `acroboter <command> ARGS` gives it (argparse's exit included)."""
+    module = importlib.import_module(f"acroboter.cli.{COMMANDS[command][0]}")
+    try:
+        return module.main(args)
+    except SystemExit as stop:
+        return stop.code
+
+
+def files(folder: Path) -> dict[str, bytes]:
+    """Every file under `folder` (relative path: content), the manifest and dot-files included."""
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def results(folder: Path) -> set[str]:
+    return set(json.loads((folder / MANIFEST).read_text())["commands"][next(iter(
+        json.loads((folder / MANIFEST).read_text())["commands"]))]["files"])
+
+
+def put(folder: Path, names) -> dict[str, bytes]:
+    for name in names:
+        (folder / name).parent.mkdir(parents=True, exist_ok=True)
+        (folder / name).write_bytes(f"the user's own {name}".encode())
+    return files(folder)
+
+
+@pytest.mark.parametrize("command", EVERY)
+def test_user_files_survive_and_a_narrower_rerun_leaves_nothing_of_the_wider_one(command, tmp_path, capsys):
+    _, wide, wrote, narrow, narrower = COMMANDS[command]
+    out = tmp_path / "out"
+    out.mkdir()
+    mine = put(out, [n for n in LOOKALIKES if n not in wrote | narrower])
+    assert call(command, [*wide, "--out", str(out)]) == 0, capsys.readouterr().err
+    assert {k: v for k, v in files(out).items() if k in mine} == mine  # untouched
+    assert set(files(out)) == set(mine) | wrote | {MANIFEST}
+    assert results(out) == wrote  # the manifest lists exactly this run's files
+    assert call(command, [*narrow, "--out", str(out)]) == 0, capsys.readouterr().err
+    assert set(files(out)) == set(mine) | narrower | {MANIFEST}  # nothing of the wider run
+    assert {k: v for k, v in files(out).items() if k in mine} == mine
+    assert not [p for p in out.iterdir() if p.is_dir() and p.name not in {"redundant", "noncollocated"}]
+    if command == "study":  # the wider run's folder went with its files; one holding a user's file stays
+        assert not (out / "noncollocated" / "table.md").exists() and (out / "noncollocated" / "notes.txt").exists()
+
+
+@pytest.mark.parametrize("command", EVERY)
+def test_a_users_file_under_a_results_name_is_refused_before_any_work(command, tmp_path, capsys, monkeypatch):
+    _, _, _, narrow, narrower = COMMANDS[command]
+    out = tmp_path / "out"
+    out.mkdir()
+    before = put(out, [sorted(narrower)[0]])
+    monkeypatch.setattr(outputs.ResultsFolder, "publish", lambda self: pytest.fail("the work ran"))
+    assert call(command, [*narrow, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--out" in err and sorted(narrower)[0] in err and "Traceback" not in err
+    assert files(out) == before
+
+
+@pytest.mark.parametrize("command", EVERY)
+@pytest.mark.parametrize("given", ["", "a file", "unwritable"])
+def test_an_empty_or_unusable_out_is_refused_before_any_work(command, given, tmp_path, capsys, monkeypatch):
+    _, _, _, narrow, _ = COMMANDS[command]
+    monkeypatch.chdir(tmp_path)
+    target = ""
+    if given == "a file":
+        target = str(tmp_path / "results.txt")
+        Path(target).write_text("mine")
+    elif given == "unwritable":
+        target = "/proc/acroboter-out"  # no folder can be made there, not even by root
+    before = files(tmp_path)
+    monkeypatch.setattr(outputs.ResultsFolder, "publish", lambda self: pytest.fail("the work ran"))
+    assert call(command, [*narrow, "--out", target]) == 2
+    err = capsys.readouterr().err
+    assert "--out" in err and "Traceback" not in err
+    assert files(tmp_path) == before and [p.name for p in tmp_path.iterdir()] == list(before)
+
+
+@pytest.mark.parametrize("command", EVERY)
+@pytest.mark.parametrize("failure, code", [(OSError(28, "No space left on device"), 3), (KeyboardInterrupt(), 130)])
+def test_a_failed_or_interrupted_run_leaves_the_folder_as_it_was(command, failure, code, tmp_path, capsys,
+                                                                monkeypatch):
+    """The work done and staged, it fails (a full disk) or is interrupted just before the swap: the earlier
+    results and the user's files are as they were, no staging folder is left, and a fresh --out is not made."""
+    _, _, _, narrow, narrower = COMMANDS[command]
+    out = tmp_path / "out"
+    assert call(command, [*narrow, "--out", str(out)]) == 0, capsys.readouterr().err
+    before = put(out, ["notes.txt"])
+    staged = []
+
+    def fail(self):
+        staged.extend(p.name for p in self.staging.rglob("*"))
+        raise failure
+
+    monkeypatch.setattr(outputs.ResultsFolder, "publish", fail)
+    assert call(command, [*narrow, "--out", str(out)]) == code
+    assert "Traceback" not in capsys.readouterr().err
+    assert staged  # it failed with its results staged
+    assert files(out) == before and not [p for p in out.iterdir() if p.name.startswith(STAGING_PREFIX)]
+    if code == 3:  # once a command (the work is its cost): a fresh --out is not left behind, nor its parent
+        fresh = tmp_path / "fresh" / "deeper"
+        assert call(command, [*narrow, "--out", str(fresh)]) == code
+        assert not (tmp_path / "fresh").exists()
+
+
+@pytest.mark.parametrize("command", EVERY)
+def test_a_killed_runs_staging_folder_is_cleaned_at_the_next_start(command, tmp_path, capsys):
+    _, _, _, narrow, narrower = COMMANDS[command]
+    out = tmp_path / "out"
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    stale = out / f"{STAGING_PREFIX}{command}-{int(gone.stdout)}-abc123"
+    live = out / f"{STAGING_PREFIX}{command}-{os.getppid()}-def456"  # a running process's: kept
+    for folder in (stale, live):
+        (folder / "sub").mkdir(parents=True)
+        (folder / "sub" / "summary.json").write_text("half written")
+    assert call(command, [*narrow, "--out", str(out)]) == 0, capsys.readouterr().err
+    assert not stale.exists() and live.exists()
+    assert results(out) == narrower
+
+
+def test_a_run_replaces_the_videos_animate_recorded_in_its_folder_and_no_other(tmp_path, capsys):
+    """animate's GIF in a run folder is in the manifest (animate's entry): a second animate replaces it, the
+    next run into the folder removes it (it shows the earlier run); a user's GIF of the same name is refused."""
+    from acroboter.cli import animate, run
+
+    out = tmp_path / "out"
+    assert run.main(["--duration", "0.2", "--method", "penalty", "--no-plots", "-q", "--out", str(out)]) == 0
+    gif = ["--no-mp4", "--gif", str(out), "--gif-fps", "2", "--renderer", "matplotlib", "-q"]
+    assert animate.main([str(out), *gif]) == 0, capsys.readouterr().err
+    assert (out / "animation_penalty.gif").exists()
+    assert animate.main([str(out), *gif]) == 0, capsys.readouterr().err  # its own file: replaced
+    mine = put(out, ["animation_mlm.gif"])
+    assert run.main(["--duration", "0.2", "--method", "penalty", "--no-plots", "-q", "--out", str(out)]) == 0
+    assert not (out / "animation_penalty.gif").exists() and (out / "animation_mlm.gif").exists()
+    capsys.readouterr()
+    (out / "animation_penalty.gif").write_bytes(b"mine")
+    before = files(out)
+    assert animate.main([str(out), *gif]) == 2
+    assert "--gif" in capsys.readouterr().err and files(out) == before
+    assert mine["animation_mlm.gif"] == before["animation_mlm.gif"]
+
+
+def test_generate_of_a_bad_spec_leaves_no_new_folder(tmp_path, capsys):
+    from acroboter.cli import generate
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text("name = 'bad'\n[model\n")
+    code = generate.main(["generate", str(bad), "--out", str(tmp_path / "new"), "--no-compile-check"])
+    assert code == 2 and "Traceback" not in capsys.readouterr().err
+    assert not (tmp_path / "new").exists()
+
+
+@pytest.mark.parametrize("argv", [["mjcf", "-o", ""], ["animate", "results", "--out", ""],
+                                  ["generate", "--out", ""], ["export-step", "--out", ""]])
+def test_an_empty_output_name_is_refused_by_every_command(argv, tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "acroboter", *argv], capture_output=True, text=True,
+                          cwd=tmp_path, timeout=120)
+    assert proc.returncode == 2 and "an empty name" in proc.stderr and "Traceback" not in proc.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_manifest_path_outside_the_folder_is_never_removed(tmp_path):
+    """A manifest edited to name files outside its folder (or garbage) removes nothing outside it."""
+    outside = tmp_path / "precious.txt"
+    outside.write_text("keep")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / MANIFEST).write_text(json.dumps({"format": 1, "commands": {"bench": {
+        "files": ["../precious.txt", str(outside)], "folders": [".."]}}}))
+    with outputs.results_folder(out, "bench") as folder:
+        (folder.staging / "bench.json").write_text("{}")
+        folder.publish()
+    assert outside.read_text() == "keep" and results(out) == {"bench.json"}
+    (out / MANIFEST).write_text("not json")
+    with outputs.results_folder(out, "bench") as folder:  # unreadable: nothing is ours, and bench.json is refused
+        pass
+    with pytest.raises(outputs.OutputFolderError, match="bench.json"):
+        with outputs.results_folder(out, "bench", expected=["bench.json"]):
+            pass
