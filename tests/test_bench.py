@@ -1,15 +1,16 @@
-"""A cheap guard against a regression to per-step casadi.Function calls: the compiled control step
-must be at least 3x faster than the same solver on casadi.Function calls (typically 15-30x), and
-both backends must give the same input. Not a timing goal: the benchmark reports those."""
+"""A guard against a regression to per-step casadi.Function calls: the compiled control step makes
+none (counted, not timed: no assertion here depends on the machine's speed or load), and both
+backends give the same input. The speed itself is the benchmark's (`acroboter bench`: ratios
+measured in one run, with date and machine)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import casadi
 import numpy as np
 import pytest
 
-from acroboter.cli.bench import time_steps
 from acroboter.control.controllers import Gains, make_controller
 from acroboter.model.spec import load_spec
 from acroboter.runtime.cache import load_model
@@ -32,12 +33,29 @@ def backends():
 
 
 @pytest.mark.parametrize("method", ["mlm", "penalty", "iterative-3"])
-def test_compiled_path_is_much_faster_and_agrees(backends, method):
+def test_compiled_path_makes_no_casadi_call_and_agrees(backends, method, monkeypatch):
     spec, compiled, casadi_model, states = backends
     gains = Gains.from_spec(spec)
     fast = make_controller(method, compiled, desired_path(compiled), gains)
     slow = make_controller(method, casadi_model, desired_path(casadi_model), gains)
     for q, qd, t in states[:5]:
         np.testing.assert_allclose(fast.compute(q, qd, t), slow.compute(q, qd, t), rtol=1e-9, atol=1e-9)
-    ratio = np.median(time_steps(slow, states, 1)) / np.median(time_steps(fast, states, 3))
-    assert ratio > 3.0, f"compiled path only {ratio:.1f}x faster than casadi.Function calls"
+    calls = []
+
+    def counting(name):
+        original = getattr(casadi.Function, name)
+
+        def counted(self, *args, **kwargs):
+            calls.append(self.name())
+            return original(self, *args, **kwargs)
+
+        return counted
+
+    for name in ("__call__", "call"):  # the two doors into CasADi's virtual machine from Python
+        monkeypatch.setattr(casadi.Function, name, counting(name))
+    slow.compute(*states[5])  # the counter sees the casadi.Function path (the check can fail)
+    assert calls, "the counter missed the casadi.Function path's calls"
+    calls.clear()
+    for q, qd, t in states:
+        fast.compute(q, qd, t)
+    assert calls == [], f"the compiled control step called casadi.Function: {sorted(set(calls))}"
