@@ -24,9 +24,12 @@ other terms are smooth or exact:
 - applied forces (a moving anchor's acceleration on its armature): as actuators (0 with anchors held).
 A moving anchor's slide joints are reset to the path at each step; with anchors held (open loop) the
 reset changes E by ~1e-12 J (the cables move an anchor of 1e9 kg armature by ~1e-15 m in a step).
-The work of taut cables whose stretch hardly changes is ~0 (MuJoCo's limits at impedance 0.9999 stretch
-by nanometres under load), so over a window around a re-tension W_constraint is the energy its impact
-took: compared with the own plant's T⁺ − T⁻ (acroboter.studies.plant_fuzz)."""
+The energy E also holds what MuJoCo's soft cable limits store: a taut limit is a stiff spring in
+constraint space (its impedance is constant, 0.9999, so force and stretch r are proportional), whose
+energy is ½·f·r (f its force, r = −efc_pos its stretch). Left out, a taut cable whose load changes books
+that storage as constraint work (measured: +1.6e-5 J over 8 ms before a snap of acroboter seed 924, the
+tensions swinging under a 2 Hz sine; 3e-7 J with it). So over a window around a re-tension W_constraint
+is the energy its impact took, compared with the own plant's T⁺ − T⁻ (acroboter.studies.plant_fuzz)."""
 
 from __future__ import annotations
 
@@ -53,6 +56,7 @@ class ConstraintWork:
         rotational = np.ones(m.nv, dtype=bool)
         rotational[self._pos_dof] = False
         self._rot_dof = np.flatnonzero(rotational)
+        self._limit = int(mj.mjtConstraint.mjCNSTR_LIMIT_TENDON)
         self.work = 0.0  # J, since the start (or the last reset)
         self._last: tuple | None = None
         plant.ledger = self
@@ -65,8 +69,16 @@ class ConstraintWork:
         """The figures of the current state (MuJoCo's derived quantities must be current: mj_forward)."""
         d = self._d
         force = d.qfrc_actuator + d.qfrc_applied
-        return (float(d.energy[0] + d.energy[1]), force.copy(), d.qpos[self._pos_qpos].copy(), d.qvel.copy(),
-                float(d.qfrc_damper @ d.qvel))
+        energy = float(d.energy[0] + d.energy[1]) + self.stored()
+        return energy, force.copy(), d.qpos[self._pos_qpos].copy(), d.qvel.copy(), float(d.qfrc_damper @ d.qvel)
+
+    def stored(self) -> float:
+        """J: the energy the cable limits store now, ½ Σ f·r over their active rows (needs mj_forward)."""
+        d = self._d
+        rows = d.efc_type == self._limit
+        if not rows.any():
+            return 0.0
+        return 0.5 * float(d.efc_force[rows] @ np.maximum(-d.efc_pos[rows], 0.0))
 
     def start(self) -> None:
         """Before a step (or a run of steps with the same input): the state after mj_forward."""
