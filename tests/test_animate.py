@@ -148,6 +148,58 @@ def test_the_spec_is_taken_from_the_provenance_text(results, tmp_path):
     assert load(folder).spec.model_hash() == prov["spec_model_hash"]
 
 
+def _with_provenance(results, folder, edit) -> None:
+    shutil.copytree(results, folder)
+    summary = json.loads((folder / "summary.json").read_text())
+    edit(summary["provenance"])
+    (folder / "summary.json").write_text(json.dumps(summary))
+
+
+def _heavier(text: str) -> str:
+    assert text.count("mass = 8.0") == 1  # the SU's
+    return text.replace("mass = 8.0", "mass = 9.0")
+
+
+def test_spec_text_that_does_not_match_its_recorded_hash_is_refused(results, tmp_path, capsys):
+    """summary.json's spec text edited: drawing it could show another crane. Refused (exit 2, before any frame),
+    naming the cause and the fixes; the fix --spec FILE works."""
+    folder = tmp_path / "edited"
+    _with_provenance(results, folder, lambda prov: prov.update(spec_toml=_heavier(prov["spec_toml"])))
+    with pytest.raises(AnimationInputError, match="does not match the recorded spec_sha256"):
+        load(folder)
+    gif = tmp_path / "a.gif"
+    err = _fails([str(folder), "--no-mp4", "--gif", str(gif), "--renderer", "matplotlib", "-q"], capsys,
+                 "does not match the recorded spec_sha256", "re-run `acroboter run`", "--spec FILE")
+    assert "Traceback" not in err and "internal error" not in err and not gif.exists()
+    spec_file = json.loads((results / "summary.json").read_text())["provenance"]["spec_file"]
+    assert load(folder, spec_file=spec_file).spec.model_hash() == load(results).spec.model_hash()  # the fix
+
+
+def test_spec_text_is_checked_by_model_hash_without_its_file_hash(results, tmp_path):
+    """A folder that records no spec_sha256: the text's model must be the recorded one; with no hash at all the
+    text cannot be checked and is refused."""
+    intact = tmp_path / "intact"
+    _with_provenance(results, intact, lambda prov: prov.pop("spec_sha256"))
+    assert load(intact).spec.model_hash() == load(results).spec.model_hash()
+    edited = tmp_path / "edited"
+    _with_provenance(results, edited, lambda prov: (prov.pop("spec_sha256"),
+                                                    prov.update(spec_toml=_heavier(prov["spec_toml"]))))
+    with pytest.raises(AnimationInputError, match="not the crane of the recorded spec_model_hash"):
+        load(edited)
+    bare = tmp_path / "bare"
+    _with_provenance(results, bare, lambda prov: (prov.pop("spec_sha256"), prov.pop("spec_model_hash")))
+    with pytest.raises(AnimationInputError, match="no recorded hash"):
+        load(bare)
+
+
+def test_the_recorded_spec_text_is_the_files_bytes(results):
+    """run records the spec's bytes as text (no newline translation), so their SHA-256 is spec_sha256."""
+    import hashlib
+
+    prov = json.loads((results / "summary.json").read_text())["provenance"]
+    assert hashlib.sha256(prov["spec_toml"].encode("utf-8")).hexdigest() == prov["spec_sha256"]
+
+
 def _fails(argv, capsys, *fragments):
     assert animate.main(argv) == 2
     err = capsys.readouterr().err

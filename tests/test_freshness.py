@@ -103,7 +103,13 @@ def test_generated_files_carry_casadi_version_and_hashes(name):
 
 
 def test_library_reports_the_hashes_it_was_built_from(crane):
-    for what, value in (("spec_model_hash", crane.spec.model_hash()), ("codegen_hash", codegen_hash())):
+    from acroboter.model.fingerprint import manifest_hash
+    from acroboter.runtime.build import sources_hash
+
+    folder = crane.model.source_dir
+    for what, value in (("spec_model_hash", crane.spec.model_hash()), ("codegen_hash", codegen_hash()),
+                        ("manifest_hash", manifest_hash(json.loads((folder / "manifest.json").read_text()))),
+                        ("build_key", sources_hash(folder))):
         fn = getattr(crane.model.lib, f"{crane.name}_{what}")
         fn.restype = ctypes.c_char_p
         assert fn().decode() == value
@@ -209,7 +215,8 @@ def test_library_built_from_other_code_is_refused(spec, modified_spec, tmp_path)
 
 
 def test_library_whose_hashes_disagree_is_refused(spec, tmp_path):
-    """A library that passes the file check but embeds other hashes (its sidecar rewritten too)."""
+    """A library that passes the file check but embeds other hashes (its sidecar rewritten too): the message
+    says what rebuilds it (`acroboter build` alone would find its name, checksum and build key current)."""
     import hashlib
 
     gen = tmp_path / "gen"
@@ -218,8 +225,9 @@ def test_library_whose_hashes_disagree_is_refused(spec, tmp_path):
     text = lib.read_bytes().replace(spec.model_hash().encode(), b"0" * 64)
     lib.write_bytes(text)
     lib.with_name(lib.name + ".sha256").write_text(hashlib.sha256(text).hexdigest() + "\n")
-    with pytest.raises(StaleModelError, match="make build"):
+    with pytest.raises(StaleModelError, match="embedded spec_model_hash differs") as info:
         load_model(spec, generated_dir=gen, cache_dir=tmp_path / "cache")
+    assert f"delete the folder {lib.parent}: the next run compiles it again" in str(info.value)
 
 
 def test_a_changed_spec_is_generated_into_the_cache(modified_spec, tmp_path):

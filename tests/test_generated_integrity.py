@@ -123,13 +123,42 @@ def test_generation_checks_that_the_code_compiles(tmp_path, monkeypatch):
     before = snapshot(root / spec.name)
     real_write = GenerationContext.write
 
-    def write_broken(self, out_dir):
+    def write_broken(self, out_dir):  # a generator bug: broken C, its manifest and metadata consistent with it
+        from acroboter.model.fingerprint import meta_source
+
         written = real_write(self, out_dir)
         (out_dir / f"{spec.name}_phi.c").write_text("this is not C;\n")
+        doc = json.loads((out_dir / "manifest.json").read_text())
+        doc["files"][f"{spec.name}_phi.c"] = generation.file_digest(out_dir / f"{spec.name}_phi.c")
+        (out_dir / f"{spec.name}_meta.c").write_text(meta_source(doc))
+        doc["files"][f"{spec.name}_meta.c"] = generation.file_digest(out_dir / f"{spec.name}_meta.c")
+        (out_dir / "manifest.json").write_text(json.dumps(doc))
         return written
 
     monkeypatch.setattr(GenerationContext, "write", write_broken)
     with pytest.raises(cli.GenerationError, match="does not compile"):
+        generate(spec, root, verify=cli.compile_check)
+    assert snapshot(root / spec.name) == before
+
+
+def test_generation_checks_the_integrity_of_what_it_wrote(tmp_path, monkeypatch):
+    """A staged file whose hash is not the manifest's is refused before compiling: nothing replaces the C."""
+    from acroboter.cli import generate as cli
+
+    spec = load_spec(TOY)
+    root = tmp_path / "generated"
+    generate(spec, root)
+    before = snapshot(root / spec.name)
+    real_write = GenerationContext.write
+
+    def write_then_edit(self, out_dir):
+        written = real_write(self, out_dir)
+        (out_dir / f"{spec.name}_phi.c").write_text("/* edited */\n")
+        return written
+
+    monkeypatch.setattr(GenerationContext, "write", write_then_edit)
+    monkeypatch.setattr("acroboter.runtime.build.build", lambda *a, **k: pytest.fail("compiled"))
+    with pytest.raises(cli.GenerationError, match="fails its own integrity check.*phi.c is not what"):
         generate(spec, root, verify=cli.compile_check)
     assert snapshot(root / spec.name) == before
 
@@ -162,8 +191,9 @@ def test_an_extra_c_file_is_refused(toy_tree, tmp_path):
         load_model(spec, generated_dir=root, cache_dir=build)
 
 
-def test_manifest_shapes_are_checked_against_the_library(toy_tree, tmp_path):
-    """An edited output shape would size a buffer wrong: the library's own sparsity refuses it."""
+def test_an_edited_manifest_shape_is_refused_before_compiling(toy_tree, tmp_path):
+    """An edited output shape would size a buffer wrong: the manifest's digest (in the generated metadata file)
+    refuses it before anything is compiled; the library's own sparsity check stands behind it."""
     spec, root, build = copy_tree(toy_tree, tmp_path)
     manifest_path = root / spec.name / "manifest.json"
     manifest = json.loads(manifest_path.read_text())
@@ -173,8 +203,8 @@ def test_manifest_shapes_are_checked_against_the_library(toy_tree, tmp_path):
     manifest_path.write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
     with pytest.raises(StaleModelError) as info:
         load_model(spec, generated_dir=root, cache_dir=build)
-    # the library's embedded manifest hash finds it first; the sparsity check stands behind it
-    assert "manifest.json does not describe this library" in str(info.value) and "shapes" in str(info.value)
+    assert "manifest.json does not describe the generated files" in str(info.value) and "shapes" in str(info.value)
+    assert not build.exists()  # refused before anything was compiled
 
 
 def test_the_manifest_lists_every_generated_file():
@@ -249,10 +279,10 @@ def test_an_edited_manifest_is_refused_with_a_message(toy_tree, tmp_path, edit):
     spec, root, build = copy_tree(toy_tree, tmp_path)
     path = root / spec.name / "manifest.json"
     manifest = json.loads(path.read_text())
-    if edit == "swap two symbols":  # the same shapes: only the library's embedded manifest hash tells
+    if edit == "swap two symbols":  # the same shapes: only the manifest's digest tells
         f = manifest["functions"]
         f["phi_dot"]["symbol"], f["gamma"]["symbol"] = f["gamma"]["symbol"], f["phi_dot"]["symbol"]
-        words = "does not describe this library"
+        words = "does not describe the generated files"
     elif edit == "drop the functions":
         del manifest["functions"]
         words = "'functions' missing"

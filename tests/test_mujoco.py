@@ -123,6 +123,48 @@ def test_mjcf_command_writes_the_static_start_with_a_keyframe_that_holds_it(tmp_
     assert spec.stdout == (ROOT / "generated" / "acroboter" / "acroboter.xml").read_text()
 
 
+def test_mjcf_warns_like_run_when_the_static_start_needs_an_input_beyond_its_limits(tmp_path, capsys):
+    """Winches capped at 26 N where the static start needs 26.75 N (limits need no regeneration): the XML is
+    written (exit 0) with a warning on stderr, also with -q, naming the input, the need and the limit, as
+    `acroboter run`'s feasibility check at t = 0 does."""
+    import re
+
+    from acroboter.cli import mjcf
+
+    text = re.sub(r'(kind = "winch_tension".*\ncable = "L\d")', lambda m: f"{m.group(1)}\nlimits = [0.0, 26.0]",
+                  SPECS[0].read_text())
+    assert text.count("limits = [0.0, 26.0]") == 3
+    spec_path = tmp_path / "capped.toml"
+    spec_path.write_text(text)
+    out = tmp_path / "capped.xml"
+    assert mjcf.main([str(spec_path), "-o", str(out), "-q"]) == 0
+    captured = capsys.readouterr()
+    assert captured.out == "" and out.is_file()
+    warnings = [line for line in captured.err.splitlines() if line.startswith("warning: ")]
+    assert len(warnings) == 3, captured.err  # the three winches
+    for line in warnings:
+        assert "the static start is outside the input limits" in line and "would need 26.75 N" in line
+        assert "beyond its limit 26 N" in line and "MuJoCo clamps" in line
+    model = mujoco.MjModel.from_xml_path(str(out))
+    assert np.all(model.key("static_start").ctrl[:3] > model.actuator_ctrlrange[:3, 1])  # what the warning says
+    assert mjcf.main([str(SPECS[0]), "-o", str(out), "-q"]) == 0  # within the limits: no warning
+    assert "warning" not in capsys.readouterr().err
+
+
+def test_a_static_start_that_needs_a_winch_to_push_is_named():
+    from acroboter.model.layout import build_layout
+    from acroboter.sim.statics import inputs_outside_limits
+
+    spec = load_spec(SPECS[0])
+    layout = build_layout(spec)
+    inputs = np.zeros(layout.l)
+    inputs[:3] = 26.75
+    assert inputs_outside_limits(spec, layout, inputs) == []
+    inputs[1] = -3.25
+    assert inputs_outside_limits(spec, layout, inputs) == [
+        "tension_2 would need -3.25 N, beyond its limit 0 N (a winch cannot push)"]
+
+
 def _umask() -> int:
     import os
 

@@ -43,8 +43,8 @@ TESTS = [
     "tests/test_plant_mismatch.py", "tests/test_sensing.py", "tests/test_integral_action.py",
 ]
 # Never part of a selection: the freshness check and the cross-implementation comparisons.
-EXCLUDED = {"tests/test_freshness.py", "tests/test_generated_integrity.py", "tests/test_export_step.py",
-            "tests/test_compiled_vs_casadi.py"}
+EXCLUDED = {"tests/test_freshness.py", "tests/test_generated_integrity.py", "tests/test_integrity_chain.py",
+            "tests/test_export_step.py", "tests/test_compiled_vs_casadi.py"}
 
 
 def toml_list(items) -> str:

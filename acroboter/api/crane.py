@@ -40,7 +40,7 @@ from ..sim.result import Result
 from ..sim.sensing import check_measurable, make_estimator
 from ..sim.sensing import resolve as resolve_sensing
 from ..sim.simulation import Scenario, setup_default, simulate
-from ..sim.statics import Equilibrium, desired_path, solve_equilibrium, start_targets
+from ..sim.statics import Equilibrium, desired_path, inputs_outside_limits, solve_equilibrium, start_targets
 from .dynamics import evaluate
 
 # Untimed control steps at the start state before a timed run: the first calls page code and data in.
@@ -184,6 +184,10 @@ class Crane:
         if pose == "static":
             equilibrium = self.equilibrium()
             start = (equilibrium.q, equilibrium.inputs)
+            for problem in inputs_outside_limits(self.spec, self.layout, equilibrium.inputs):  # MuJoCo clamps ctrl
+                logging.getLogger("acroboter").warning(
+                    "spec '%s': the static start is outside the input limits: %s; the keyframe static_start's ctrl "
+                    "is outside ctrlrange, which MuJoCo clamps", self.spec.name, problem)
         return mjcf_xml(spec, DEFAULT_TIMESTEP if timestep is None else timestep, start)
 
     def plant_parameters(self) -> dict[str, float]:

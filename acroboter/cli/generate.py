@@ -79,25 +79,27 @@ def refuse_collisions(specs: list[tuple[Path, Spec]], out_root: Path) -> None:
 
 
 def compile_check(folder: Path) -> None:
-    """The generated C compiles and links into a library whose hashes are the manifest's."""
-    from ..runtime.build import BuildError, build  # the CLI composes both; codegen itself stays below the runtime
+    """The generated C passes the integrity chain's checks, compiles and links into a library that embeds
+    what the bindings will expect (acroboter.runtime.integrity)."""
+    # the CLI composes both; codegen itself stays below the runtime
+    from ..runtime.build import BuildError, build, sources_hash
+    from ..runtime.integrity import StaleModelError, check_library, expected_embedded, verify_sources
 
-    manifest = json.loads((folder / "manifest.json").read_text())
+    spec_name = json.loads((folder / "manifest.json").read_text())["spec"]
     with tempfile.TemporaryDirectory(prefix="acroboter-compile-check-") as tmp:
         tmp_root = Path(tmp)
         (tmp_root / "generated").mkdir()
-        sources = tmp_root / "generated" / manifest["spec"]
+        sources = tmp_root / "generated" / spec_name
         shutil.copytree(folder, sources)
         try:
-            lib = build(manifest["spec"], sources, tmp_root / "build")
+            manifest = verify_sources(sources, spec_name, None)
+            lib = build(spec_name, sources, tmp_root / "build")
+            check_library(ctypes.CDLL(str(lib)), spec_name, expected_embedded(manifest, sources_hash(sources)), lib,
+                          sources, "a bug of the code generator or the build")
         except BuildError as err:
-            raise GenerationError(f"the generated C for '{manifest['spec']}' does not compile: {err}") from None
-        library = ctypes.CDLL(str(lib))
-        for what in ("spec_model_hash", "codegen_hash"):
-            fn = getattr(library, f"{manifest['spec']}_{what}")
-            fn.restype = ctypes.c_char_p
-            if fn().decode() != manifest[what]:
-                raise GenerationError(f"the compiled library's {what} is not the manifest's")
+            raise GenerationError(f"the generated C for '{spec_name}' does not compile: {err}") from None
+        except StaleModelError as err:
+            raise GenerationError(f"the generated C for '{spec_name}' fails its own integrity check: {err}") from None
 
 
 class GenerationError(RuntimeError):

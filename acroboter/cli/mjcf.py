@@ -9,6 +9,9 @@ default its reference pose is the crane's static equilibrium at the start of the
 keyframe `static_start` whose ctrl holds it there (load it in MuJoCo's viewer: without the inputs
 the winches pay out and the load falls); `--pose spec` writes the spec's initial configuration
 instead, which is the XML checked in as generated/<spec>/<spec>.xml for the specs in model_spec/.
+A static start that needs an input beyond its limits (a winch that would have to push, or pull harder than
+its max) is written as it is, with a warning on stderr, as `acroboter run` warns: MuJoCo clamps the
+keyframe's ctrl to the actuator's ctrlrange, so the crane does not stay in that pose.
 It needs the mujoco extra (pip install 'acroboter[mujoco]'); without it, it says so before any work.
 """
 
@@ -40,7 +43,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="the reference pose: static (the static equilibrium at the path's start, with a keyframe "
                         "static_start holding it; compiles the crane's library on first use) or spec (the spec's "
                         "initial configuration, as in generated/) (default: %(default)s)")
-    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="print nothing but errors and warnings (on stderr)")
     return p.parse_args(argv)
 
 
@@ -72,9 +76,16 @@ def main(argv: list[str] | None = None) -> int:
     start = None
     if args.pose == "static":
         from ..api.crane import Crane
+        from ..sim.statics import inputs_outside_limits
 
-        equilibrium = Crane.from_toml(spec_path).equilibrium()
+        crane = Crane.from_toml(spec_path)
+        equilibrium = crane.equilibrium()
         start = (equilibrium.q, equilibrium.inputs)
+        # as `acroboter run` warns (its feasibility check at t = 0): MuJoCo clamps ctrl to ctrlrange
+        for problem in inputs_outside_limits(spec, crane.layout, equilibrium.inputs):
+            print(f"warning: the static start is outside the input limits: {problem}; the keyframe static_start "
+                  "holds that ctrl, outside the actuator's ctrlrange, which MuJoCo clamps: the crane does not stay "
+                  "in that pose (`acroboter run` reports the path not feasible from t = 0)", file=sys.stderr)
     xml = mjcf_xml(spec, args.timestep, start)
     try:
         model = mujoco.MjModel.from_xml_string(xml)

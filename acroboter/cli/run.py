@@ -208,12 +208,14 @@ def provenance(args: argparse.Namespace, spec, gains, methods: list[str], durati
         version = metadata.version("acroboter")
     except metadata.PackageNotFoundError:
         version = "unknown"
+    spec_bytes = Path(args.spec).read_bytes()  # read once: the text is the hashed bytes (no newline translation)
     return {
         "spec_file": str(args.spec),
-        "spec_sha256": hashlib.sha256(Path(args.spec).read_bytes()).hexdigest(),
+        "spec_sha256": hashlib.sha256(spec_bytes).hexdigest(),
         "spec_model_hash": spec.model_hash(),
-        # the spec itself: the folder can be re-run or drawn after the file has moved or changed
-        "spec_toml": Path(args.spec).read_text(),
+        # the spec itself (UTF-8, as TOML is): the folder can be re-run or drawn after the file has moved or
+        # changed; `animate` checks it against spec_sha256
+        "spec_toml": spec_bytes.decode("utf-8"),
         "gains": asdict(gains),
         "plant": plant_provenance(args, spec),
         # the plant's physical parameters other than the spec's (acroboter.model.physical), {} for none

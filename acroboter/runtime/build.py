@@ -4,7 +4,12 @@ A library lands in <cache>/lib/<spec>-<sources hash>/lib<spec>.so, beside the SH
 the build wrote. The hash (of every generated file, the compiler flags and the compiler's name) in
 the folder name means a library older than its sources is never picked up, and a rebuilt library
 gets a new path, so a process that already loaded the old one can still load the new one (dlopen
-returns the library already loaded from a path). A build writes into a temporary folder and
+returns the library already loaded from a path). The library embeds the same hash in full, its build
+key (`<spec>_build_key()`, compiled from a file the build writes): a library is current only when its
+checksum matches and it carries its key, and the bindings compare the key after loading it
+(acroboter.runtime.integrity). The compiler's version is not part of the key: a worker machine without a
+compiler must still find the library. `acroboter build` checks the sources (integrity links 1-3) before
+it compiles anything. A build writes into a temporary folder and
 renames it into place, under a file lock: two processes building the same library at once end with
 one library, and neither ever loads a half-written one.
 """
@@ -24,7 +29,9 @@ from concurrent.futures import ThreadPoolExecutor, as_completed
 from contextlib import contextmanager
 from pathlib import Path
 
-from ..model.locations import cache_dir, shipped_generated_folder
+from ..model.locations import cache_dir, shipped_generated_folder, spec_folder
+from ..model.spec import load_spec
+from .integrity import verify_sources
 from .progress import progress_disabled
 
 log = logging.getLogger(__name__)
@@ -48,18 +55,30 @@ def sources_hash(source_dir: Path) -> str:
     return h.hexdigest()
 
 
-def library_path(spec_name: str, source_dir: Path, cache_root: Path) -> Path:
-    """Where the library built from `source_dir` (a generated/<spec_name>/ folder) lives."""
-    return cache_root / "lib" / f"{spec_name}-{sources_hash(source_dir)[:16]}" / f"lib{spec_name}.so"
+def library_path(spec_name: str, source_dir: Path, cache_root: Path, key: str | None = None) -> Path:
+    """Where the library built from `source_dir` (a generated/<spec_name>/ folder) lives (`key`: its
+    sources_hash, when the caller has it already)."""
+    key = sources_hash(source_dir) if key is None else key
+    return cache_root / "lib" / f"{spec_name}-{key[:16]}" / f"lib{spec_name}.so"
 
 
-def is_current(lib: Path) -> bool:
-    """The library exists and is the file the build wrote (its SHA-256 sidecar): a truncated or
-    replaced library is rebuilt instead of loaded (loading one can crash the process)."""
+def is_current(lib: Path, key: str) -> bool:
+    """The library exists, is the file the build wrote (its SHA-256 sidecar) and carries its build key
+    `key` (the sources' hash): a truncated or replaced library, also garbage beside a forged checksum, is
+    rebuilt instead of loaded (loading one can crash the process)."""
     digest = lib.with_name(lib.name + ".sha256")
     if not (lib.is_file() and digest.is_file()):
         return False
-    return hashlib.sha256(lib.read_bytes()).hexdigest() == digest.read_text().strip()
+    data = lib.read_bytes()
+    recorded = digest.read_bytes().decode("ascii", errors="replace").strip()
+    return hashlib.sha256(data).hexdigest() == recorded and key.encode() + b"\0" in data
+
+
+def key_source(spec_name: str, key: str) -> str:
+    """The C file a build adds to the generated ones: `<spec>_build_key()` returns the sources' hash."""
+    return ("/* Written by acroboter's build: the SHA-256 of the compiler's name, its flags and every file of the\n"
+            " * generated folder, which the bindings compare before trusting this library. */\n"
+            f'const char* {spec_name}_build_key(void) {{ return "{key}"; }}\n')
 
 
 def compile_jobs() -> int:
@@ -81,10 +100,14 @@ def build(spec_name: str, source_dir: Path, cache_root: Path) -> Path:
     compiler = _compiler()
     if shutil.which(compiler) is None:
         raise BuildError(f"no C compiler '{compiler}' found: install gcc (or set CC) and run `make build`")
-    lib = library_path(spec_name, source_dir, cache_root)
+    key = sources_hash(source_dir)
+    lib = library_path(spec_name, source_dir, cache_root, key)
     lib.parent.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{lib.parent.name}.new-", dir=lib.parent.parent))
     try:
+        embedded = staging / f"{spec_name}_build_key.c"  # in the staging folder: the sources stay as generated
+        embedded.write_text(key_source(spec_name, key))
+        sources = [*sources, embedded]
         def compile_one(src: Path) -> Path:
             obj = staging / (src.stem + ".o")
             result = subprocess.run([compiler, *CFLAGS, "-c", str(src), "-o", str(obj)], capture_output=True,
@@ -109,7 +132,7 @@ def build(spec_name: str, source_dir: Path, cache_root: Path) -> Path:
                                 capture_output=True, text=True)
         if result.returncode != 0:
             raise BuildError(f"linking {lib.name} failed:\n{result.stderr}")
-        for obj in objects:
+        for obj in [*objects, embedded]:
             obj.unlink()
         (staging / (lib.name + ".sha256")).write_text(hashlib.sha256(built.read_bytes()).hexdigest() + "\n")
         staging.chmod(0o755)
@@ -140,16 +163,22 @@ def cache_write_error(cache_root: Path, err: OSError) -> str:
             "(or --cache-dir) at a folder you can write")
 
 
-def ensure_built(spec_name: str, source_dir: Path, cache_root: Path) -> Path:
-    """The current library of `source_dir`, compiled first if it is missing or damaged."""
-    lib = library_path(spec_name, source_dir, cache_root)
-    if is_current(lib):
+def ensure_built(spec_name: str, source_dir: Path, cache_root: Path, key: str | None = None) -> Path:
+    """The current library of `source_dir`, compiled first if it is missing or damaged (`key`: its
+    sources_hash, when the caller has it already)."""
+    key = sources_hash(source_dir) if key is None else key
+    lib = library_path(spec_name, source_dir, cache_root, key)
+    if is_current(lib, key):
         return lib
     try:
         with cache_lock(cache_root, lib.parent.name):
-            if not is_current(lib):  # another process may have built it while we waited
-                log.info("compiling the model library of '%s' into %s (once per version) ...", spec_name,
-                         lib.parent)
+            if not is_current(lib, key):  # another process may have built it while we waited
+                if lib.exists():
+                    log.warning("the library %s is not the file its build wrote (damaged or replaced): compiling it "
+                                "again", lib)
+                else:
+                    log.info("compiling the model library of '%s' into %s (once per version) ...", spec_name,
+                             lib.parent)
                 build(spec_name, source_dir, cache_root)
     except OSError as err:
         raise BuildError(cache_write_error(cache_root, err)) from None
@@ -162,7 +191,8 @@ def main(argv: list[str] | None = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("specs", nargs="*", help="example spec names (default: every shipped example)")
     parser.add_argument("--force", action="store_true",
-                        help="recompile even the libraries that are current (same sources, flags and checksum)")
+                        help="recompile even the libraries that are current (same sources, flags, checksum and build "
+                             "key): what rebuilds a library that does not load or embeds other hashes")
     parser.add_argument("--cache-dir", type=Path, default=None,
                         help="where the libraries go (default: $ACROBOTER_CACHE_DIR, else the per-user cache)")
     args = parser.parse_args(argv)
@@ -177,8 +207,12 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"error: no example '{name}' (the examples are {known}); a spec file of your own is built "
                       "by its first run (`acroboter run --spec FILE`)", file=sys.stderr)
                 return 2
-            lib = library_path(name, source, root)
-            if not args.force and is_current(lib):  # incremental: the name carries sources and flags
+            spec_file = spec_folder() / f"{name}.toml"  # its spec, if it is an example: the C must be its
+            model_hash = load_spec(spec_file).model_hash() if spec_file.is_file() else None
+            verify_sources(source, name, model_hash)  # stale or tampered: StaleModelError (exit 2), nothing compiled
+            key = sources_hash(source)
+            lib = library_path(name, source, root, key)
+            if not args.force and is_current(lib, key):  # incremental: the name carries sources and flags
                 print(f"up to date {lib}")
                 continue
             with cache_lock(root, lib.parent.name):

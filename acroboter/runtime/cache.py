@@ -9,7 +9,8 @@ The generated C of a spec comes from, in order:
    spec's model hash and the code generator's hash (which covers CasADi's version), written into a
    temporary folder and renamed into place under a lock.
 
-The library is then compiled into the cache (acroboter.runtime.build), keyed by the sources and flags.
+The library is then compiled into the cache (acroboter.runtime.build), keyed by the sources and flags;
+every link from the spec to the library is checked before use (acroboter.runtime.integrity).
 This is the one runtime module that may call the code generator: controllers, plant and
 simulation only ever see the CompiledModel it returns.
 """
@@ -29,7 +30,7 @@ from ..model.locations import cache_dir as resolve_cache_dir
 from ..model.locations import shipped_generated_folder
 from ..model.spec import Spec
 from .build import BuildError, cache_lock, cache_write_error
-from .compiled import CompiledModel, NotBuiltError, StaleModelError
+from .compiled import CompiledModel, DamagedLibraryError, NotBuiltError, StaleModelError
 
 log = logging.getLogger(__name__)
 
@@ -48,8 +49,8 @@ def load_model(spec: Spec, generated_dir: Path | None = None, cache_dir: Path | 
         source = model_sources(spec, root, generate=build)
         try:
             model = CompiledModel(spec, source, root, build=build)
-        except NotBuiltError:
-            raise
+        except (NotBuiltError, DamagedLibraryError):
+            raise  # the C is fine: regenerating it would build the same library path again
         except StaleModelError as err:
             if not build or not source.is_relative_to(root / "generated"):
                 raise  # the shipped C, or a folder the caller named: say so, never touch it

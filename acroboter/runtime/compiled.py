@@ -10,23 +10,28 @@ stores them).
 from __future__ import annotations
 
 import ctypes
-import hashlib
-import json
+import logging
 from pathlib import Path
 
 import numpy as np
 
-from ..model.fingerprint import codegen_hash, manifest_hash
 from ..model.layout import Layout, build_layout
 from ..model.spec import Spec
-from .build import ensure_built, is_current, library_path
+from .build import ensure_built, is_current, library_path, sources_hash
+from .integrity import (
+    DamagedLibraryError,
+    StaleModelError,
+    check_library,
+    expected_embedded,
+    library_remedy,
+    verify_sources,
+)
+
+__all__ = ["BoundFunction", "CompiledModel", "DamagedLibraryError", "NotBuiltError", "StaleModelError"]
+log = logging.getLogger(__name__)
 
 _REAL_P = ctypes.POINTER(ctypes.c_double)
 _INT = ctypes.c_longlong
-
-
-class StaleModelError(RuntimeError):
-    """Generated code or library does not match the spec or the code generator."""
 
 
 class NotBuiltError(StaleModelError):
@@ -38,10 +43,6 @@ MATRIX_OUTPUTS = frozenset({
     "mass_matrix", "phi_q", "sigma_q", "input_matrix", "schur", "minv_w", "penalty_matrix", "recovery_gain",
     "hessian", "servo_map",
 })
-
-_REGENERATE = ("regenerate it with `acroboter generate SPEC_FILE` (`make generate` for the specs in "
-               "model_spec/)")
-
 
 class BoundFunction:
     """One generated function with preallocated outputs; call() evaluates at the shared inputs."""
@@ -129,28 +130,6 @@ def _check_shapes(lib: ctypes.CDLL, symbol: str, input_sizes: list[int], outputs
                                   f"the library but a dense {rows}x{cols} in the manifest: regenerate")
 
 
-def _check_structure(manifest, path: Path) -> None:
-    """The keys and types the bindings read, so an edited manifest is a message, not a KeyError."""
-    def fail(what: str):
-        raise StaleModelError(f"{path} is not what the code generator writes ({what}): regenerate it with "
-                              "`make generate`")
-
-    if not isinstance(manifest, dict):
-        fail("not a JSON object")
-    for key, kind in (("spec_model_hash", str), ("codegen_hash", str), ("functions", dict), ("files", dict)):
-        if not isinstance(manifest.get(key), kind):
-            fail(f"'{key}' missing or not a {kind.__name__}")
-    for name, info in manifest["functions"].items():
-        ok = (isinstance(info, dict) and isinstance(info.get("symbol"), str)
-              and all(isinstance(e, list) and len(e) == 2 and isinstance(e[0], str) and isinstance(e[1], int)
-                      for e in info.get("inputs", [None]))
-              and all(isinstance(e, list) and len(e) == 2 and isinstance(e[0], str)
-                      and isinstance(e[1], list) and len(e[1]) == 2 and all(isinstance(d, int) for d in e[1])
-                      for e in info.get("outputs", [None])))
-        if not ok:
-            fail(f"function '{name}' malformed")
-
-
 class CompiledModel:
     """All generated functions of one spec, bound to shared input buffers q, qd, s, sd, sdd."""
 
@@ -162,50 +141,26 @@ class CompiledModel:
         self.spec = spec
         self.layout: Layout = build_layout(spec)
         self.source_dir = source_dir
-        manifest_path = source_dir / "manifest.json"
-        if not manifest_path.is_file():
-            raise StaleModelError(
-                f"no generated code for spec '{spec.name}' in {source_dir}: run `make generate`"
-            )
-        try:
-            self.manifest = json.loads(manifest_path.read_text())
-        except (OSError, ValueError) as err:
-            raise StaleModelError(f"{manifest_path} cannot be read ({err}): {_REGENERATE}") from None
-        _check_structure(self.manifest, manifest_path)
-        self._check_fresh(source_dir)
-        self._check_contents(source_dir)
-        if not build:
-            lib_path = library_path(spec.name, source_dir, cache_root)
-            if not is_current(lib_path):
-                raise NotBuiltError(f"no compiled library for spec '{spec.name}' at {lib_path}: build it first "
-                                    f"(`acroboter build {spec.name}` for an example, or load the model once with "
-                                    "build allowed)")
-        lib_path = ensure_built(spec.name, source_dir, cache_root)  # BuildError: cannot run (exit 3)
+        # the chain spec -> manifest -> files, before anything is compiled (acroboter.runtime.integrity)
+        self.manifest = verify_sources(source_dir, spec.name, spec.model_hash())
+        key = sources_hash(source_dir)
+        lib_path = library_path(spec.name, source_dir, cache_root, key)
+        if not build and not is_current(lib_path, key):
+            raise NotBuiltError(f"no compiled library for spec '{spec.name}' at {lib_path}: build it first "
+                                f"(`acroboter build {spec.name}` for an example, or load the model once with "
+                                "build allowed)")
+        lib_path = ensure_built(spec.name, source_dir, cache_root, key)  # BuildError: cannot run (exit 3)
         self.library_path = lib_path
+        remedy = library_remedy(spec.name, source_dir, cache_root, lib_path)
         try:
             self.lib = ctypes.CDLL(str(lib_path))
-        except OSError as err:
-            raise StaleModelError(f"library {lib_path} cannot be loaded ({err}): run `make build` "
-                                  f"(`acroboter build {spec.name}`)") from None
-        expected = {**{k: self.manifest[k] for k in ("spec_model_hash", "codegen_hash")},
-                    "manifest_hash": manifest_hash(self.manifest)}
-        for what, value in expected.items():
-            try:
-                fn = getattr(self.lib, f"{spec.name}_{what}")
-            except AttributeError:
-                raise StaleModelError(f"library {lib_path} has no {spec.name}_{what}: it was not built from "
-                                      f"{source_dir}; run `make build` (`acroboter build {spec.name}`)"
+        except OSError as err:  # its checksum and key match, yet it does not load: replaced, or another machine's
+            log.debug("dlopen(%s): %s", lib_path, err)
+            raise DamagedLibraryError(f"library {lib_path} cannot be loaded (it is not a library this machine can "
+                                      f"load, although its checksum matches: replaced or damaged): {remedy}"
                                       ) from None
-            fn.restype = ctypes.c_char_p
-            if fn().decode() != value:
-                what_differs = (f"{manifest_path} does not describe this library (its functions, symbols or "
-                                "shapes were edited): regenerate it with `make generate`"
-                                if what == "manifest_hash" else
-                                f"library {lib_path} does not hold the code of {source_dir} (its embedded {what} "
-                                "differs, although its name carries the sources' hash: replaced or damaged): run "
-                                f"`make build` (`acroboter build {spec.name}`), or delete it and the next "
-                                "run builds it again")
-                raise StaleModelError(what_differs)
+        # the files -> library link: everything that defines the library is what it embeds
+        check_library(self.lib, spec.name, expected_embedded(self.manifest, key), lib_path, source_dir, remedy)
 
         # One buffer per input name, shared by every function that reads that input.
         self.buffers: dict[str, np.ndarray] = {}
@@ -232,39 +187,6 @@ class CompiledModel:
         re-pointable with point_input), e.g. to chain calls without copying."""
         info = self.manifest["functions"][name]
         return BoundFunction(self.lib, info["symbol"], [self.buffers[i] for i, _ in info["inputs"]], info["outputs"])
-
-    def _check_fresh(self, source_dir: Path) -> None:
-        if self.manifest["spec_model_hash"] != self.spec.model_hash():
-            raise StaleModelError(
-                f"generated code in {source_dir} was made from a different version of "
-                f"spec '{self.spec.name}': run `make generate` (then `make build`); for a spec outside "
-                "model_spec/ with a name of its own, `acroboter generate SPEC_FILE`"
-            )
-        if self.manifest["codegen_hash"] != codegen_hash():
-            raise StaleModelError(
-                f"generated code in {source_dir} was made by a different version of the "
-                "code generator: run `make generate` (for a spec outside model_spec/: "
-                "`acroboter generate SPEC_FILE`)"
-            )
-
-    def _check_contents(self, source_dir: Path) -> None:
-        """Every generated file is the one the generator wrote: its SHA-256 is the manifest's, and no
-        other C file sits beside them (the build compiles every *.c of the folder)."""
-        files = self.manifest.get("files")
-        if not isinstance(files, dict) or not files:
-            raise StaleModelError(f"{source_dir / 'manifest.json'} lists no content hashes (older code generator): "
-                                  f"{_REGENERATE}")
-        for name, digest in sorted(files.items()):
-            path = source_dir / name
-            if not path.is_file():
-                raise StaleModelError(f"{path} is missing: {_REGENERATE}")
-            if hashlib.sha256(path.read_bytes()).hexdigest() != digest:
-                raise StaleModelError(f"{path} is not what the code generator wrote (its content hash differs "
-                                      f"from manifest.json: edited by hand or half-written): {_REGENERATE}")
-        extra = sorted(p.name for p in source_dir.glob("*.c") if p.name not in files)
-        if extra:
-            raise StaleModelError(f"{source_dir} holds C files the code generator did not write ({', '.join(extra)}): "
-                                  f"remove them or {_REGENERATE}")
 
     def set_inputs(self, q=None, qd=None, s=None, sd=None, sdd=None) -> None:
         """Copy the given inputs into the shared buffers (others keep their values)."""

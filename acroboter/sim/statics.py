@@ -109,3 +109,21 @@ def solve_equilibrium(model: CompiledModel, path: DesiredPath, tol: float = 1e-1
             f"(largest residual {r:.3g}): check the initial positions, cable lengths and the task"
         )
     return Equilibrium(q=z0[:n].copy(), multipliers=z0[n : n + m].copy(), inputs=z0[n + m :].copy(), residual=r)
+
+
+def inputs_outside_limits(spec, layout, inputs: np.ndarray) -> list[str]:
+    """What a static equilibrium asks of the inputs beyond the spec's limits, one phrase per input ([] when
+    every input is within them): e.g. `tension_1 would need -3.2 N, beyond its limit 0 N (a winch cannot
+    push)`. The same words as the path's feasibility check (acroboter.sim.feasibility) at t = 0."""
+    lower, upper, _ = spec.input_limits()
+    found = []
+    for i, (actuator, unit) in enumerate(zip(spec.actuators, layout.input_units, strict=True)):
+        u = float(inputs[i])
+        tol = 1e-9 * max(1.0, abs(u))
+        if lower[i] - tol <= u <= upper[i] + tol:
+            continue
+        limit = lower[i] if u < lower[i] else upper[i]
+        pushes = actuator.kind == "winch_tension" and actuator.gain * u < 0
+        found.append(f"{layout.inputs[i]} would need {u:.4g} {unit}, beyond its limit {limit:.4g} {unit}"
+                     + (" (a winch cannot push)" if pushes else ""))
+    return found

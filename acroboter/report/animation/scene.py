@@ -1,7 +1,8 @@
 """Reading a results folder and the geometry of its frames, pure numpy (no drawing).
 
-`load(folder)` reads summary.json, one method's CSV and the run's spec (its TOML text in the provenance, else
---spec, else the recorded path or the example of that name, each checked against the recorded model hash), and
+`load(folder)` reads summary.json, one method's CSV and the run's spec (its TOML text in the provenance, checked
+against the recorded spec_sha256; else --spec, else the recorded path or the example of that name, each checked
+against the recorded model hash), and
 `build_scene` turns the CSV's pose columns q into every point a frame draws: the bodies' centres, axes and
 points, the anchors (a moving one where the run recorded it), each cable's two ends, its tension and slack
 flag, the outlines, fixed axes limits and the tension range. `frame_rows` picks the row each frame shows.
@@ -92,6 +93,28 @@ def _spec_text_in(provenance: dict) -> str | None:
     return text if isinstance(text, str) else None
 
 
+def _recorded_spec(text: str, provenance: dict, summary: Path):
+    """The spec from the provenance's TOML text, once the text is the one the run recorded: its SHA-256 is
+    `spec_sha256` (the spec file's bytes), else (a folder without it) its model hash `spec_model_hash`."""
+    fix = ("re-run `acroboter run` to write the folder again, or give the run's spec with --spec FILE (checked "
+           "against the recorded model hash)")
+    recorded, wanted = provenance.get("spec_sha256"), provenance.get("spec_model_hash")
+    if isinstance(recorded, str):
+        if hashlib.sha256(text.encode("utf-8")).hexdigest() != recorded:
+            raise AnimationInputError(f"the spec text in {summary} (provenance: spec_toml) does not match the "
+                                      "recorded spec_sha256: the summary was edited or is damaged, and drawing it "
+                                      f"could show another crane; {fix}")
+        return spec_from_toml(text, f"{summary} (provenance)")
+    if not isinstance(wanted, str):
+        raise AnimationInputError(f"the spec text in {summary} (provenance: spec_toml) has no recorded hash "
+                                  f"(spec_sha256 or spec_model_hash) to check it against; {fix}")
+    spec = spec_from_toml(text, f"{summary} (provenance)")
+    if spec.model_hash() != wanted:
+        raise AnimationInputError(f"the spec text in {summary} (provenance: spec_toml) is not the crane of the "
+                                  f"recorded spec_model_hash: the summary was edited or is damaged; {fix}")
+    return spec
+
+
 def spec_of_run(summary: dict, folder: Path, override: Path | None = None):
     """The spec the run used: its TOML text in the provenance if there; else --spec; else the recorded path,
     else the example of that name, each only if its model (bodies, points, cables, anchors) is the run's."""
@@ -102,7 +125,7 @@ def spec_of_run(summary: dict, folder: Path, override: Path | None = None):
     wanted = provenance.get("spec_model_hash")
     text = _spec_text_in(provenance)
     if text is not None and override is None:
-        return spec_from_toml(text, f"{folder / 'summary.json'} (provenance)")
+        return _recorded_spec(text, provenance, folder / "summary.json")
     if override is not None:
         spec = load_spec(override)
         if wanted and spec.model_hash() != wanted:
