@@ -218,7 +218,9 @@ TEXT_OPTIONS = {"spec", "specs", "out", "cache_dir", "limits_spec", "results", "
                 "gif", "command", "which", "path"}
 
 
-def numeric_options():
+def numeric_options() -> tuple[list, list[str]]:
+    """(command, action) of every option typed with a range; and the options that are neither that nor text."""
+    ranged, unranged = [], []
     for name, (parser, _, _) in PARSERS.items():
         for action in parser._actions:
             if isinstance(action, argparse._HelpAction | argparse._VersionAction) or action.nargs == 0:
@@ -226,14 +228,18 @@ def numeric_options():
             if action.choices is not None:
                 continue
             if hasattr(action.type, "ranges"):
-                yield name, action
-            else:
-                assert action.dest in TEXT_OPTIONS, (
-                    f"`acroboter {name}` {'/'.join(action.option_strings) or action.dest} has no range: type it with "
-                    "acroboter.cli.entry.ranged (or name it in TEXT_OPTIONS if it takes no number)")
+                ranged.append((name, action))
+            elif action.dest not in TEXT_OPTIONS:
+                unranged.append(f"acroboter {name} {'/'.join(action.option_strings) or action.dest}")
+    return ranged, unranged
 
 
-OPTIONS = list(numeric_options())
+OPTIONS, UNRANGED = numeric_options()
+
+
+def test_every_numeric_option_has_a_range():
+    assert not UNRANGED, (f"options without a range: {UNRANGED}: type them with acroboter.cli.entry.ranged (or name "
+                          "them in TEXT_OPTIONS if they take no number)")
 
 
 def test_every_command_is_walked_and_has_its_numbers():
