@@ -26,7 +26,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..model.locations import example_spec
-from ..model.ranges import ALPHA, CONNECT_TIMEOUT, DURATION, ITERATIONS, OMEGA, TOLERANCE, WORKERS, Range
+from ..model.ranges import (
+    ALPHA,
+    CONNECT_TIMEOUT,
+    DURATION,
+    GAIN_RANGES,
+    ITERATIONS,
+    OMEGA,
+    TOLERANCE,
+    WORKERS,
+    Range,
+)
 from ..report.study_figures import sweep_figures
 from ..studies.grid import (
     MAX_RUNS,
@@ -117,6 +127,9 @@ def sweep(spec_path: Path = DEFAULT_SPEC, *, alphas: list[float] | None = None, 
                                                                                           ITERATIONS)):
         for value in values:  # a RangeError (ValueError) before any work: "alphas: expected 1 <= alpha <= 1e16, …"
             range_.check(value, name)
+    for name, value in (("kp", kp), ("kd", kd), ("mu", mu)):
+        if value is not None:
+            GAIN_RANGES[name].check(value, name)
     # `out` checked before any work (OutputFolderError); the files are staged and swapped in at the end
     with results_folder(out, "sweep", expected=["sweep.csv"]) if out is not None else nullcontext() as folder:
         spec = prepare(spec_path, duration)  # builds the library here if missing: the tasks only load it

@@ -125,7 +125,11 @@ def prepare(spec_path: Path, duration: float | None = None):
 
 def check_duration(spec, duration: float | None) -> None:
     """A duration of 1..MAX_CONTROL_STEPS control steps of the spec's controller (None: the whole path)."""
+    from ..model.ranges import DURATION
+
     rate = spec.controller.rate_hz
+    if duration is not None and (problem := DURATION.problem(duration)) is not None:
+        raise GridError(f"--duration: {problem}")
     if duration is not None and not 1 <= round(duration * rate) <= MAX_CONTROL_STEPS:
         raise GridError(f"--duration {duration:g} s is {round(duration * rate)} control steps at {rate:g} Hz: give "
                         f"between one ({1 / rate:g} s) and {MAX_CONTROL_STEPS}")
