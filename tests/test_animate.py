@@ -348,7 +348,8 @@ def test_outputs_are_checked_before_any_work(results, tmp_path, capsys, monkeypa
     _refused([r, "--out", str(missing / "a.mp4"), "-q"], capsys, f"the folder {missing} does not exist")
     _refused([r, "--gif", str(missing / "a.gif"), "--no-mp4", "-q"], capsys, f"the folder {missing} does not exist")
     assert not missing.exists()  # no parent is created
-    _refused([r, "--gif", str(tmp_path / "a.gif"), "--gif-width", "3840", "-q"], capsys, "between 64 and 1920")
+    _refused([r, "--gif", str(tmp_path / "a.gif"), "--gif-width", "3840", "-q"], capsys,
+             "argument --gif-width: expected a whole number 64 <= gif_width <= 1920 (pixels), found 3840")
 
 
 @pytest.mark.needs_animation

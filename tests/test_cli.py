@@ -102,13 +102,13 @@ def test_help_lists_the_options():
 
 @pytest.mark.parametrize("args, words", [
     (["--method", "newton", "--duration", "0.1"], "unknown method"),
-    (["--duration", "-1"], "argument --duration: expected a number above 0, found -1"),
+    (["--duration", "-1"], "argument --duration: expected 0 < duration <= 1e6 (s), found -1"),
     (["--recovery", "magic"], "invalid choice"),
-    (["--iterations", "two"], "whole numbers"),
+    (["--iterations", "two"], "expected a whole number 1 <= iterations <= 1000, found 'two'"),
     (["--spec", "no/such/spec.toml"], "no/such/spec.toml"),
-    (["--kp", "nan"], "argument --kp: expected a finite number, found nan"),
-    (["--alpha-servo", "inf"], "argument --alpha-servo: expected a finite number, found inf"),
-    (["--kappa", "2"], "argument --kappa: expected a number at most 1, found 2"),
+    (["--kp", "nan"], "argument --kp: expected 0 < kp <= 1e4 (1/s), found nan"),
+    (["--alpha-servo", "inf"], "argument --alpha-servo: expected 1 <= alpha_servo <= 1e16, found inf"),
+    (["--kappa", "2"], "argument --kappa: expected 0 <= kappa <= 1, found 2"),
     (["--duration", "0.001"], "--duration 0.001 s is 0 control steps"),
     (["--out", "README.md"], "is a file, not a folder"),
 ])
@@ -131,8 +131,8 @@ def test_bad_spec_is_a_clear_error(tmp_path):
 
 @pytest.mark.parametrize("module, args, words", [
     ("acroboter.bench", ["--methods", "foo"], "unknown method 'foo'"),
-    ("acroboter.bench", ["--repeats", "0"], "expected a whole number between 1 and 100, found 0"),
-    ("acroboter.study", ["--duration", "-1"], "expected a number above 0, found -1"),
+    ("acroboter.bench", ["--repeats", "0"], "expected a whole number 1 <= repeats <= 100, found 0"),
+    ("acroboter.study", ["--duration", "-1"], "expected 0 < duration <= 7200 (s), found -1"),
     ("acroboter.sweep", ["--alphas", "abc"], "alphas"),
 ])
 def test_other_clis_reject_bad_options_cleanly(module, args, words, tmp_path):

@@ -305,11 +305,11 @@ def test_velocity_estimate_matches_within_the_filters_lag(default):
 # --- refusals ------------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("section, field, message", [
-    ({"noise": -1.0}, "sensing.groups[0].noise", "at least 0"),
-    ({"quantization": 0.0}, "sensing.groups[0].quantization", "greater than 0"),
-    ({"quantization": -1e-3}, "sensing.groups[0].quantization", "greater than 0"),
-    ({"delay_periods": 1.5}, "sensing.delay_periods", "expected an integer"),
-    ({"delay_periods": -1}, "sensing.delay_periods", "at least 0"),
+    ({"noise": -1.0}, "sensing.groups[0].noise", "expected 0 <= noise <= 1 (m or unitless), found -1"),
+    ({"quantization": 0.0}, "sensing.groups[0].quantization", "expected 1e-12 <= quantization <= 1"),
+    ({"quantization": -1e-3}, "sensing.groups[0].quantization", "found -0.001"),
+    ({"delay_periods": 1.5}, "sensing.delay_periods", "expected a whole number 0 <= delay_periods <= 1000"),
+    ({"delay_periods": -1}, "sensing.delay_periods", "0 <= delay_periods <= 1000 (control periods), found -1"),
     ({"coordinates": ["SU.q"]}, "sensing.groups[0] (tracker).coordinates[0]", "found 'SU.q'"),
 ])
 def test_bad_sections_are_spec_errors_naming_the_field(section, field, message):
@@ -325,10 +325,14 @@ def test_bad_sections_are_spec_errors_naming_the_field(section, field, message):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--sensing-noise", "positions=-0.001"], "sensing.groups[0].noise: expected a number at least 0"),
-    (["--sensing-delay", "1.5"], "sensing.delay_periods: expected an integer"),
-    (["--sensing-delay", "-1"], "sensing.delay_periods: expected a number at least 0"),
-    (["--sensing-quantization", "lengths=0"], "sensing.groups[2].quantization: expected a number greater"),
+    (["--sensing-noise", "positions=-0.001"],
+     "argument --sensing-noise: positions: expected 0 <= noise <= 1 (m or unitless), found -0.001"),
+    (["--sensing-delay", "1.5"], "argument --sensing-delay: expected a whole number 0 <= delay_periods <= 1000 "
+                                 "(control periods), found 1.5"),
+    (["--sensing-delay", "-1"], "argument --sensing-delay: expected a whole number 0 <= delay_periods <= 1000"),
+    (["--sensing-delay", "10"], "--sensing-delay: expected a whole number 0 <= delay_periods <= 4 (control periods)"),
+    (["--sensing-quantization", "lengths=0"],
+     "argument --sensing-quantization: lengths: expected 1e-12 <= quantization <= 1 (m or unitless), found 0"),
     (["--sensing-noise", "nothing=1"], "sensing.noise.nothing: expected one of the groups"),
 ])
 def test_cli_refuses_bad_sensing_with_exit_2(tmp_path, args, message):

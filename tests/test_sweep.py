@@ -128,7 +128,7 @@ def test_help_and_bad_options():
                    "--scheduler", "--workers", "--no-plots"):
         assert option in proc.stdout
     for args, words in ((["--alphas", "1e3:abc"], "--alphas"),
-                        (["--iterations", "0"], "between 1 (the plain penalty method) and 1000"),
+                        (["--iterations", "0"], "expected a whole number 1 <= iterations <= 1000, found 0"),
                         (["--workers", "0"], "--workers"), (["--duration", "-1"], "--duration")):
         proc = run_cli(*args, timeout=300)
         assert proc.returncode == 2 and words in proc.stderr and "Traceback" not in proc.stderr

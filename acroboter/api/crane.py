@@ -30,8 +30,17 @@ from ..control.path import DesiredPath, SampledTrajectory, TrajectoryPath
 from ..model.locations import example_spec
 from ..model.physical import parameter_names, parameter_values
 from ..model.plausibility import plausibility_warnings
+from ..model.ranges import GAIN_RANGES, delay_problem, sampled_gain_problems
 from ..model.settings import Gains
-from ..model.spec import MAX_CONTROL_STEPS, MAX_ITERATIONS, RECOVERIES, Spec, integral_gain_problem, load_spec
+from ..model.spec import (
+    MAX_CONTROL_STEPS,
+    MAX_ITERATIONS,
+    RECOVERIES,
+    Spec,
+    SpecError,
+    integral_gain_problem,
+    load_spec,
+)
 from ..runtime.cache import load_model
 from ..runtime.compiled import CompiledModel
 from ..sim.feasibility import Feasibility, check_path
@@ -210,15 +219,10 @@ class Crane:
                 if value not in RECOVERIES:
                     raise ValueError(f"recovery: expected one of {', '.join(RECOVERIES)}, found {value!r}")
                 continue
-            if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value):
-                raise ValueError(f"{name}: expected a finite number, found {value!r}")
-            if name == "kappa" and not 0.0 <= value <= 1.0:
-                raise ValueError(f"kappa: expected a number in [0, 1], found {value:g}")
-            if name == "ki" and value < 0:
-                raise ValueError(f"ki: expected a number ≥ 0, found {value:g}")
-            if name not in ("kappa", "ki") and value <= 0:
-                raise ValueError(f"{name}: expected a positive number, found {value:g}")
+            GAIN_RANGES[name].check(value, name)  # RangeError (a ValueError): "kp: expected 0 < kp <= 1e4 (1/s), …"
         gains = Gains.from_spec(self.spec, **overrides)
+        for name, problem in sampled_gain_problems(gains.kp, gains.kd, self.spec.controller.rate_hz, ("kp", "kd")):
+            raise ValueError(f"{name}: {problem}")
         if (problem := integral_gain_problem(gains.kp, gains.kd, gains.ki)) is not None:
             raise ValueError(f"ki: {problem}")
         return gains
@@ -234,6 +238,12 @@ class Crane:
         if chosen is not None and chosen is not self.spec.sensing:
             check_measurable(self.model, chosen, source=str(self.source or self.name))
         return chosen
+
+    def check_delay(self, sensing, duration: float) -> None:
+        """A SpecError unless the sensing's delay is shorter than a run of `duration` seconds."""
+        if sensing is not None and (problem := delay_problem(sensing.delay_periods, self.spec.controller.rate_hz,
+                                                             duration)) is not None:
+            raise SpecError(str(self.source or self.name), [("sensing.delay_periods", problem)])
 
     def method_name(self, method: str, iterations: int | None = None) -> str:
         """'mlm', 'penalty', 'iterative-N'; 'iterative' takes `iterations` (default the spec's first)."""
@@ -293,12 +303,14 @@ class Crane:
 
         `sensing`: what the controller measures instead of reading the plant's state (docs/sensing.md):
         None, the spec's [sensing] section (none without one); False, none; a mapping of overrides
-        ({"noise": {"positions": 2e-4}, "delay_periods": 1, "seed": 3, ...}, see `sensing()`)."""
+        ({"noise": {"positions": 2e-4}, "delay_periods": 1, "seed": 3, ...}, see `sensing()`); its delay must be
+        shorter than the run (a SpecError naming sensing.delay_periods)."""
         name = self.method_name(method, iterations)
         gains = self.gains(**overrides)
         chosen = self.sensing(sensing)
         path = self.desired(trajectory, duration)
         duration = _duration(path, duration)
+        self.check_delay(chosen, duration)
         engine = setup_default(self.model, path, plant_params, plant, mujoco_timestep)
         start = self.equilibrium(trajectory, duration)
         controller = make_controller(name, self.model, path, gains)

@@ -28,16 +28,17 @@ from functools import partial
 from pathlib import Path
 
 from ..model.extras import require
+from ..model.ranges import FPS, GIF_FPS, GIF_SPEED, GIF_WIDTH, HEIGHT, SPEED, WIDTH, frames_problem
 from ..report.animation import matplotlib_frames, mujoco_frames
 from ..report.animation.encode import write_complete, write_gif, write_mp4
 from ..report.animation.mujoco_frames import GL_FIX, RendererUnavailable, mujoco_ready, probe_gl
 from ..report.animation.scene import AnimationInputError, diverged_note, frame_rows, load
-from .entry import file_write_problem, folder_write_problem, guarded, positive, whole
+from .entry import carrying, file_write_problem, folder_write_problem, guarded, ranged
 from .outputs import MANIFEST, out_path, record_file, recorded
 
 log = logging.getLogger("acroboter")
 
-GIF_WIDTH_MAX = 1920  # write_gif holds every frame (W x H bytes each) until it saves: 1920x1440 is 2.8 MB a frame
+GIF_WIDTH_MAX = GIF_WIDTH.high  # write_gif holds every frame (W x H bytes each) until it saves: 1920x1440 is 2.8 MB
 NOTE_SECONDS = 2.0  # a diverged method's note stays on the video's last 2 s
 
 
@@ -72,13 +73,19 @@ def choose_renderer(requested: str, spec):
 
 
 def _size(text: str) -> tuple[int, int]:
+    """WIDTHxHEIGHT, each in its range (acroboter.model.ranges: WIDTH, HEIGHT)."""
+    parts = str(text).lower().split("x")
+    if len(parts) != 2:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels such as 960x720 with {WIDTH.text()} and "
+                                         f"{HEIGHT.text()}, found '{text}'")
     try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels such as 960x720, found '{text}'") from None
-    if not (64 <= w <= 7680 and 64 <= h <= 4320):
-        raise argparse.ArgumentTypeError(f"expected a size between 64x64 and 7680x4320, found {w}x{h}")
+        w, h = WIDTH.parse(parts[0]), HEIGHT.parse(parts[1])
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(f"{text}: {err}") from None
     return w + w % 2, h + h % 2  # H.264 in yuv420p needs even sizes: an odd one grows by a pixel
+
+
+carrying(_size, "size", (WIDTH, HEIGHT), "{}x720")
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -93,15 +100,17 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="also write a GIF for a README, or into an existing folder as FOLDER/animation_<method>.gif "
                         "(--gif-fps, --gif-speed, --gif-width; default: none)")
     p.add_argument("--no-mp4", action="store_true", help="write only the GIF (with --gif)")
-    p.add_argument("--fps", type=positive(240), default=25.0, help="frames per second of the MP4 (default: 25)")
-    p.add_argument("--speed", type=positive(1000), default=1.0,
-                   help="run seconds per video second (default: 1, real time)")
+    p.add_argument("--fps", type=ranged(FPS), default=25.0,
+                   help="frames per second of the MP4, 0.01..240 (default: 25)")
+    p.add_argument("--speed", type=ranged(SPEED), default=1.0,
+                   help="run seconds per video second, 0.001..1000, at most 200,000 frames (default: 1, real time)")
     p.add_argument("--size", type=_size, default=(960, 720), metavar="WxH",
                    help="MP4 frame size in pixels (default: 960x720)")
-    p.add_argument("--gif-fps", type=positive(50), default=8.0, help="frames per second of the GIF (default: 8)")
-    p.add_argument("--gif-speed", type=positive(1000), default=2.5,
-                   help="run seconds per GIF second (default: 2.5)")
-    p.add_argument("--gif-width", type=whole(64, GIF_WIDTH_MAX), default=480,
+    p.add_argument("--gif-fps", type=ranged(GIF_FPS), default=8.0,
+                   help="frames per second of the GIF, 0.01..50 (default: 8)")
+    p.add_argument("--gif-speed", type=ranged(GIF_SPEED), default=2.5,
+                   help="run seconds per GIF second, 0.001..1000, at most 1 GB of frames held (default: 2.5)")
+    p.add_argument("--gif-width", type=ranged(GIF_WIDTH), default=480,
                    help=f"GIF width in pixels (at most {GIF_WIDTH_MAX}), height in the MP4's proportion (default: 480)")
     p.add_argument("--renderer", choices=("auto", "mujoco", "matplotlib"), default="auto",
                    help="auto: MuJoCo's offscreen renderer where it has an OpenGL context, else matplotlib "
@@ -168,8 +177,25 @@ def main(argv: list[str] | None = None) -> int:
         log.setLevel(level)
 
 
+def _gif_size(args: argparse.Namespace) -> tuple[int, int]:
+    width = args.gif_width + args.gif_width % 2
+    return width, round(width * args.size[1] / args.size[0] / 2) * 2
+
+
+def check_frames(args: argparse.Namespace, duration: float) -> None:
+    """The frames (and, for the GIF, the memory its writer holds) of a `duration` s run, counted before any frame is
+    drawn: too many is an AnimationInputError (exit 2) with --speed's range for this run."""
+    if not args.no_mp4 and (problem := frames_problem(duration, args.fps, args.speed, SPEED)) is not None:
+        raise AnimationInputError(f"--speed: {problem}; or lower --fps")
+    if args.gif is not None:
+        width, height = _gif_size(args)
+        if (problem := frames_problem(duration, args.gif_fps, args.gif_speed, GIF_SPEED, width * height)) is not None:
+            raise AnimationInputError(f"--gif-speed: {problem}; or lower --gif-fps or --gif-width")
+
+
 def _animate(args: argparse.Namespace) -> int:
     data = load(args.results, args.method, args.spec)
+    check_frames(args, float(data.scene.t[-1] - data.scene.t[0]))
     name, frames = choose_renderer(args.renderer, data.spec)
     note = diverged_note(data.scene)
 
@@ -203,8 +229,7 @@ def _animate(args: argparse.Namespace) -> int:
                        f"{time.perf_counter() - start:.1f} s)")
     if args.gif is not None:
         gif_out = args.gif / f"animation_{data.method}.gif" if args.gif.is_dir() else args.gif
-        width = args.gif_width + args.gif_width % 2
-        height = round(width * args.size[1] / args.size[0] / 2) * 2
+        width, height = _gif_size(args)
         rows = frame_rows(data.scene.t, args.gif_fps, args.gif_speed)
         start = time.perf_counter()
         # one palette for either renderer's frames: the first frame's colours and the drawing's own, kept exact

@@ -27,9 +27,10 @@ from pathlib import Path
 import numpy as np
 
 from ..model.locations import example_spec
+from ..model.ranges import CASADI_STATES, REPEATS
 from ..model.spec import MAX_ITERATIONS
 from ..report.paper import PAPER_MATLAB_US
-from .entry import guarded, spec_file, whole
+from .entry import guarded, ranged, spec_file
 from .outputs import ResultsFolder, out_path, results_folder
 
 GOALS_US = {"mlm": 20.0, "penalty": 15.0, "iterative-5": 20.0}
@@ -84,8 +85,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--method", "--methods", dest="methods",
                         default="mlm,penalty,iterative-3,iterative-4,iterative-5",
                         help="comma-separated methods: mlm, penalty, iterative-N (default: %(default)s)")
-    parser.add_argument("--repeats", type=whole(1, 100), default=5, help="passes over the scenario's states (1..100)")
-    parser.add_argument("--casadi-states", type=whole(1, 100_000), default=500,
+    parser.add_argument("--repeats", type=ranged(REPEATS), default=5, help="passes over the scenario's states (1..100)")
+    parser.add_argument("--casadi-states", type=ranged(CASADI_STATES), default=500,
                         help="states timed on the casadi.Function path (b) (it is slow)")
     parser.add_argument("--limits-spec", type=Path, default=example_spec("acroboter_4cable"),
                         help="crane on which the cost of input limits is timed (default: %(default)s)")

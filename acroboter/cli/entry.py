@@ -11,15 +11,14 @@ and the documented exit code, never a traceback:
 
 A core dependency that does not import is one line naming it and its `pip install` (exit 3). An error no
 class names (a bug) is reported the same way, as "internal error", with exit 3; set ACROBOTER_TRACEBACK=1 to
-see its traceback. The option types check every number the same way
-(finite, in range) before any work.
+see its traceback. The option types put every number in its range (acroboter.model.ranges) before any work,
+in one message form: `argument --kp: expected 0 < kp <= 1e4 (1/s), found 1e+308`.
 """
 
 from __future__ import annotations
 
 import argparse
 import functools
-import math
 import os
 import sys
 import tempfile
@@ -27,6 +26,7 @@ import traceback
 from collections.abc import Callable
 from pathlib import Path
 
+from ..model.ranges import Range
 from ..runtime.progress import (
     progress_disabled as progress_disabled,  # every command's --quiet (shared with the animation)
 )
@@ -102,26 +102,67 @@ def core_import_problem(err: BaseException) -> str | None:
             "pip install --force-reinstall acroboter repairs it")
 
 
-# --- option types (argparse `type=`): the same checks for every number of every command -------------
+# --- option types (argparse `type=`): every number of every command in its Range ------------------------------
 
 
-def number(low: float | None = None, high: float | None = None, *, low_open: bool = False) -> Callable[[str], float]:
-    """A finite float within [low, high] (low excluded with low_open)."""
+def ranged(range_: Range, template: str = "{}") -> Callable[[str], float | int]:
+    """The type of a number option: a number in `range_` (acroboter.model.ranges), else argparse's exit 2 with
+    'argument --kp: expected 0 < kp <= 1e4 (1/s), found 1e+308', before any work."""
 
-    def parse(text: str) -> float:
+    def parse(text: str) -> float | int:
         try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a number, found '{text}'") from None
-        if not math.isfinite(value):
-            raise argparse.ArgumentTypeError(f"expected a finite number, found {text}")
-        if low is not None and (value <= low if low_open else value < low):
-            raise argparse.ArgumentTypeError(f"expected a number {'above' if low_open else 'at least'} {low:g}, "
-                                             f"found {value:g}")
-        if high is not None and value > high:
-            raise argparse.ArgumentTypeError(f"expected a number at most {high:g}, found {value:g}")
-        return value
+            return range_.parse(text)
+        except ValueError as err:
+            raise argparse.ArgumentTypeError(str(err)) from None
 
+    return carrying(parse, range_.name, (range_,), template)
+
+
+def ranged_list(range_: Range) -> Callable[[str], list]:
+    """Comma-separated numbers, each in `range_` (repeats dropped, order kept)."""
+
+    def parse(text: str) -> list:
+        items = [item.strip() for item in str(text).split(",") if item.strip()]
+        if not items:
+            raise argparse.ArgumentTypeError(f"expected comma-separated numbers, each {range_.text()}, found '{text}'")
+        try:
+            return list(dict.fromkeys(range_.parse(item) for item in items))
+        except ValueError as err:
+            raise argparse.ArgumentTypeError(str(err)) from None
+
+    return carrying(parse, range_.name, (range_,), "{}")
+
+
+def named_number(range_: Range | None, example: str, form: str = "NAME=VALUE") -> Callable[[str], tuple]:
+    """'NAME=NUMBER' (e.g. --sensing-noise positions=0.0002) as (name, number), the number in `range_`; with
+    `range_` None the number's range is the one of the spec field NAME stands for, checked with the spec
+    (--plant-param SU.mass=8.8: acroboter.model.physical). `form` is how the option's help writes it."""
+
+    def parse(text: str) -> tuple[str, float | int]:
+        name, sep, value = str(text).partition("=")
+        within = f" with {range_.text()}" if range_ is not None else ""
+        if not sep or not name.strip():
+            raise argparse.ArgumentTypeError(f"expected {form} such as {example}{within}, found '{text}'")
+        if range_ is None:
+            try:
+                return name.strip(), float(value)
+            except ValueError:
+                raise argparse.ArgumentTypeError(f"expected {form} such as {example}, found '{text}'") from None
+        try:
+            return name.strip(), range_.parse(value)
+        except ValueError as err:
+            raise argparse.ArgumentTypeError(f"{name.strip()}: {err}") from None
+
+    head = example.partition("=")[0]
+    return carrying(parse, range_.name if range_ else form, (range_,) if range_ else (), head + "={}")
+
+
+def carrying(parse: Callable, name: str, ranges: tuple[Range, ...], template: str) -> Callable:
+    """A type that carries its ranges and how one number is written in the option (`template`): the docs' table
+    and tests/test_number_ranges.py read them; a numeric option without them is a test failure."""
+    parse.__name__ = name
+    parse.ranges = ranges
+    parse.template = template
     return parse
 
 
@@ -143,26 +184,6 @@ def spec_file(text: str) -> Path:
     raise argparse.ArgumentTypeError(
         f"'{text}' is neither a spec file nor an example's name" + (f" (did you mean {near[0]}?)" if near else "")
         + f"; the examples: {', '.join(names)} (`acroboter examples`)")
-
-
-def positive(high: float | None = None) -> Callable[[str], float]:
-    return number(0.0, high, low_open=True)
-
-
-def whole(low: int = 1, high: int | None = None) -> Callable[[str], int]:
-    """A whole number within [low, high]."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a whole number, found '{text}'") from None
-        if value < low or (high is not None and value > high):
-            bound = f"between {low} and {high}" if high is not None else f"at least {low}"
-            raise argparse.ArgumentTypeError(f"expected a whole number {bound}, found {value}")
-        return value
-
-    return parse
 
 
 def check_out_folder(parser: argparse.ArgumentParser, out: Path, option: str = "--out") -> None:
@@ -201,14 +222,3 @@ def file_write_problem(path: Path) -> str | None:
     if target.exists() and not target.is_file():
         return f"{path} is not a regular file"
     return folder_write_problem(target.parent)
-
-
-def name_value(item: str) -> tuple[str, float] | None:
-    """'NAME=NUMBER' (an option such as --plant-param SU.mass=8.8) as (name, number); None when there
-    is no '=', no name or no number. The caller judges the number (finite, sign)."""
-    name, sep, text = item.partition("=")
-    try:
-        value = float(text)
-    except ValueError:
-        return None
-    return (name.strip(), value) if sep and name.strip() else None

@@ -20,7 +20,7 @@ from ..codegen.generate import generate
 from ..model.interrupts import remembered_interrupt
 from ..model.locations import checkout_root, example_spec, shipped_generated_folder, spec_folder
 from ..model.spec import Spec, SpecError, load_spec
-from .entry import check_out_folder, guarded, number, positive, spec_file
+from .entry import check_out_folder, guarded, ranged, spec_file
 from .outputs import no_empty_folder_left, out_path
 
 SPEC_DIR = spec_folder()
@@ -200,9 +200,8 @@ def main(argv: list[str] | None = None) -> int:
 @guarded
 def export_step_main(argv: list[str] | None = None) -> int:
     """`acroboter export-step`: one method's complete control step as self-contained C and a header."""
-    import numpy as np
-
     from ..codegen.export_step import GAIN_OPTIONS, MLM_SYSTEMS, PENALTY_SYSTEMS, ExportError, export_step
+    from ..model.ranges import GAIN_RANGES, sampled_gain_problems
     from ..model.spec import RECOVERIES
 
     parser = argparse.ArgumentParser(
@@ -216,8 +215,7 @@ def export_step_main(argv: list[str] | None = None) -> int:
                         help="input recovery of the penalty methods (default: the spec's, normally projected)")
     for option in GAIN_OPTIONS:
         parser.add_argument(f"--{option.replace('_', '-')}", default=None, dest=option,
-                            type=number(0.0, 1.0) if option == "kappa" else positive(1e300),
-                            help="override the spec's value")
+                            type=ranged(GAIN_RANGES[option]), help="override the spec's value (as run's option)")
     parser.add_argument("--mlm-system", choices=MLM_SYSTEMS, default="reduced",
                         help="MLM: the (m+l) system reduced by the constant M, or the full (n+m+l) one "
                         "(default: %(default)s)")
@@ -230,16 +228,15 @@ def export_step_main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.out is not None:
         check_out_folder(parser, args.out)
-    overrides = {name: getattr(args, name) for name in (*GAIN_OPTIONS, "recovery")}
-    for name, value in overrides.items():
-        if isinstance(value, float) and (not np.isfinite(value) or value < 0 or (name != "kappa" and value == 0)):
-            print(f"error: --{name.replace('_', '-')} must be a finite positive number, got {value}", file=sys.stderr)
-            return 2
-    if overrides["kappa"] is not None and overrides["kappa"] > 1:
-        print("error: --kappa must be in [0, 1]", file=sys.stderr)
-        return 2
+    overrides = {name: getattr(args, name) for name in (*GAIN_OPTIONS, "recovery")}  # each in its range already
     try:
-        spec_name = load_spec(args.spec).name
+        spec = load_spec(args.spec)
+        spec_name = spec.name
+        kp = spec.controller.kp if args.kp is None else args.kp
+        kd = spec.controller.kd if args.kd is None else args.kd
+        for name, problem in sampled_gain_problems(kp, kd, spec.controller.rate_hz, ("kp", "kd")):
+            print(f"error: --{name}: {problem}", file=sys.stderr)  # before any work: the law it bakes in is unstable
+            return 2
         out = args.out if args.out is not None else DEFAULT_EMBEDDED / f"{spec_name}_{args.method}"
         with no_empty_folder_left(out):
             written = export_step(args.spec, args.method, out, args.mlm_system, args.penalty_system, **overrides)

@@ -18,17 +18,21 @@ It needs the mujoco extra (pip install 'acroboter[mujoco]'); without it, it says
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import tempfile
 from pathlib import Path
 
-from .entry import file_write_problem, guarded, number, spec_file
+from ..model.ranges import MUJOCO_TIMESTEP, mujoco_work_problem
+from .entry import file_write_problem, guarded, ranged, spec_file
 from .outputs import out_path
+
+TIMESTEP = dataclasses.replace(MUJOCO_TIMESTEP, name="timestep")  # --timestep: MuJoCo's step, as run's option
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    from ..model.mjcf_model import DEFAULT_TIMESTEP, MAX_TIMESTEP
+    from ..model.mjcf_model import DEFAULT_TIMESTEP
 
     p = argparse.ArgumentParser(prog="acroboter mjcf", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -36,9 +40,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="model spec TOML (default: the paper's crane, model_spec/acroboter.toml)")
     p.add_argument("-o", "--out", type=out_path, default=None,
                    help="the XML file to write (default: <spec name>.xml in the current folder; - for stdout)")
-    p.add_argument("--timestep", type=number(0, MAX_TIMESTEP, low_open=True), default=DEFAULT_TIMESTEP,
-                   help="MuJoCo's time step in s; the cables' constraint time constant is two steps "
-                        "(default: %(default)g, where the agreement with the own plant was measured)")
+    p.add_argument("--timestep", type=ranged(TIMESTEP), default=DEFAULT_TIMESTEP,
+                   help="MuJoCo's time step in s, at most 100,000 per control period of the spec; the cables' "
+                        "constraint time constant is two steps (default: %(default)g, where the agreement with the "
+                        "own plant was measured)")
     p.add_argument("--pose", choices=["static", "spec"], default="static",
                    help="the reference pose: static (the static equilibrium at the path's start, with a keyframe "
                         "static_start holding it; compiles the crane's library on first use) or spec (the spec's "
@@ -63,6 +68,9 @@ def main(argv: list[str] | None = None) -> int:
 
     spec_path = args.spec if args.spec is not None else example_spec("acroboter")
     spec = load_spec(spec_path)
+    if (problem := mujoco_work_problem(args.timestep, 1.0 / spec.controller.rate_hz)) is not None:
+        print(f"error: --timestep: {problem.replace('mujoco_timestep', 'timestep')}", file=sys.stderr)
+        return 2  # before any work: a model that steps that finely is no model to simulate with
     out = None
     if str(args.out) != "-":  # checked before any work (the static pose compiles the crane's library)
         out = args.out if args.out is not None else Path(f"{spec.name}.xml")

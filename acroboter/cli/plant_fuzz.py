@@ -14,11 +14,12 @@ from pathlib import Path
 
 from ..model.extras import require
 from ..model.locations import example_names, example_spec
+from ..model.ranges import FUZZ_CASES, FUZZ_SEED, FUZZ_TIMESTEP, WORKERS
 from ..model.spec import load_spec
 from ..sim.simulation import check_mujoco_timestep
 from ..studies.grid import open_client, run_cases, write_rows
 from ..studies.plant_fuzz import COLUMNS, MUJOCO_TIMESTEP, crane_of, report, run_case
-from .entry import EXIT_BAD_INPUT, guarded, positive, progress_disabled, whole
+from .entry import EXIT_BAD_INPUT, guarded, progress_disabled, ranged
 from .outputs import ResultsFolder, out_path, results_folder
 
 
@@ -30,13 +31,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                     "Exit status: 0 every case agrees, 1 a case failed (listed in the report with the command that "
                     "replays it), 2 bad input, 3 cannot run, 130 interrupted.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--cases", type=whole(1, 100_000), default=2000, help="experiments, spread over the specs")
-    p.add_argument("--seed", type=whole(0, 2**31), default=0, help="seed of the first case (case i: seed + i)")
+    p.add_argument("--cases", type=ranged(FUZZ_CASES), default=2000, help="experiments, spread over the specs")
+    p.add_argument("--seed", type=ranged(FUZZ_SEED), default=0, help="seed of the first case (case i: seed + i)")
     p.add_argument("--spec", action="append", default=argparse.SUPPRESS,
                    help="an example spec's name (repeat for several; default: every one in model_spec/)")
-    p.add_argument("--mujoco-timestep", type=positive(1e-3), default=MUJOCO_TIMESTEP,
+    p.add_argument("--mujoco-timestep", type=ranged(FUZZ_TIMESTEP), default=MUJOCO_TIMESTEP,
                    help="MuJoCo's step, s (must divide the plant step)")
-    p.add_argument("--workers", type=whole(1, 64), default=2, help="worker processes of the local Dask cluster "
+    p.add_argument("--workers", type=ranged(WORKERS), default=2, help="worker processes of the local Dask cluster "
                    "(1: in this process, no Dask)")
     p.add_argument("--out", type=out_path, default=Path("results/plant_fuzz"), help="output folder")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
@@ -49,9 +50,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     try:  # it must divide every spec's plant step (the examples': 2 ms), checked before any work
         for name in args.spec or example_names():
             if name in example_names():
-                check_mujoco_timestep(load_spec(example_spec(name)).simulation.step, args.mujoco_timestep)
+                spec = load_spec(example_spec(name))
+                check_mujoco_timestep(spec.simulation.step, args.mujoco_timestep, 1.0 / spec.controller.rate_hz)
     except ValueError as err:
-        p.error(f"--mujoco-timestep: {err}")
+        p.error(f"--mujoco-timestep: {str(err).removeprefix('mujoco_timestep: ')}")
     return args
 
 

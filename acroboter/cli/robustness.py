@@ -31,6 +31,17 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from ..model.locations import example_spec
+from ..model.ranges import (
+    CONNECT_TIMEOUT,
+    DELAY,
+    DURATION,
+    INTEGRAL_GAIN,
+    NOISE,
+    SAMPLES,
+    SEED,
+    WORKERS_OR_NONE,
+    delay_problem,
+)
 from ..studies.grid import (
     MAX_RUNS,
     GridError,
@@ -52,25 +63,25 @@ from ..studies.robustness_grid import (
     crashed_rows,
     default_ranges,
     draw_sample,
+    group_range,
     parse_range,
     recommended_ki,
     run_sample,
 )
 from .entry import (
     EXIT_BAD_INPUT,
+    carrying,
     guarded,
-    name_value,
-    number,
-    positive,
+    named_number,
     progress_disabled,
+    ranged,
     spec_file,
-    whole,
 )
 from .outputs import out_path, results_folder
 
 DEFAULT_SPEC = example_spec("acroboter")
 DEFAULT_SAMPLES, DEFAULT_SEED, DEFAULT_DURATION = 200, 12, 20.0
-MAX_SAMPLES = 10_000
+MAX_SAMPLES = SAMPLES.high
 WHAT = "acroboter robustness"
 NO_DASK = "--workers 0 runs in this process without it"
 
@@ -86,15 +97,12 @@ class RobustnessResult:
     files: list[Path] = field(default_factory=list)
 
 
-def parse_sensing(noise: list[str], delay: int | None, seed: int | None) -> dict:
-    """The --sensing-* options as `Crane.simulate(sensing=...)` overrides (checked again there, by the spec)."""
+def parse_sensing(noise: list[tuple[str, float]], delay: int | None, seed: int | None) -> dict:
+    """The --sensing-* options (each number in its range already) as `Crane.simulate(sensing=...)` overrides
+    (checked again there, by the spec)."""
     sensing: dict = {}
-    for item in noise:
-        pair = name_value(item)
-        if pair is None or not math.isfinite(pair[1]) or pair[1] < 0:
-            raise ValueError(f"--sensing-noise takes GROUP=STD with a number ≥ 0 (e.g. positions=0.0002), "
-                             f"found '{item}'")
-        sensing.setdefault("noise", {})[pair[0]] = pair[1]
+    for group, value in noise:
+        sensing.setdefault("noise", {})[group] = value
     if delay is not None:
         sensing["delay_periods"] = delay
     if seed is not None:
@@ -125,20 +133,22 @@ def robustness(spec_path: Path = DEFAULT_SPEC, *, samples: int = DEFAULT_SAMPLES
     with results_folder(out, "robustness", expected=expected) if out is not None else nullcontext() as folder:
         spec = prepare(spec_path, duration)  # builds the library here if missing: the tasks only load it
         kp, kd = spec.controller.kp, spec.controller.kd
-        ki = recommended_ki(kp, kd) if ki is None else float(ki)
+        ki = recommended_ki(kp, kd) if ki is None else INTEGRAL_GAIN.check(ki, "--ki")  # a RangeError, a ValueError
         from ..model.spec import integral_gain_problem
 
-        if ki <= 0 or (problem := integral_gain_problem(kp, kd, ki)) is not None:
-            problem = problem if ki > 0 else "expected a positive number (the ki of the integral rows)"
+        if (problem := integral_gain_problem(kp, kd, ki)) is not None:
             raise ValueError(f"--ki: {problem}")
         if sensing is not None:  # checked here, before any task: a bad group or value is bad input
             from ..model.spec import SpecError
             from ..sim.sensing import resolve
 
             try:
-                resolve(spec, sensing, source="--sensing-*")
+                chosen = resolve(spec, sensing, source="--sensing-*")
             except SpecError as err:
                 raise ValueError(str(err)) from None
+            if chosen is not None and (problem := delay_problem(chosen.delay_periods, spec.controller.rate_hz,
+                                                                duration)) is not None:
+                raise ValueError(f"--sensing-delay: {problem}")
         drawn = [draw_sample(spec, seed, i, ranges) for i in range(samples)]
         task = functools.partial(run_sample, Path(spec_path).read_text(encoding="utf-8"), str(spec_path),
                                  duration=duration, methods=tuple(methods), kis=(0.0, ki), sensing=sensing)
@@ -260,40 +270,41 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     p.add_argument("--spec", type=spec_file, default=DEFAULT_SPEC,
                    help="model spec: a TOML file or an example's name (acroboter examples)")
-    p.add_argument("--samples", type=whole(1, MAX_SAMPLES), default=DEFAULT_SAMPLES, metavar="N",
+    p.add_argument("--samples", type=ranged(SAMPLES), default=DEFAULT_SAMPLES, metavar="N",
                    help="number of plant samples")
-    p.add_argument("--seed", type=whole(0), default=DEFAULT_SEED, metavar="S",
+    p.add_argument("--seed", type=ranged(SEED), default=DEFAULT_SEED, metavar="S",
                    help="seed: sample i is drawn from numpy's default_rng((S, i)), so any one can be drawn alone")
-    p.add_argument("--duration", type=positive(1e6), default=DEFAULT_DURATION, help="simulated seconds of the path")
-    p.add_argument("--ki", type=number(0.0, low_open=True), default=None,
+    p.add_argument("--duration", type=ranged(DURATION), default=DEFAULT_DURATION,
+                   help="simulated seconds of the path")
+    p.add_argument("--ki", type=ranged(INTEGRAL_GAIN), default=None,
                    help="k_I of the integral-action rows, 1/s³ (default: docs/integral_action.md's choice for the "
                         "spec's kp, kd: 18.375 for kp = kd = 5)")
     p.add_argument("--methods", default=",".join(DEFAULT_METHODS), help="comma-separated methods")
     for group, (what, unit, half, _) in GROUPS.items():
-        p.add_argument(f"--{group}-range", default=None, metavar="H|LO:HI",
-                       help=f"range of the {what}, {unit}: ±H or LO:HI (default ±{half:g})")
+        bounds = group_range(group)
+        p.add_argument(f"--{group}-range", type=_range_type(group), default=None, metavar="H|LO:HI",
+                       help=f"range of the {what}, {unit}: ±H or LO:HI, within {bounds.low:g}..{bounds.high:g} "
+                            f"(default ±{half:g})")
     p.add_argument("--sensing-noise", action="append", default=[], metavar="GROUP=STD",
+                   type=named_number(NOISE, "positions=0.0002", "GROUP=STD"),
                    help="measurement noise (standard deviation, m or unitless) of a sensing group, e.g. "
                         "positions=0.0002; repeatable (acroboter.sim.sensing, docs/sensing.md); default: none")
-    p.add_argument("--sensing-delay", type=whole(0), default=None, metavar="N",
-                   help="measurement delay in whole control periods (default: none)")
-    p.add_argument("--sensing-seed", type=whole(0), default=None, metavar="N",
+    p.add_argument("--sensing-delay", type=ranged(DELAY), default=None, metavar="N",
+                   help="measurement delay in whole control periods, shorter than --duration (default: none)")
+    p.add_argument("--sensing-seed", type=ranged(SEED), default=None, metavar="N",
                    help="seed of the measurement noise (the same for every sample; default: the spec's, 0)")
     p.add_argument("--out", type=out_path, default=Path("results/robustness"), help="output folder")
     p.add_argument("--scheduler", metavar="ADDRESS", default=None,
                    help="use the running Dask scheduler at ADDRESS instead of a local cluster; its workers need "
                         "this checkout with the model library built")
-    p.add_argument("--workers", type=whole(0, 64), default=2,
+    p.add_argument("--workers", type=ranged(WORKERS_OR_NONE), default=2,
                    help="worker processes of the local cluster (0: run in this process, no dask needed)")
-    p.add_argument("--connect-timeout", type=positive(3600.0), default=10.0, help="seconds to wait for --scheduler")
+    p.add_argument("--connect-timeout", type=ranged(CONNECT_TIMEOUT), default=10.0,
+                   help="seconds to wait for --scheduler")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures (and the worst sample's re-run)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar (the same as `acroboter -q robustness`)")
     args = p.parse_args(argv)
-    try:
-        args.ranges = {g: parse_range(getattr(args, f"{g}_range"), g) for g in GROUPS
-                       if getattr(args, f"{g}_range") is not None}
-    except ValueError as err:
-        p.error(str(err))
+    args.ranges = {g: getattr(args, f"{g}_range") for g in GROUPS if getattr(args, f"{g}_range") is not None}
     args.sensing = None
     if args.sensing_noise or args.sensing_delay is not None or args.sensing_seed is not None:
         try:
@@ -313,6 +324,18 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     if args.scheduler or args.workers:  # the options checked, before --out is made: the one line is the error
         require_dask(f"{WHAT} {'--scheduler' if args.scheduler else f'--workers {args.workers}'}", NO_DASK)
     return args
+
+
+def _range_type(group: str):
+    """The type of --<group>-range: ±H or LO:HI, both bounds in the group's range (robustness_grid.group_range)."""
+
+    def parse(text: str) -> tuple[float, float]:
+        try:
+            return parse_range(text, group, "")
+        except ValueError as err:
+            raise argparse.ArgumentTypeError(str(err)) from None
+
+    return carrying(parse, f"{group}_range", (group_range(group),), "{}")
 
 
 @guarded

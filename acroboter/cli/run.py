@@ -57,6 +57,7 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
     from ..control.controllers import SingularSystemError
     from ..control.recovery import RecoveryError
     from ..model.physical import PlantParameterError, with_parameters
+    from ..model.ranges import delay_problem
     from ..model.spec import SpecError
     from ..report.report import format_table, write_figures, write_summary
     from ..runtime.compiled import StaleModelError
@@ -72,9 +73,9 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
         with_parameters(spec, args.plant_params)  # names and values checked before any work (exit 2)
         if args.mujoco_timestep is not None:
             try:
-                check_mujoco_timestep(spec.simulation.step, args.mujoco_timestep)
+                check_mujoco_timestep(spec.simulation.step, args.mujoco_timestep, 1.0 / spec.controller.rate_hz)
             except ValueError as err:
-                print(f"error: --{str(err).replace('_', '-', 1)}", file=sys.stderr)
+                print(f"error: {_as_option(err)}", file=sys.stderr)
                 return 2
         sensing = crane.sensing(args.sensing)  # SpecError naming the field (exit 2), before any work
         methods = expand_methods(args.method, args.iterations or spec.controller.penalty.iterations)
@@ -82,11 +83,10 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
         folder.claim([f"{m}.csv" for m in methods] + ([] if args.no_plots else list(FIGURES)))
         try:
             gains = crane.gains(**overrides)
-        except ValueError as err:  # e.g. --ki past the stability bound of the spec's (or given) kp, kd
-            print(f"error: {err}", file=sys.stderr)
+        except ValueError as err:  # e.g. --kd outside what the control rate samples, --ki past Routh–Hurwitz
+            print(f"error: {_as_option(err)}", file=sys.stderr)
             return 2
         path = crane.path
-        start = crane.equilibrium()
         duration = args.duration if args.duration is not None else path.duration
         rate, step = spec.controller.rate_hz, spec.simulation.step
         steps = int(round(duration * rate))
@@ -94,6 +94,12 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
             print(f"error: --duration {duration:g} s is {steps} control steps at {rate:g} Hz: give between one "
                   f"({1 / rate:g} s) and {MAX_CONTROL_STEPS} ({MAX_CONTROL_STEPS / rate:g} s)", file=sys.stderr)
             return 2
+        if sensing and (problem := delay_problem(sensing.delay_periods, rate, duration)) is not None:
+            given = isinstance(args.sensing, dict) and "delay_periods" in args.sensing
+            where = "--sensing-delay" if given else "sensing.delay_periods (the spec's)"
+            print(f"error: {where}: {problem}", file=sys.stderr)
+            return 2
+        start = crane.equilibrium()
         results, summaries, warnings = {}, {}, [f"spec: {w}" for w in crane.warnings]
         # Before the run: can the path be followed within the limits at all?
         feasibility = crane.check_path(duration, **overrides)
@@ -244,6 +250,12 @@ def plant_provenance(args: argparse.Namespace, spec) -> dict:
 
     return {"engine": "mujoco", "mujoco_version": metadata.version("mujoco"), "integrator": "RK4",
             "step_s": args.mujoco_timestep or DEFAULT_TIMESTEP, "model": "acroboter.model.mjcf_model (docs/mujoco.md)"}
+
+
+def _as_option(err: Exception) -> str:
+    """'kd: expected …' (the library's argument) as '--kd: expected …' (the option that gave it)."""
+    name, sep, rest = str(err).partition(": ")
+    return f"--{name.replace('_', '-')}: {rest}" if sep and name.isidentifier() else str(err)
 
 
 def is_paper_crane(spec) -> bool:

@@ -4,13 +4,29 @@ value is one line and exit 2, never a traceback halfway through a run."""
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 
 from ..model.extras import require
 from ..model.locations import example_spec
+from ..model.ranges import (
+    ALPHA_GEOMETRIC,
+    ALPHA_SERVO,
+    DELAY,
+    DURATION,
+    ITERATIONS,
+    KAPPA,
+    KD,
+    KI,
+    KP,
+    MU,
+    MUJOCO_TIMESTEP,
+    NOISE,
+    OMEGA,
+    QUANTIZATION,
+    SEED,
+)
 from ..model.spec import MAX_ITERATIONS
-from .entry import name_value, number, positive, spec_file
+from .entry import named_number, ranged, ranged_list, spec_file
 from .outputs import out_path
 
 DEFAULT_SPEC = example_spec("acroboter")
@@ -26,45 +42,57 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--method", action="append", metavar="METHOD",
                    help="mlm, penalty, iterative or iterative-N; repeat or comma-separate "
                         "(default: mlm, penalty and iterative with the spec's iteration counts)")
-    p.add_argument("--iterations", type=str, default=None,
-                   help="iteration counts for 'iterative', comma-separated (default: from the spec)")
+    p.add_argument("--iterations", type=ranged_list(ITERATIONS), default=None,
+                   help="iteration counts for 'iterative', comma-separated, 1..1000 (default: from the spec)")
     p.add_argument("--recovery", choices=["projected", "eq12", "eq13", "eq15", "kappa"], default=None,
                    help="input recovery of the penalty methods (default: from the spec)")
-    p.add_argument("--kappa", type=number(0.0, 1.0), default=None,
+    p.add_argument("--kappa", type=ranged(KAPPA), default=None,
                    help="κ of the 'kappa' recovery, 0..1 (default: from the spec)")
-    p.add_argument("--alpha-geometric", type=positive(), default=None, help="α̃ (default: from the spec)")
-    p.add_argument("--alpha-servo", type=positive(), default=None, help="α̂ (default: from the spec)")
-    p.add_argument("--omega", type=positive(), default=None, help="Ω of the constraint penalty, 1/s (default: spec)")
-    p.add_argument("--mu", type=positive(), default=None, help="μ of the constraint penalty (default: spec)")
-    p.add_argument("--kp", type=positive(), default=None, help="servo gain k_P, 1/s (default: spec)")
-    p.add_argument("--kd", type=positive(), default=None, help="servo gain k_D, 1/s (default: spec)")
-    p.add_argument("--ki", type=number(0.0), default=None,
+    p.add_argument("--alpha-geometric", type=ranged(ALPHA_GEOMETRIC), default=None,
+                   help="α̃, 1..1e16 (default: from the spec)")
+    p.add_argument("--alpha-servo", type=ranged(ALPHA_SERVO), default=None, help="α̂, 1..1e16 (default: from the spec)")
+    p.add_argument("--omega", type=ranged(OMEGA), default=None,
+                   help="Ω of the constraint penalty, 1/s, at most 1e4 (default: spec)")
+    p.add_argument("--mu", type=ranged(MU), default=None,
+                   help="μ of the constraint penalty, at most 1e3 (default: spec)")
+    p.add_argument("--kp", type=ranged(KP), default=None,
+                   help="servo gain k_P, 1/s, at most 1e4, with kp²/(4·rate_hz) < kd < rate_hz (default: spec)")
+    p.add_argument("--kd", type=ranged(KD), default=None, help="servo gain k_D, 1/s, as --kp (default: spec)")
+    p.add_argument("--ki", type=ranged(KI), default=None,
                    help="integral gain k_I of the servo error dynamics, 1/s³, below 2·kd·kp²; 0: none "
                         "(default: spec, normally 0; docs/integral_action.md)")
     p.add_argument("--plant-param", action="append", default=[], metavar="NAME=VALUE", dest="plant_param",
+                   type=named_number(None, "SU.mass=8.8"),
                    help="a physical parameter of the plant other than the spec's (the controller keeps the spec's), "
                         "e.g. SU.mass=8.8; repeatable; names: gravity.z, <body>.mass, <body>.inertia.xx, "
                         "<body>.damping.translational, <body>.points.<point>.x, <cable>.length, "
-                        "<cable>.winch.reflected_inertia (docs/model.md, 'A plant that differs from the model')")
+                        "<cable>.winch.reflected_inertia (docs/model.md, 'A plant that differs from the model'); "
+                        "each within its spec field's range (docs/spec.md)")
     p.add_argument("--sensing-noise", action="append", default=[], metavar="GROUP=STD",
+                   type=named_number(NOISE, "positions=0.0002", "GROUP=STD"),
                    help="the controller measures instead of reading the plant's state: Gaussian noise (standard "
                         "deviation, m or unitless) of a sensing group, e.g. positions=0.0002; repeatable; groups: the "
-                        "spec's [sensing] ones, else positions, axes, lengths (docs/sensing.md)")
+                        "spec's [sensing] ones, else positions, axes, lengths, at most 1 (docs/sensing.md)")
     p.add_argument("--sensing-quantization", action="append", default=[], metavar="GROUP=STEP",
+                   type=named_number(QUANTIZATION, "lengths=0.0001", "GROUP=STEP"),
                    help="quantisation step of a sensing group (m or unitless), e.g. lengths=0.0001; repeatable")
-    p.add_argument("--sensing-delay", default=None, metavar="N",
-                   help="measurement delay in whole control periods (default: the spec's, else 0)")
-    p.add_argument("--sensing-seed", default=None, metavar="N", help="seed of the measurement noise (default: spec, 0)")
+    p.add_argument("--sensing-delay", type=ranged(DELAY), default=None, metavar="N",
+                   help="measurement delay in whole control periods, shorter than the run (default: the spec's, "
+                        "else 0)")
+    p.add_argument("--sensing-seed", type=ranged(SEED), default=None, metavar="N",
+                   help="seed of the measurement noise (default: spec, 0)")
     p.add_argument("--no-sensing", action="store_true",
                    help="ignore the spec's [sensing] section: the controller reads the plant's state")
     p.add_argument("--plant", choices=["own", "mujoco"], default="own",
                    help="the crane the controllers drive: own (the project's Baumgarte RK4 plant) or mujoco (MuJoCo "
                         "on the spec's MJCF model, docs/mujoco.md) (default: %(default)s)")
-    p.add_argument("--mujoco-timestep", type=number(0.0, 0.01, low_open=True), default=None, metavar="S",
-                   help="MuJoCo's time step with --plant mujoco, dividing the spec's plant step (default: 0.0001)")
+    p.add_argument("--mujoco-timestep", type=ranged(MUJOCO_TIMESTEP), default=None, metavar="S",
+                   help="MuJoCo's time step with --plant mujoco, dividing the spec's plant step, at most 100,000 per "
+                        "control period (default: 0.0001)")
     p.add_argument("--view", action="store_true",
                    help="after the run, replay it in MuJoCo's interactive viewer (needs a display)")
-    p.add_argument("--duration", type=positive(1e6), default=None, help="simulated seconds (default: the whole path)")
+    p.add_argument("--duration", type=ranged(DURATION), default=None,
+                   help="simulated seconds (default: the whole path)")
     p.add_argument("--out", type=out_path, default=Path("results"), help="output folder (default: %(default)s)")
     p.add_argument("--state", action="store_true",
                    help="add the rates q̇ of the natural coordinates to each CSV (q is always there)")
@@ -89,22 +117,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     except OSError as err:
         p.error(f"cannot use --out {args.out}: {err.strerror or err}")
     args.plant_params = {}
-    for item in args.plant_param:
-        pair = name_value(item)
-        if pair is None or not math.isfinite(pair[1]):
-            p.error(f"--plant-param takes NAME=VALUE with a finite number, e.g. SU.mass=8.8, found '{item}'")
-        name, value = pair
+    for name, value in args.plant_param:  # each value's range is its spec field's: checked with the spec
         if name in args.plant_params:
             p.error(f"--plant-param {name} given twice")
         args.plant_params[name] = value
     args.sensing = _sensing_overrides(p, args)
-    if args.iterations is not None:
-        try:
-            args.iterations = [int(v) for v in args.iterations.split(",")]
-        except ValueError:
-            p.error(f"--iterations takes comma-separated whole numbers, found '{args.iterations}'")
-        if any(not 1 <= i <= MAX_ITERATIONS for i in args.iterations):
-            p.error(f"--iterations must be between 1 and {MAX_ITERATIONS}, found {args.iterations}")
     try:
         if args.method is not None and not expand_methods(args.method, args.iterations or [1]):
             p.error(f"--method names no method, found {args.method}")
@@ -115,7 +132,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def _sensing_overrides(p: argparse.ArgumentParser, args: argparse.Namespace):
     """The --sensing-* options as Crane.simulate(sensing=...) takes them (None: the spec's section,
-    False: none). Values are checked by the sensing model itself (a SpecError naming the field, exit 2)."""
+    False: none). Each number is in its range already; the groups' names are checked by the sensing model (a
+    SpecError naming the field, exit 2), the delay against the run's length by `acroboter.cli.run`."""
     given = args.sensing_noise or args.sensing_quantization or args.sensing_delay is not None \
         or args.sensing_seed is not None
     if args.no_sensing:
@@ -126,20 +144,11 @@ def _sensing_overrides(p: argparse.ArgumentParser, args: argparse.Namespace):
         return None
     overrides: dict = {}
     for option, key in ((args.sensing_noise, "noise"), (args.sensing_quantization, "quantization")):
-        for item in option:
-            pair = name_value(item)
-            if pair is None or math.isnan(pair[1]):
-                p.error(f"--sensing-{key} takes GROUP=VALUE with a number, e.g. positions=0.0002, found '{item}'")
-            overrides.setdefault(key, {})[pair[0]] = pair[1]
-    for text, key in ((args.sensing_delay, "delay_periods"), (args.sensing_seed, "seed")):
-        if text is not None:
-            try:
-                overrides[key] = int(text)
-            except ValueError:
-                try:
-                    overrides[key] = float(text)  # refused with the field's name: an integer is expected
-                except ValueError:
-                    p.error(f"--sensing-{key.split('_')[0]} takes a whole number, found '{text}'")
+        for group, value in option:
+            overrides.setdefault(key, {})[group] = value
+    for value, key in ((args.sensing_delay, "delay_periods"), (args.sensing_seed, "seed")):
+        if value is not None:
+            overrides[key] = value
     return overrides
 
 

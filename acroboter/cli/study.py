@@ -20,15 +20,16 @@ from pathlib import Path
 import numpy as np
 
 from ..model.locations import spec_folder
+from ..model.ranges import STUDY_DURATION
 from ..model.spec import MAX_CONTROL_STEPS
 from ..report.study_figures import case_label, position_error_figure
 from ..studies.grid import run_cases, setup
-from .entry import guarded, positive, progress_disabled
+from .entry import guarded, progress_disabled, ranged
 from .outputs import ResultsFolder, out_path, results_folder
 
 # The study's cranes run at 50 Hz: the record cap in seconds.
 STUDY_RATE_HZ = 50.0
-STUDY_MAX_DURATION_S = MAX_CONTROL_STEPS / STUDY_RATE_HZ
+STUDY_MAX_DURATION_S = MAX_CONTROL_STEPS / STUDY_RATE_HZ  # STUDY_DURATION's bound (acroboter.model.ranges)
 
 SPECS = spec_folder()
 REDUNDANT_SPECS = ("acroboter", "acroboter_redundant", "acroboter_redundant_task")
@@ -132,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("which", nargs="?", choices=["redundant", "noncollocated", "all"], default="all",
                         help="which study to run (default: %(default)s)")
-    parser.add_argument("--duration", type=positive(STUDY_MAX_DURATION_S), default=None,
+    parser.add_argument("--duration", type=ranged(STUDY_DURATION), default=None,
                         help=f"simulated seconds, at most {STUDY_MAX_DURATION_S:g} (default: the whole path)")
     parser.add_argument("--out", type=out_path, default=Path("results/study"),
                         help="output folder (default: %(default)s)")

@@ -26,6 +26,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..model.locations import example_spec
+from ..model.ranges import (
+    ALPHA,
+    CONNECT_TIMEOUT,
+    DURATION,
+    GAIN_RANGES,
+    ITERATIONS,
+    OMEGA,
+    TOLERANCE,
+    WORKERS,
+    Range,
+)
 from ..report.study_figures import sweep_figures
 from ..studies.grid import (
     MAX_RUNS,
@@ -53,12 +64,12 @@ from .entry import (
     EXIT_BAD_INPUT,
     EXIT_CANNOT_RUN,
     EXIT_INTERRUPTED,
+    carrying,
     guarded,
-    number,
-    positive,
     progress_disabled,
+    ranged,
+    ranged_list,
     spec_file,
-    whole,
 )
 from .outputs import out_path, results_folder
 
@@ -112,6 +123,13 @@ def sweep(spec_path: Path = DEFAULT_SPEC, *, alphas: list[float] | None = None, 
     alphas = alphas or parse_values(DEFAULT_ALPHAS)
     omegas = omegas or parse_values(DEFAULT_OMEGAS)
     iterations = iterations or parse_iterations(DEFAULT_ITERATIONS)
+    for name, values, range_ in (("alphas", alphas, ALPHA), ("omegas", omegas, OMEGA), ("iterations", iterations,
+                                                                                          ITERATIONS)):
+        for value in values:  # a RangeError (ValueError) before any work: "alphas: expected 1 <= alpha <= 1e16, …"
+            range_.check(value, name)
+    for name, value in (("kp", kp), ("kd", kd), ("mu", mu)):
+        if value is not None:
+            GAIN_RANGES[name].check(value, name)
     # `out` checked before any work (OutputFolderError); the files are staged and swapped in at the end
     with results_folder(out, "sweep", expected=["sweep.csv"]) if out is not None else nullcontext() as folder:
         spec = prepare(spec_path, duration)  # builds the library here if missing: the tasks only load it
@@ -145,34 +163,44 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     p.add_argument("--spec", type=spec_file, default=DEFAULT_SPEC,
                    help="model spec: a TOML file or an example's name (acroboter examples)")
-    p.add_argument("--alphas", default=DEFAULT_ALPHAS,
-                   help="penalty numbers: comma-separated values or log ranges START:STOP[:PER_DECADE]")
+    p.add_argument("--alphas", type=_grid_axis(ALPHA), default=DEFAULT_ALPHAS,
+                   help="penalty numbers, each 1..1e16: comma-separated values or log ranges START:STOP[:PER_DECADE]")
     p.add_argument("--alpha-mode", choices=ALPHA_MODES, default="tied",
                    help="tied: α̃ = α̂ = α; geometric: sweep α̃ with α̂ from the spec; servo: sweep α̂ with α̃ from "
                         "the spec; grid: every (α̃, α̂) pair")
-    p.add_argument("--omegas", default=DEFAULT_OMEGAS, help="Ω values of the constraint penalty, 1/s")
-    p.add_argument("--iterations", default=DEFAULT_ITERATIONS,
-                   help="iteration counts N of the iterative penalty method (1 = the plain penalty method)")
-    p.add_argument("--duration", type=positive(1e6), default=None, help="simulated seconds (default: the whole path)")
-    p.add_argument("--tolerance", type=number(1.0, low_open=True), default=2.0,
+    p.add_argument("--omegas", type=_grid_axis(OMEGA), default=DEFAULT_OMEGAS,
+                   help="Ω values of the constraint penalty, 1/s, each at most 1e4 (values or log ranges)")
+    p.add_argument("--iterations", type=ranged_list(ITERATIONS), default=DEFAULT_ITERATIONS,
+                   help="iteration counts N of the iterative penalty method, 1..1000 (1 = the plain penalty method)")
+    p.add_argument("--duration", type=ranged(DURATION), default=None,
+                   help="simulated seconds (default: the whole path)")
+    p.add_argument("--tolerance", type=ranged(TOLERANCE), default=2.0,
                    help="a run is 'good' when its max position error is within this factor of MLM's")
     p.add_argument("--out", type=out_path, default=Path("results/sweep"), help="output folder")
     p.add_argument("--scheduler", metavar="ADDRESS", default=None,
                    help="use the running Dask scheduler at ADDRESS (e.g. tcp://10.0.0.5:8786) instead of a local "
                         "cluster; its workers need this checkout with the model library built")
-    p.add_argument("--workers", type=whole(1, 64), default=2, help="worker processes of the local cluster")
-    p.add_argument("--connect-timeout", type=positive(3600.0), default=10.0, help="seconds to wait for --scheduler")
+    p.add_argument("--workers", type=ranged(WORKERS), default=2, help="worker processes of the local cluster")
+    p.add_argument("--connect-timeout", type=ranged(CONNECT_TIMEOUT), default=10.0,
+                   help="seconds to wait for --scheduler")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar (the same as `acroboter -q sweep`)")
     args = p.parse_args(argv)
-    try:
-        args.alphas = parse_values(args.alphas, "--alphas")
-        args.omegas = parse_values(args.omegas, "--omegas")
-        args.iterations = parse_iterations(args.iterations)
-    except ValueError as err:
-        p.error(str(err))
     require_dask(WHAT)  # the options checked, before --out is made: without dask the one line is the error (exit 2)
     return args
+
+
+def _grid_axis(range_: Range):
+    """The type of a grid axis (--alphas, --omegas): values and log ranges (acroboter.studies.grid.parse_values),
+    each value in `range_`."""
+
+    def parse(text: str) -> list[float]:
+        try:
+            return parse_values(text, "", range_)
+        except ValueError as err:
+            raise argparse.ArgumentTypeError(str(err)) from None
+
+    return carrying(parse, range_.name, (range_,), "{}")
 
 
 @guarded

@@ -37,13 +37,14 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from .layout import build_layout, nominal_coordinates
+from .ranges import MUJOCO_TIMESTEP, mujoco_work_problem
 from .spec import BodyThrust, BodyTorque, Spec, SpecError, WinchTension
 
 # The constraint and integration settings the agreement with the project's plant was measured at
 # (docs/mujoco.md): RK4, a Newton solver run to round-off, and cable limits as stiff as MuJoCo allows
 # at the time step (a time constant of two steps, critically damped, impedance near 1).
 DEFAULT_TIMESTEP = 1e-4  # s
-MAX_TIMESTEP = 0.01  # s: beyond this the cables' constraint time constant is too soft to call them cables
+MAX_TIMESTEP = MUJOCO_TIMESTEP.high  # s: beyond, the cables' constraint time constant is too soft to call them cables
 SOLVER_TOLERANCE = 1e-12
 SOLVER_ITERATIONS = 100
 # The cable limits' solref is (2·timestep, CABLE_DAMPRATIO): MuJoCo raises a time constant below two steps
@@ -130,8 +131,9 @@ def mjcf_xml(spec: Spec, timestep: float = DEFAULT_TIMESTEP, start: tuple[np.nda
     cables' constraint time constant (two steps). The model's reference pose (qpos0) is the spec's
     initial configuration, or with `start` = (q, u) (natural coordinates and inputs, e.g. the static
     equilibrium) that pose, with a keyframe `static_start` holding u as ctrl."""
-    if not (math.isfinite(timestep) and 0 < timestep <= MAX_TIMESTEP):
-        raise ValueError(f"MuJoCo time step: expected a number of seconds in (0, {MAX_TIMESTEP:g}], found {timestep!r}")
+    MUJOCO_TIMESTEP.check(timestep, "MuJoCo time step")  # a RangeError (ValueError), as the work per period:
+    if (problem := mujoco_work_problem(timestep, 1.0 / spec.controller.rate_hz)) is not None:
+        raise ValueError(f"MuJoCo time step: {problem}")
     check_representable(spec)
     layout = build_layout(spec)
     q0 = nominal_coordinates(spec, layout) if start is None else np.asarray(start[0], dtype=float)

@@ -25,7 +25,7 @@ the controller measures and commands, not the crane it acts on).
 
 from __future__ import annotations
 
-import math
+import numbers
 from collections.abc import Mapping
 
 import numpy as np
@@ -121,9 +121,9 @@ def with_parameters(spec: Spec, overrides: Mapping[str, float]) -> Spec:
     if not overrides:
         return spec
     data = spec.model_dump()
-    for name, value in overrides.items():
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            raise PlantParameterError(f"plant parameter {name}: expected a finite number, found {value!r}")
+    for name, value in overrides.items():  # each in its spec field's range (NaN, ±inf too): parse_spec says so
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
+            raise PlantParameterError(f"plant parameter {name}: expected a number, found {value!r}")
         _set(data, spec, name, float(value))
     try:
         return parse_spec(data, f"{spec.name} with plant parameters")

@@ -22,15 +22,54 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
+from .ranges import (
+    ALPHA_GEOMETRIC,
+    ALPHA_SERVO,
+    ANGLE,
+    BAUMGARTE_OMEGA,
+    BAUMGARTE_ZETA,
+    CABLE_LENGTH,
+    COORDINATE,
+    DAMPING,
+    DELAY,
+    GAIN,
+    GRAVITY,
+    INERTIA,
+    INITIAL_YAW,
+    ITERATIONS,
+    KAPPA,
+    KD,
+    KI,
+    KP,
+    LIMIT,
+    MASS,
+    MEAN_SPEED,
+    MU,
+    NOISE,
+    OMEGA,
+    PATH_YAW,
+    PREFERRED,
+    PROJECTION_ITERATIONS,
+    QUANTIZATION,
+    RADIUS,
+    RATE,
+    REFLECTED_INERTIA,
+    SEED,
+    STEP,
+    VELOCITY_FILTER,
+)
+
 AXES = ("u", "v", "w")
 # Caps that keep every command's work and memory bounded (checked here, once, before any work).
 MAX_NAME_LENGTH = 64  # a name is a folder, a file name prefix and a C symbol prefix
-MAX_ITERATIONS = 1000  # iterative penalty: far beyond where it stops improving (~10)
+MAX_ITERATIONS = ITERATIONS.high  # iterative penalty: far beyond where it stops improving (~10)
 MAX_CONTROL_STEPS = 360_000  # 2 hours at 50 Hz: about 200 MB of records for the default crane
 MAX_PLANT_SUBSTEPS = 10_000  # plant steps per control period
-# A wide SI window for physical magnitudes: outside it a number is a unit mistake, not a crane.
-MASS_RANGE = (1e-6, 1e6)  # kg
-LENGTH_LIMIT = 1e4  # m, for positions, points and cable lengths
+# A wide SI window for physical magnitudes: outside it a number is a unit mistake, not a crane. Every numeric
+# field has its Range (acroboter.model.ranges: bounds, unit, why), checked by pydantic in the same words.
+MASS_RANGE = (MASS.low, MASS.high)  # kg
+LENGTH_LIMIT = COORDINATE.high  # m, for positions, points and cable lengths
+MIN_PRINCIPAL_MOMENT = 1e-12  # kg·m²: a milligram 1 mm from the axis (the lightest body at a small radius)
 # J = ½ tr(I) E − I must stay well conditioned (it is the axes' part of M): I1 + I2 − I3 at least
 # this fraction of I3 (a flat lamina, I1 + I2 = I3, makes M singular).
 INERTIA_MARGIN = 1e-6
@@ -66,21 +105,19 @@ def _exactly(count: int, what: str):
     return AfterValidator(check)
 
 
-Vec3 = Annotated[list[float], _exactly(3, "3 numbers [x, y, z]")]
-Coordinate = Annotated[float, Field(ge=-LENGTH_LIMIT, le=LENGTH_LIMIT)]
+Vec3 = Annotated[list[INERTIA.field()], _exactly(3, "3 numbers [x, y, z]")]  # a row of an inertia tensor
+Coordinate = COORDINATE.field()
 Position = Annotated[list[Coordinate], _exactly(3, "3 numbers [x, y, z]")]  # m
-Positive = Annotated[float, Field(gt=0)]
-NonNegative = Annotated[float, Field(ge=0)]
-Mass = Annotated[float, Field(ge=MASS_RANGE[0], le=MASS_RANGE[1])]
-Length = Annotated[float, Field(gt=0, le=LENGTH_LIMIT)]
+Mass = MASS.field()
+Length = CABLE_LENGTH.field()
 Name = Annotated[str, Field(pattern=NAME_PATTERN, max_length=MAX_NAME_LENGTH)]
 
 
 class PolarPoint(_Strict):
     """A point in the body's xy-plane given by radius and angle, lifted by `height` along w."""
 
-    radius: Annotated[float, Field(ge=0, le=LENGTH_LIMIT)]
-    angle_deg: float
+    radius: RADIUS.field()
+    angle_deg: ANGLE.field()
     height: Coordinate = 0.0
 
     def xyz(self) -> list[float]:
@@ -104,8 +141,8 @@ BodyPoint = Annotated[
 
 
 class Damping(_Strict):
-    translational: NonNegative = 0.0  # N·s/m on the centre-of-mass velocity
-    rotational: NonNegative = 0.0  # N·m·s on the angular velocity
+    translational: DAMPING.field() = 0.0  # N·s/m on the centre-of-mass velocity
+    rotational: DAMPING.field() = 0.0  # N·m·s on the angular velocity
 
 
 class Body(_Strict):
@@ -113,7 +150,7 @@ class Body(_Strict):
     mass: Mass
     inertia: Annotated[list[Vec3], _exactly(3, "a 3x3 matrix (3 rows of 3 numbers)")]
     initial_position: Position
-    initial_yaw_deg: float = 0.0
+    initial_yaw_deg: INITIAL_YAW.field() = 0.0
     damping: Damping = Damping()
     points: dict[Name, BodyPoint] = {}
     redundant_constraints: bool = False  # add w - u x v = 0 on top of the six orthonormality rows
@@ -130,6 +167,9 @@ class Body(_Strict):
         shown = ", ".join(f"{m:.6g}" for m in moments)
         if moments[0] <= 0:
             raise ValueError(f"expected a positive definite inertia tensor (kg·m²), found principal moments {shown}")
+        if moments[0] < MIN_PRINCIPAL_MOMENT:
+            raise ValueError(f"expected principal moments of at least {MIN_PRINCIPAL_MOMENT:g} kg·m² (a milligram 1 mm "
+                             f"from the axis), found principal moments {shown}")
         if moments[0] + moments[1] < moments[2] * (1 - 1e-12):
             raise ValueError(
                 "expected principal moments that satisfy the triangle inequality I1 + I2 >= I3, "
@@ -158,7 +198,7 @@ class Anchor(_Strict):
 
 
 class Winch(_Strict):
-    reflected_inertia: Positive  # kg, drum inertia seen by the cable length coordinate
+    reflected_inertia: REFLECTED_INERTIA.field()  # kg, drum inertia seen by the cable length coordinate
 
 
 class Cable(_Strict):
@@ -169,25 +209,18 @@ class Cable(_Strict):
 
 
 # A limit may be infinite (TOML inf / -inf: unbounded on that side), never NaN.
-Limit = Annotated[float, Field(allow_inf_nan=True)]
+Limit = LIMIT.field()
 
 
 class _ActuatorBase(_Strict):
     name: Name
-    # Generalized force per unit input (a motor constant, or -1 for a reversed mounting).
-    gain: float = 1.0
+    # Generalized force per unit input (a motor constant, or -1 for a reversed mounting); never 0.
+    gain: GAIN.field() = 1.0
     # [min, max] of the input in its own unit (N, N·m); default: see default_limits().
     limits: Annotated[list[Limit], _exactly(2, "2 numbers [min, max]")] | None = None
     # The value the tension distribution pulls an input towards where the task leaves it free (the
     # internal forces of redundant actuation); default: the middle of finite limits (see preferred_value).
-    preferred: float | None = None
-
-    @field_validator("gain")
-    @classmethod
-    def _gain_nonzero(cls, value: float) -> float:
-        if value == 0:
-            raise ValueError("expected a nonzero gain (a zero gain is no actuator), found 0")
-        return value
+    preferred: PREFERRED.field() | None = None
 
     @field_validator("limits")
     @classmethod
@@ -276,48 +309,48 @@ TASK_KINDS = _kinds(PositionTask, YawTask, LevelTask)
 
 class PathSpec(_Strict):
     waypoints: Annotated[list[Position], Field(min_length=2)]
-    mean_speed: Annotated[float, Field(gt=0, le=LENGTH_LIMIT)]  # m/s
-    yaw_deg: float = 0.0
+    mean_speed: MEAN_SPEED.field()  # m/s
+    yaw_deg: PATH_YAW.field() = 0.0
 
 
 class Penalty(_Strict):
-    alpha_geometric: Positive
-    alpha_servo: Positive
-    omega: Positive
-    mu: Positive
-    iterations: Annotated[list[Annotated[int, Field(ge=1, le=MAX_ITERATIONS)]], Field(min_length=1)] = [3, 4, 5]
+    alpha_geometric: ALPHA_GEOMETRIC.field()
+    alpha_servo: ALPHA_SERVO.field()
+    omega: OMEGA.field()
+    mu: MU.field()
+    iterations: Annotated[list[ITERATIONS.field()], Field(min_length=1)] = [3, 4, 5]
     recovery: Literal[RECOVERIES] = "projected"
-    kappa: Annotated[float, Field(ge=0, le=1)] = 0.5
-
+    kappa: KAPPA.field() = 0.5
 
 
 class Controller(_Strict):
-    rate_hz: Positive
-    kp: Positive
-    kd: Positive
+    rate_hz: RATE.field()
+    kp: KP.field()
+    kd: KD.field()
     # Integral action on the servo-constraints (docs/integral_action.md): 0 is the plain PD law.
-    ki: NonNegative = 0.0
+    ki: KI.field() = 0.0
     penalty: Penalty
 
 
 def integral_gain_problem(kp: float, kd: float, ki: float) -> str | None:
     """Why ki does not go with kp, kd (None if it does): the servo error dynamics with integral action,
-    s³ + 2k_D s² + k_P² s + k_I, are stable iff k_I < 2 k_D k_P² (Routh–Hurwitz; ki ≥ 0 checked apart)."""
+    s³ + 2k_D s² + k_P² s + k_I, are stable iff k_I < 2 k_D k_P² (Routh–Hurwitz; ki ≥ 0 checked apart; ki = 0 is
+    the PD law, whatever kp² rounds to)."""
     bound = 2.0 * kd * kp**2
-    if ki >= bound:
+    if ki > 0 and ki >= bound:
         return (f"expected ki below 2·kd·kp² = {bound:g} 1/s³ (Routh–Hurwitz: the servo error dynamics "
                 f"s³ + 2kd s² + kp² s + ki are unstable otherwise), found {ki:g}")
     return None
 
 
 class Simulation(_Strict):
-    step: Positive
-    baumgarte_zeta: Positive
-    baumgarte_omega: Positive
+    step: STEP.field()
+    baumgarte_zeta: BAUMGARTE_ZETA.field()
+    baumgarte_omega: BAUMGARTE_OMEGA.field()
 
 
 # Measurement instead of state (docs/sensing.md): which coordinates the controller's sensors measure.
-MAX_SENSING_DELAY = 1000  # control periods
+MAX_SENSING_DELAY = DELAY.high  # control periods
 SENSING_VECTORS = ("r", "u", "v", "w")
 
 
@@ -325,16 +358,16 @@ class SensingGroup(_Strict):
     name: Name
     # "<body>" (r, u, v, w), "<body>.<r|u|v|w>", "<body>.<r|u|v|w>_<x|y|z>", "<winch cable>.length"
     coordinates: Annotated[list[str], Field(min_length=1)]
-    noise: NonNegative = 0.0  # standard deviation of the Gaussian noise, m or unitless
-    quantization: Positive | None = None  # step of the quantiser, m or unitless; absent: no quantisation
+    noise: NOISE.field() = 0.0  # standard deviation of the Gaussian noise, m or unitless
+    quantization: QUANTIZATION.field() | None = None  # step of the quantiser, m or unitless; absent: no quantisation
 
 
 class Sensing(_Strict):
     groups: Annotated[list[SensingGroup], Field(min_length=1)]
-    delay_periods: Annotated[int, Field(ge=0, le=MAX_SENSING_DELAY)] = 0  # whole control periods
-    seed: Annotated[int, Field(ge=0)] = 0
-    velocity_filter_s: Annotated[float, Field(gt=0, le=100.0)] = 0.02  # time constant of the velocity estimate, s
-    projection_iterations: Annotated[int, Field(ge=1, le=50)] = 3  # Gauss–Newton steps onto φ(q) = 0
+    delay_periods: DELAY.field() = 0  # whole control periods
+    seed: SEED.field() = 0
+    velocity_filter_s: VELOCITY_FILTER.field() = 0.02  # time constant of the velocity estimate, s
+    projection_iterations: PROJECTION_ITERATIONS.field() = 3  # Gauss–Newton steps onto φ(q) = 0
     # Carry the delayed estimate forward to the control instant with the commanded accelerations.
     predict_delay: bool = True
 
@@ -360,7 +393,7 @@ def sensing_coordinates(spec: Spec, selector: str) -> list[str] | None:
 class Spec(_Strict):
     name: Name
     description: str = ""
-    gravity: Annotated[list[Annotated[float, Field(ge=-1e3, le=1e3)]], _exactly(3, "3 numbers [x, y, z]")]
+    gravity: Annotated[list[GRAVITY.field()], _exactly(3, "3 numbers [x, y, z]")]
     anchors: list[Anchor] = []
     bodies: Annotated[list[Body], Field(min_length=1)]
     cables: list[Cable] = []

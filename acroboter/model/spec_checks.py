@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 
+from .ranges import baumgarte_problem, damping_problem, delay_problem, sampled_gain_problems
 from .schema import (
     MAX_CONTROL_STEPS,
     MAX_PLANT_SUBSTEPS,
@@ -178,6 +179,7 @@ def check_references(spec: Spec) -> list[tuple[str, str]]:
     elif substeps > MAX_PLANT_SUBSTEPS:
         problems.append(("simulation.step", f"expected at most {MAX_PLANT_SUBSTEPS} plant steps per control period, "
                                             f"found {substeps} ({spec.simulation.step:g} s in {period:g} s)"))
+    problems += _stiffness_problems(spec)
     lengths = np.linalg.norm(np.diff(waypoints, axis=0), axis=1)
     steps = lengths.sum() / spec.path.mean_speed * spec.controller.rate_hz
     if lengths.sum() > 0 and not steps >= 1:
@@ -195,10 +197,32 @@ def check_references(spec: Spec) -> list[tuple[str, str]]:
         if len(set(anchor.follows_path)) != len(anchor.follows_path):
             problems.append((f"anchors[{i}].follows_path", f"expected each axis once, found {anchor.follows_path}"))
     c = spec.controller
+    problems += sampled_gain_problems(c.kp, c.kd, c.rate_hz)
     if (problem := integral_gain_problem(c.kp, c.kd, c.ki)) is not None:
         problems.append(("controller.ki", problem))
     if spec.sensing is not None:
         problems += sensing_problems(spec, spec.sensing)
+        duration = lengths.sum() / spec.path.mean_speed
+        if lengths.sum() > 0 and (problem := delay_problem(spec.sensing.delay_periods, c.rate_hz, duration,
+                                                           what="path")) is not None:
+            problems.append(("sensing.delay_periods", problem))
+    return problems
+
+
+def _stiffness_problems(spec: Spec) -> list[tuple[str, str]]:
+    """What the plant's fixed RK4 step cannot integrate: the Baumgarte stabilisation's fastest pole, a body's
+    damping rate (damping over its mass, or over its smallest principal moment)."""
+    sim = spec.simulation
+    problems: list[tuple[str, str]] = []
+    if (problem := baumgarte_problem(sim.baumgarte_zeta, sim.baumgarte_omega, sim.step)) is not None:
+        problems.append(("simulation.baumgarte_omega", problem))
+    for i, body in enumerate(spec.bodies):
+        smallest = float(np.linalg.eigvalsh(np.array(body.inertia, dtype=float))[0])
+        for kind, inertia, what in (("translational", body.mass, "mass"),
+                                    ("rotational", smallest, "smallest principal moment")):
+            damping = getattr(body.damping, kind)
+            if (problem := damping_problem(damping, inertia, sim.step, what)) is not None:
+                problems.append((f"bodies[{i}].damping.{kind}", problem))
     return problems
 
 

@@ -115,6 +115,8 @@ def _describe(e: dict, parts: list, data: Any) -> tuple[list, str]:
     if kind in ("float_type", "float_parsing", "int_type", "int_parsing", "int_from_float"):
         what = "an integer" if kind.startswith("int") else "a number"
         return parts, f"expected {what}, found {_found(value)}"
+    if kind == "number_range":  # a Range's own words (acroboter.model.ranges): expected 0 < kp <= 1e4 (1/s), found …
+        return parts, e["msg"]
     if kind == "finite_number":
         return parts, f"expected a finite number, found {_found(value)}"
     if kind in ("greater_than", "greater_than_equal", "less_than", "less_than_equal"):

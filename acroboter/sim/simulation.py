@@ -412,13 +412,15 @@ def constraint_violation(result: RunResult, layout) -> float:
 PLANTS = ("own", "mujoco")  # the project's Baumgarte RK4 plant, or MuJoCo on the spec's MJCF model
 
 
-def check_mujoco_timestep(plant_step: float, dt) -> float:
-    """MuJoCo's step: a number of seconds in (0, MAX_TIMESTEP] that divides the spec's plant step
-    (ValueError naming a step that does, otherwise)."""
-    from ..model.mjcf_model import MAX_TIMESTEP
+def check_mujoco_timestep(plant_step: float, dt, control_period: float | None = None) -> float:
+    """MuJoCo's step: a number of seconds in its range (acroboter.model.ranges.MUJOCO_TIMESTEP) that divides the
+    spec's plant step (ValueError naming a step that does, otherwise) and, with `control_period`, makes at most
+    MAX_MUJOCO_STEPS_PER_PERIOD steps in it (the work, and the memory of the path's table, a period takes)."""
+    from ..model.ranges import MUJOCO_TIMESTEP, mujoco_work_problem
 
-    if isinstance(dt, bool) or not isinstance(dt, int | float) or not (math.isfinite(dt) and 0 < dt <= MAX_TIMESTEP):
-        raise ValueError(f"mujoco_timestep: expected a number of seconds in (0, {MAX_TIMESTEP:g}], found {dt!r}")
+    MUJOCO_TIMESTEP.check(dt, "mujoco_timestep")  # a RangeError, a ValueError
+    if control_period is not None and (problem := mujoco_work_problem(dt, control_period)) is not None:
+        raise ValueError(f"mujoco_timestep: {problem}")
     count = plant_step / dt
     if round(count) >= 1 and math.isclose(round(count) * dt, plant_step, rel_tol=1e-9):
         return float(dt)
@@ -449,6 +451,7 @@ def setup_default(model: CompiledModel, path: DesiredPath, plant_params=None, pl
     from ..model.mjcf_model import DEFAULT_TIMESTEP
     from .mujoco_plant import MujocoPlant
 
-    dt = check_mujoco_timestep(sim.step, DEFAULT_TIMESTEP if mujoco_timestep is None else mujoco_timestep)
+    dt = check_mujoco_timestep(sim.step, DEFAULT_TIMESTEP if mujoco_timestep is None else mujoco_timestep,
+                               1.0 / model.spec.controller.rate_hz)
     return MujocoPlant(model, path, plant_params, timestep=float(dt))
 

@@ -28,6 +28,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..model.ranges import Range
 from ..model.spec import MAX_CONTROL_STEPS
 
 # At most this many values per grid axis and runs per grid (checked while parsing, before any work).
@@ -49,9 +50,21 @@ class MissingLibraryError(GridError):
 # Before any task
 
 
-def parse_values(text: str, what: str = "values") -> list[float]:
-    """Comma-separated numbers, each a value or a log range START:STOP[:PER_DECADE] (default 1 per decade)."""
+def parse_values(text: str, what: str = "values", range_: Range | None = None) -> list[float]:
+    """Comma-separated numbers, each a value or a log range START:STOP[:PER_DECADE] (default 1 per decade), each
+    value (and each range's ends, before it is expanded) in `range_` (default: positive and finite). A ValueError
+    starts with `what` (none for an empty `what`: argparse names the option)."""
+    head = f"{what}: " if what else ""
     values: list[float] = []
+
+    def checked(value: float) -> float:
+        problem = (range_.problem(value) if range_ is not None
+                   else None if math.isfinite(value) and value > 0 else f"expected a positive finite number, found "
+                                                                        f"{value:g}")
+        if problem is not None:
+            raise ValueError(f"{head}{problem}")
+        return value
+
     for item in (s.strip() for s in text.split(",")):
         if not item:
             continue
@@ -59,26 +72,29 @@ def parse_values(text: str, what: str = "values") -> list[float]:
         try:
             nums = [float(p) for p in parts]
         except ValueError:
-            raise ValueError(f"{what}: expected numbers or START:STOP[:PER_DECADE] ranges, found '{item}'") from None
+            each = f", each {range_.text()}" if range_ is not None else ""
+            raise ValueError(f"{head}expected numbers or START:STOP[:PER_DECADE] ranges{each}, "
+                             f"found '{item}'") from None
         if len(nums) == 1:
-            values.append(nums[0])
+            values.append(checked(nums[0]))
             continue
-        if len(nums) > 3 or nums[0] <= 0 or nums[1] < nums[0]:
-            raise ValueError(f"{what}: a range is START:STOP[:PER_DECADE] with 0 < START <= STOP, found '{item}'")
+        if len(nums) > 3:
+            raise ValueError(f"{head}a range is START:STOP[:PER_DECADE], found '{item}'")
+        checked(nums[0]), checked(nums[1])
+        if nums[1] < nums[0]:
+            raise ValueError(f"{head}a range is START:STOP[:PER_DECADE] with 0 < START <= STOP, found '{item}'")
         per_decade = nums[2] if len(nums) == 3 else 1.0
-        if per_decade <= 0 or per_decade != int(per_decade):
-            raise ValueError(f"{what}: points per decade must be a whole number >= 1, found '{item}'")
+        if not (math.isfinite(per_decade) and per_decade >= 1 and per_decade == int(per_decade)):
+            raise ValueError(f"{head}points per decade must be a whole number >= 1, found '{item}'")
         lo, hi = math.log10(nums[0]), math.log10(nums[1])
         count = int(round((hi - lo) * per_decade)) + 1
         if count + len(values) > MAX_GRID_VALUES:  # refused before the list is built: "1:1e300:1e6" is cheap to type
-            raise ValueError(f"{what}: at most {MAX_GRID_VALUES} values, found a range of {count} in '{item}'")
+            raise ValueError(f"{head}at most {MAX_GRID_VALUES} values, found a range of {count} in '{item}'")
         # 12 digits: from 3e3, 10 ** (lo + i) gives 3000000.000000001; the grid's values must be the
         # numbers a user would type (and finds in the CSV).
         values += [float(f"{10 ** (lo + i / per_decade):.12g}") for i in range(count)]
     if not values:
-        raise ValueError(f"{what}: no values given")
-    if any(not math.isfinite(v) or v <= 0 for v in values):
-        raise ValueError(f"{what}: every value must be positive and finite, found {text!r}")
+        raise ValueError(f"{head}no values given")
     return list(dict.fromkeys(values))
 
 
@@ -109,7 +125,11 @@ def prepare(spec_path: Path, duration: float | None = None):
 
 def check_duration(spec, duration: float | None) -> None:
     """A duration of 1..MAX_CONTROL_STEPS control steps of the spec's controller (None: the whole path)."""
+    from ..model.ranges import DURATION
+
     rate = spec.controller.rate_hz
+    if duration is not None and (problem := DURATION.problem(duration)) is not None:
+        raise GridError(f"--duration: {problem}")
     if duration is not None and not 1 <= round(duration * rate) <= MAX_CONTROL_STEPS:
         raise GridError(f"--duration {duration:g} s is {round(duration * rate)} control steps at {rate:g} Hz: give "
                         f"between one ({1 / rate:g} s) and {MAX_CONTROL_STEPS}")

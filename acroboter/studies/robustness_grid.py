@@ -65,24 +65,41 @@ def group_of(name: str) -> str | None:
     return None
 
 
-def parse_range(text: str, group: str) -> tuple[float, float]:
-    """'H' (±H) or 'LO:HI' for a group; relative groups in fractions (> -1), the others in mm."""
-    what = f"--{group}-range"
+def group_range(group: str):
+    """The Range of a group's --<group>-range bounds (acroboter.model.ranges): relative groups as fractions from a
+    tenth to ten times the model's value, the others a metre either way (in mm)."""
+    import dataclasses
+
+    from ..model.ranges import OFFSET_RANGE, RELATIVE_RANGE
+
+    return dataclasses.replace(RELATIVE_RANGE if GROUPS[group][3] else OFFSET_RANGE, name=f"{group}_range")
+
+
+def parse_range(text: str, group: str, what: str | None = None) -> tuple[float, float]:
+    """'H' (±H) or 'LO:HI' for a group, both bounds in its range (group_range); relative groups in fractions,
+    the others in mm. A ValueError starts with `what` (default --<group>-range; '' for none)."""
+    what = f"--{group}-range" if what is None else what
+    head = f"{what}: " if what else ""
+    range_ = group_range(group)
     try:
         parts = [float(p) for p in str(text).split(":")]
     except ValueError:
-        raise ValueError(f"{what}: expected a number H (±H) or LO:HI, found '{text}'") from None
-    if len(parts) not in (1, 2) or not all(math.isfinite(p) for p in parts):
-        raise ValueError(f"{what}: expected a finite number H (±H) or LO:HI, found '{text}'")
+        raise ValueError(f"{head}expected H (±H) or LO:HI with {range_.text()}, found '{text}'") from None
+    if len(parts) not in (1, 2):
+        raise ValueError(f"{head}expected H (±H) or LO:HI with {range_.text()}, found '{text}'")
     if len(parts) == 1:
+        if (problem := range_.problem(parts[0])) is not None:
+            raise ValueError(f"{head}{problem}")
         if parts[0] < 0:
-            raise ValueError(f"{what}: a half-width must be ≥ 0, found {parts[0]:g} (give LO:HI for a one-sided range)")
+            raise ValueError(f"{head}a half-width must be ≥ 0, found {parts[0]:g} (give LO:HI for a one-sided range, "
+                             f"with {range_.text()})")
         parts = [-parts[0], parts[0]]
+    for value in parts:
+        if (problem := range_.problem(value)) is not None:
+            raise ValueError(f"{head}{problem}" + (f" (±{text})" if ":" not in str(text) else ""))
     lo, hi = parts
     if lo > hi:
-        raise ValueError(f"{what}: LO:HI needs LO ≤ HI, found {lo:g} > {hi:g}")
-    if GROUPS[group][3] and lo <= -1:
-        raise ValueError(f"{what}: a relative range must stay above -1 (-100 %), found {lo:g}")
+        raise ValueError(f"{head}LO:HI needs LO ≤ HI, found {lo:g} > {hi:g}")
     return lo, hi
 
 
