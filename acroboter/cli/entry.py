@@ -62,8 +62,11 @@ def guarded(main: Callable[..., int]) -> Callable[..., int]:
 
     @functools.wraps(main)
     def wrapper(*args, **kwargs) -> int:
+        from ..model.quiet import contained
+
         try:
-            return main(*args, **kwargs)
+            with contained():  # a helper library's warning or log line: -v only (acroboter.model.quiet)
+                return main(*args, **kwargs)
         except KeyboardInterrupt:
             print("interrupted", file=sys.stderr)
             return EXIT_INTERRUPTED
