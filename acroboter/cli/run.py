@@ -61,6 +61,7 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
     from ..report.report import format_table, write_figures, write_summary
     from ..runtime.compiled import StaleModelError
     from ..sim.plant import SimulationError
+    from ..sim.sensing import SensingError
     from ..sim.simulation import check_mujoco_timestep
     from ..sim.statics import EquilibriumError
 
@@ -111,7 +112,8 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
                     # This method cannot handle this system (e.g. MLM and redundant constraints), or
                     # failed at its first step: say why, and go on with the others.
                     summaries[method] = {"error": str(err)}
-                    warnings.append(f"{method} cannot run on this spec: {err}")
+                    cause = "with this sensing" if isinstance(err, SensingError) else "on this spec"
+                    warnings.append(f"{method} cannot run {cause}: {err}")
                     bar.update(steps)
                     continue
                 results[method] = r
@@ -133,7 +135,7 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
     if not results:  # nothing to show: the earlier results in --out stay as they were
         for w in warnings:
             print(f"warning: {w}", file=sys.stderr)
-        print("error: no method could run on this spec (see the warnings above); nothing was written",
+        print("error: no method could run (see the warnings above); nothing was written",
               file=sys.stderr)
         return 3
     args.sensing_used = sensing
