@@ -10,6 +10,8 @@ keyframe `static_start` whose ctrl holds it there (load it in MuJoCo's viewer: w
 the winches pay out and the load falls); `--pose spec` writes the spec's initial configuration
 instead, which is the XML checked in as generated/<spec>/<spec>.xml for the specs in model_spec/.
 It needs the mujoco extra (pip install 'acroboter[mujoco]'); without it, it says so before any work.
+Into a folder (-o FOLDER, or the current folder by default) the XML follows the output-folder contract of every
+command (docs/run.md): recorded in the folder's manifest, a file of yours of that name never written over.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import tempfile
 from pathlib import Path
 
 from .entry import file_write_problem, guarded, number, spec_file
-from .outputs import out_path
+from .outputs import out_path, results_folder
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -54,21 +56,33 @@ def main(argv: list[str] | None = None) -> int:
     import mujoco
 
     from ..model.locations import example_spec
-    from ..model.mjcf_model import mjcf_xml
     from ..model.spec import load_spec
 
     spec_path = args.spec if args.spec is not None else example_spec("acroboter")
     spec = load_spec(spec_path)
-    out = None
+    out, folder = None, None
     if str(args.out) != "-":  # checked before any work (the static pose compiles the crane's library)
         out = args.out if args.out is not None else Path(f"{spec.name}.xml")
-        if out.is_dir():
-            out = out / f"{spec.name}.xml"
+        if out.is_dir() or args.out is None:  # into a folder (the current one by default): <spec name>.xml
+            folder = out if out.is_dir() else Path(".")
+            out = folder / f"{spec.name}.xml"
         problem = file_write_problem(out)
         if problem:
             print(f"error: -o {args.out}: {problem}: give a file in a folder you can write to, or - for stdout",
                   file=sys.stderr)
             return 2
+    if folder is None:
+        return _write(args, spec, spec_path, out, mujoco)
+    # Into a folder: the output-folder contract (docs/run.md): locked, <spec>.xml recorded in its manifest, a file
+    # of that name that no earlier mjcf wrote refused before any work; each spec's XML is its own (accumulate).
+    with results_folder(folder, "mjcf", option="-o", expected=[out.name], accumulate=True) as staged:
+        return _write(args, spec, spec_path, out, mujoco, staged)
+
+
+def _write(args: argparse.Namespace, spec, spec_path: Path, out: Path | None, mujoco, staged=None) -> int:
+    """The XML on stdout (out None), into the staged folder, or into the file `out` through a temporary file."""
+    from ..model.mjcf_model import mjcf_xml
+
     start = None
     if args.pose == "static":
         from ..api.crane import Crane
@@ -83,23 +97,27 @@ def main(argv: list[str] | None = None) -> int:
     if out is None:
         sys.stdout.write(xml)
         return 0
-    target = out.resolve() if out.is_symlink() else out  # a link keeps pointing at the written file
-    # Written beside the target and renamed: an interrupted write never leaves half an XML.
-    tmp = None
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
-        with os.fdopen(fd, "w") as f:
-            f.write(xml)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # as an ordinary new file (mkstemp's 0600 would stick)
-        os.replace(tmp, target)
-    except OSError as err:
-        print(f"error: -o {args.out}: cannot write it: {err.strerror or err}", file=sys.stderr)
-        return 2
-    finally:
-        if tmp is not None and os.path.exists(tmp):
-            os.unlink(tmp)
+    if staged is not None:
+        (staged.staging / out.name).write_text(xml)
+        staged.publish()
+    else:
+        target = out.resolve() if out.is_symlink() else out  # a link keeps pointing at the written file
+        # Written beside the target and renamed: an interrupted write never leaves half an XML.
+        tmp = None
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+            with os.fdopen(fd, "w") as f:
+                f.write(xml)
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)  # as an ordinary new file (mkstemp's 0600 would stick)
+            os.replace(tmp, target)
+        except OSError as err:
+            print(f"error: -o {args.out}: cannot write it: {err.strerror or err}", file=sys.stderr)
+            return 2
+        finally:
+            if tmp is not None and os.path.exists(tmp):
+                os.unlink(tmp)
     if not args.quiet:
         print(f"wrote {out}: {model.nbody - 1} bodies, {model.njnt} joints, {model.ntendon} tendons, "
               f"{model.nu} actuators (MuJoCo {mujoco.__version__}, time step {model.opt.timestep:g} s)")

@@ -37,12 +37,16 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {args.view_problem}", file=sys.stderr)
         return 3
     existed = args.out.exists()
+    folder = None
     try:
         # --out checked now (exit 2); the results are staged and swapped in at the end (docs/run.md). The
         # videos `acroboter animate` wrote into this folder show the earlier run: they go with its files.
         with results_folder(args.out, "run", expected=["summary.json"], replaces=("animate",)) as folder:
             return _run(args, folder)
     except KeyboardInterrupt:
+        if folder is not None and folder.published:  # Ctrl-C during the swap: held back until it was done
+            print(f"interrupted (the results in {args.out} are complete: they were in place first)", file=sys.stderr)
+            return 130
         earlier = f"the earlier ones in {args.out} are as they were" if existed else f"{args.out} was not created"
         print(f"interrupted: no results written ({earlier})", file=sys.stderr)
         return 130
