@@ -147,8 +147,8 @@ def spec_file(text: str) -> Path:
     from ..model.locations import example_names, example_spec
 
     path = Path(text)
-    if path.suffix == ".toml" or path.exists() or os.sep in text:
-        return path
+    if path.suffix == ".toml" or (path.exists() and not path.is_dir()) or os.sep in text:  # (a folder is no spec:
+        return path  # `--spec acroboter` in the checkout, beside the package's folder, is the example)
     names = example_names()
     if text in names:
         return example_spec(text)
