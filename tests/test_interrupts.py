@@ -91,7 +91,8 @@ def interrupt(tmp_path: Path, argv: list[str], hook: tuple[str, str, str], *, gr
                             env={**os.environ, **(env or {})})
     try:
         deadline = time.monotonic() + START_LIMIT_S
-        while not marker.exists() or (wait_for and wait_for not in session_processes(proc.pid).values()):
+        while not marker.exists() or (wait_for and not any(name.startswith(wait_for) for name in
+                                                            session_processes(proc.pid).values())):
             assert proc.poll() is None, f"ended before the phase: {proc.communicate()}"
             assert time.monotonic() < deadline, "the phase never started"
             time.sleep(0.05)
@@ -209,6 +210,22 @@ def test_while_the_figures_are_written(tmp_path, group):
     code, err, _, _ = interrupt(tmp_path, ["run", "--duration", "0.2", "--method", "penalty", "--out", str(out), "-q"],
                                 ("acroboter.report.report", "", "write_figures"), group=group, repeat=True)
     assert_interrupted(code, err)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before and not staging_left(tmp_path)
+
+
+@pytest.mark.needs_animation
+@GROUP
+def test_while_a_video_is_encoded(tmp_path, group):
+    """ffmpeg (in a process group of its own: imageio-ffmpeg's) is killed before its input closes: it prints no
+    complaint about a half frame, and the run's folder is as it was."""
+    out = tmp_path / "run"
+    assert subprocess.run([sys.executable, "-m", "acroboter", "run", "--duration", "10", "--method", "penalty",
+                           "--no-plots", "-q", "--out", str(out)], capture_output=True, timeout=300).returncode == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    code, err, _, _ = interrupt(tmp_path, ["animate", str(out), "--renderer", "matplotlib", "-q"],
+                                ("acroboter.cli.animate", "", "write_complete"), group=group, wait_for="ffmpeg")
+    assert_interrupted(code, err)
+    assert err.strip() == "interrupted", err
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before and not staging_left(tmp_path)
 
 

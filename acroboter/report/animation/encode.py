@@ -35,9 +35,25 @@ def write_mp4(frames: Iterator[np.ndarray], path: Path, fps: float, total: int, 
                           disable=progress_disabled(quiet), file=sys.stderr):
             writer.append_data(frame)
             count += 1
-    finally:
-        writer.close()
+    except BaseException:  # Ctrl-C or an error: the video is abandoned
+        _abandon(writer)
+        raise
+    writer.close()
     return count
+
+
+def _abandon(writer) -> None:
+    """Stop an MP4 writer's ffmpeg at once: killed before its input closes (closed, it would print its complaint
+    about a half frame on the terminal, and the writer would wait for it), then the writer closed."""
+    frame = getattr(getattr(writer, "_write_gen", None), "gi_frame", None)  # imageio-ffmpeg's write_frames
+    ffmpeg = frame.f_locals.get("p") if frame is not None else None
+    if ffmpeg is not None and hasattr(ffmpeg, "kill") and ffmpeg.poll() is None:
+        ffmpeg.kill()
+        ffmpeg.wait()
+    try:
+        writer.close()
+    except Exception:  # noqa: BLE001 - abandoned: the error that stopped it is the one to report
+        pass
 
 
 def write_gif(frames: Iterator[np.ndarray], path: Path, fps: float, total: int, quiet: bool,
