@@ -19,11 +19,10 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import tempfile
 from pathlib import Path
 
 from .entry import file_write_problem, guarded, number, spec_file
-from .outputs import out_path, results_folder
+from .outputs import out_path, partial_path, remove_stale_partials, results_folder
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -102,15 +101,14 @@ def _write(args: argparse.Namespace, spec, spec_path: Path, out: Path | None, mu
         staged.publish()
     else:
         target = out.resolve() if out.is_symlink() else out  # a link keeps pointing at the written file
-        # Written beside the target and renamed: an interrupted write never leaves half an XML.
+        # Written beside the target and renamed: an interrupted write never leaves half an XML; the temporary
+        # file carries this process's id, and one a killed mjcf left is removed by the next write of the file.
+        remove_stale_partials(target)
         tmp = None
         try:
-            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
-            with os.fdopen(fd, "w") as f:
+            tmp = partial_path(target)
+            with open(tmp, "x") as f:  # an ordinary new file (mode 0666 less the umask)
                 f.write(xml)
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)  # as an ordinary new file (mkstemp's 0600 would stick)
             os.replace(tmp, target)
         except OSError as err:
             print(f"error: -o {args.out}: cannot write it: {err.strerror or err}", file=sys.stderr)

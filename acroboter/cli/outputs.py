@@ -294,6 +294,20 @@ def results_folder(out: Path | str, command: str, *, option: str = "--out", expe
         folder._unlock()
 
 
+def partial_path(target: Path) -> Path:
+    """The temporary file of this process beside `target` (a file a command names: mjcf -o FILE)."""
+    return target.with_name(f".{target.name}.{os.getpid()}.partial")
+
+
+def remove_stale_partials(target: Path) -> None:
+    """Remove the temporary files beside `target` whose process is gone (killed before it could clean up)."""
+    with contextlib.suppress(OSError):
+        for entry in target.parent.glob(f".{target.name}.*.partial"):
+            pid = entry.name[len(target.name) + 2:-len(".partial")]
+            if pid.isdigit() and not _alive(int(pid)) and entry.is_file():
+                entry.unlink(missing_ok=True)
+
+
 def out_path(text: str) -> Path:
     """The argparse type of every output option (--out, -o, --gif, RESULTS_DIR): an empty name is refused
     (Path('') would silently be the current folder)."""
