@@ -41,6 +41,7 @@ def wrapped(*args, **kwargs):
     return real(*args, **kwargs)
 
 setattr(owner, {name!r}, wrapped)
+{extra}
 from acroboter.cli.console import main
 sys.exit(main({argv!r}))
 """
@@ -80,12 +81,14 @@ def children_running(pid: int, pattern: str) -> list[int]:
 
 
 def interrupt(tmp_path: Path, argv: list[str], hook: tuple[str, str, str], *, group: bool, repeat: bool = False,
-              wait_for: str | None = None, env: dict | None = None) -> tuple[int, str, float, list[int]]:
+              wait_for: str | None = None, env: dict | None = None, extra: str = "",
+              sent_at: list[float] | None = None) -> tuple[int, str, float, list[int]]:
     """Run `acroboter ARGV` with `hook` (module, class or '', function) marked, SIGINT once the phase started;
     (exit code, stderr, seconds from the signal to the exit, the pids of any Dask cluster it had started)."""
     marker = tmp_path / "phase-started"
     module, owner, name = hook
-    script = PRELUDE.format(marker=str(marker), module=module, owner=owner, name=name, repeat=repeat, argv=argv)
+    script = PRELUDE.format(marker=str(marker), module=module, owner=owner, name=name, repeat=repeat, argv=argv,
+                            extra=extra)
     proc = subprocess.Popen([sys.executable, "-c", script], cwd=tmp_path, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True,
                             env={**os.environ, **(env or {})})
@@ -99,6 +102,8 @@ def interrupt(tmp_path: Path, argv: list[str], hook: tuple[str, str, str], *, gr
         time.sleep(0.2)  # inside the phase
         clusters = children_running(proc.pid, "acroboter.studies.cluster")
         sent = time.monotonic()
+        if sent_at is not None:
+            sent_at.append(time.time())
         if group:
             os.killpg(proc.pid, signal.SIGINT)  # what a terminal's Ctrl-C does
         else:
@@ -161,14 +166,33 @@ def test_while_casadi_generates_the_code(tmp_path, group):
 def test_while_the_generated_c_compiles(tmp_path, group):
     """generate's compile check: SIGINT to the group kills the compilers too (that was 'does not compile', exit 3);
     to the process alone it stops them (that took 7-28 s)."""
-    out, tmp = tmp_path / "generated", tmp_path / "tmp"
+    out, tmp, ends, sent = tmp_path / "generated", tmp_path / "tmp", tmp_path / "compiles.log", []
     tmp.mkdir()
+    log_ends = COMPILE_ENDS.format(log=str(ends))
     code, err, _, _ = interrupt(tmp_path, ["generate", str(SPEC_DIR / "lab_crane.toml"), "--out", str(out)],
                                 ("acroboter.runtime.build", "", "build"), group=group, wait_for="cc1",
-                                env={"TMPDIR": str(tmp)})
+                                env={"TMPDIR": str(tmp)}, extra=log_ends, sent_at=sent)
     assert_interrupted(code, err)
     assert not out.exists() and not staging_left(tmp_path)
     assert list(tmp.iterdir()) == []  # the compile check's folder went too (and gcc's own temporary files)
+    # stopped, not waited for: no compiler that was still running when the signal went finished its file
+    finished = [line.split() for line in ends.read_text().splitlines()]
+    assert not [(t, c) for t, c in finished if float(t) > sent[0] and int(c) == 0], finished
+
+
+COMPILE_ENDS = """
+import time
+from acroboter.runtime import build as _build
+_run = _build._Compilers.run
+
+def _logged(self, command):
+    code, err = _run(self, command)
+    with open({log!r}, "a") as f:
+        f.write(f"{{time.time()}} {{code}}\\n")
+    return code, err
+
+_build._Compilers.run = _logged
+"""
 
 
 @GROUP

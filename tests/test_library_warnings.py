@@ -59,7 +59,7 @@ def test_a_reported_failure_shows_no_library_warning(tmp_path):
     bad.write_text((REPO / "model_spec" / "acroboter.toml").read_text().replace(
         'cable = "L1"', 'cable = "L1"\nlimits = [1e300, inf]'))
     proc = run_noisy(tmp_path, ["run", "--spec", str(bad), "--duration", "0.2", "--method", "mlm,penalty",
-                                "--out", str(tmp_path / "out")])
+                                "--out", str(tmp_path / "out")], hook=("acroboter.api.crane", "load_spec"))
     assert proc.returncode == 3 and "error: no method could run" in proc.stderr, proc.stderr
     assert not [w for w in LEAKS if w in proc.stderr], proc.stderr
     lines = proc.stderr.strip().splitlines()
