@@ -1,17 +1,24 @@
 """The one output-folder contract (acroboter.cli.outputs, docs/run.md), the same cases for every command that
-writes a results folder (issue 24 item 1): a user's files named like results survive, a narrower re-run
-leaves nothing of the wider one, an empty or unusable --out is refused before any work, a failed or
-interrupted run leaves the folder as it was (and no folder it made), a killed run's staging folder goes.
+writes files (issue 24 item 1): a user's files named like results survive, a narrower re-run leaves nothing of
+the wider one (export-step, mjcf and animate: each spec's, method's or video's file is its own, and stays), an
+empty or unusable --out is refused before any work, a failed or interrupted run leaves the folder as it was
+(and no folder it made), a killed run's staging folder goes, and a command never writes into a folder another
+one is writing into (exit 3, naming it). generate --out keeps whole generated folders (its own staging and
+swap): the same promises, by its own cases at the end.
 
 The commands run in this process (their `main`, behind the error boundary) with cheap arguments."""
 
 from __future__ import annotations
 
+import atexit
 import importlib
 import json
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
+import time
 from pathlib import Path
 
 import pytest
@@ -25,6 +32,7 @@ RUN_FIGURES = {"path_3d.png", "tracking_errors.png", "servo_errors.png", "inputs
 STUDY = {f"{s}/{n}" for s in ("redundant", "noncollocated") for n in ("table.md", "summary.json", "position_error.png")}
 SWEEP = ["--alphas", "1e3", "--omegas", "10", "--iterations", "1", "--duration", "0.2", "--workers", "1", "-q"]
 ROBUST = ["--samples", "1", "--workers", "0", "--duration", "0.2", "--methods", "penalty", "-q"]
+ANIMATE = ["--fps", "2", "--size", "160x120", "--renderer", "matplotlib", "-q"]  # one frame of a 0.2 s run
 
 # command: (module, wide arguments, what they write, narrower arguments, what those write)
 COMMANDS = {
@@ -43,21 +51,51 @@ COMMANDS = {
     "plant-fuzz": ("plant_fuzz", ["--cases", "1", "--workers", "1", "--spec", "acroboter", "-q"],
                    {"plant_fuzz.csv", "report.md"},
                    ["--cases", "1", "--workers", "1", "--spec", "acroboter", "-q"], {"plant_fuzz.csv", "report.md"}),
+    "export-step": ("generate:export_step_main", ["--spec", "lab_crane", "--method", "mlm"],
+                    {"lab_crane_mlm_step.c", "lab_crane_mlm_step.h"}, ["--spec", "lab_crane", "--method", "penalty"],
+                    {"lab_crane_penalty_step.c", "lab_crane_penalty_step.h"}),
+    "mjcf": ("mjcf", ["acroboter", "--pose", "spec", "-q"], {"acroboter.xml"},
+             ["lab_crane", "--pose", "spec", "-q"], {"lab_crane.xml"}),
+    "animate": ("animate", ["{run}", "--method", "mlm", *ANIMATE], {"animation_mlm.mp4"},
+                ["{run}", "--method", "penalty", *ANIMATE], {"animation_penalty.mp4"}),
 }
-NEEDS = {"sweep": pytest.mark.needs_dask, "plant-fuzz": pytest.mark.needs_mujoco}  # the extras (tests/conftest.py)
-EVERY = [pytest.param(c, marks=[NEEDS[c]] if c in NEEDS else []) for c in COMMANDS]
+# One file per spec, method or video: a run of another one keeps the earlier ones (ResultsFolder accumulate)
+ACCUMULATE = {"export-step", "mjcf", "animate"}
+# The option as the messages name it; whether a missing --out is made; whether an existing file is an output
+OPTION = {"mjcf": "-o"}
+MADE = set(COMMANDS) - {"mjcf", "animate"}  # mjcf and animate write into an existing folder or name a file
+FILE_IS_OUTPUT = {"mjcf"}  # -o FILE writes that file
+NEEDS = {"sweep": [pytest.mark.needs_dask], "plant-fuzz": [pytest.mark.needs_mujoco],  # the extras (conftest.py)
+         "mjcf": [pytest.mark.needs_mujoco], "animate": [pytest.mark.needs_animation]}
+EVERY = [pytest.param(c, marks=NEEDS.get(c, [])) for c in COMMANDS]
 # A user's own files named like some command's results (the issue's list and more)
 LOOKALIKES = ["mlm.csv", "penalty.csv", "iterative-3.csv", "inputs.png", "summary.json", "sweep.csv", "report.md",
               "bench.json", "robustness.csv", "samples.csv", "plant_fuzz.csv", "animation_x.gif",
               "animation_penalty.mp4", "sweep_condition.png", "redundant/table.md", "noncollocated/notes.txt",
-              ".hidden"]
+              ".hidden", "lab_crane.xml", "lab_crane_mlm_step.c", "animation_mlm.mp4"]
+_RUN: list[Path] = []
+
+
+def animated_run() -> Path:
+    """A run's folder for animate (mlm and penalty, 0.2 s), made once."""
+    if not _RUN:
+        from acroboter.cli import run
+
+        folder = Path(tempfile.mkdtemp(prefix="acroboter-animate-source-"))
+        atexit.register(shutil.rmtree, folder, True)
+        assert run.main(["--duration", "0.2", "--method", "mlm,penalty", "--no-plots", "-q",
+                         "--out", str(folder / "run")]) == 0
+        _RUN.append(folder / "run")
+    return _RUN[0]
 
 
 def call(command: str, args: list[str]) -> int:
     """The command's exit code, as `acroboter <command> ARGS` gives it (argparse's exit included)."""
-    module = importlib.import_module(f"acroboter.cli.{COMMANDS[command][0]}")
+    module, _, function = COMMANDS[command][0].partition(":")
+    main = getattr(importlib.import_module(f"acroboter.cli.{module}"), function or "main")
+    args = [str(animated_run()) if a == "{run}" else a for a in args]
     try:
-        return module.main(args)
+        return main(args)
     except SystemExit as stop:
         return stop.code
 
@@ -90,7 +128,10 @@ def test_user_files_survive_and_a_narrower_rerun_leaves_nothing_of_the_wider_one
     assert set(files(out)) == set(mine) | wrote | {MANIFEST}
     assert results(out) == wrote  # the manifest lists exactly this run's files
     assert call(command, [*narrow, "--out", str(out)]) == 0, capsys.readouterr().err
-    assert set(files(out)) == set(mine) | narrower | {MANIFEST}  # nothing of the wider run
+    if command in ACCUMULATE:  # another spec's, method's or video's file: both stay, both the command's
+        assert set(files(out)) == set(mine) | wrote | narrower | {MANIFEST} and results(out) == wrote | narrower
+    else:
+        assert set(files(out)) == set(mine) | narrower | {MANIFEST}  # nothing of the wider run
     assert {k: v for k, v in files(out).items() if k in mine} == mine
     assert not [p for p in out.iterdir() if p.is_dir() and p.name not in {"redundant", "noncollocated"}]
     if command == "study":  # the wider run's folder went with its files; one holding a user's file stays
@@ -106,7 +147,7 @@ def test_a_users_file_under_a_results_name_is_refused_before_any_work(command, t
     monkeypatch.setattr(outputs.ResultsFolder, "publish", lambda self: pytest.fail("the work ran"))
     assert call(command, [*narrow, "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert "--out" in err and sorted(narrower)[0] in err and "Traceback" not in err
+    assert OPTION.get(command, "--out") in err and sorted(narrower)[0] in err and "Traceback" not in err
     assert files(out) == before
 
 
@@ -114,6 +155,8 @@ def test_a_users_file_under_a_results_name_is_refused_before_any_work(command, t
 @pytest.mark.parametrize("given", ["", "a file", "unwritable"])
 def test_an_empty_or_unusable_out_is_refused_before_any_work(command, given, tmp_path, capsys, monkeypatch):
     _, _, _, narrow, _ = COMMANDS[command]
+    if given == "a file" and command in FILE_IS_OUTPUT:
+        pytest.skip(f"{command} -o FILE writes that file")
     monkeypatch.chdir(tmp_path)
     target = ""
     if given == "a file":
@@ -125,7 +168,7 @@ def test_an_empty_or_unusable_out_is_refused_before_any_work(command, given, tmp
     monkeypatch.setattr(outputs.ResultsFolder, "publish", lambda self: pytest.fail("the work ran"))
     assert call(command, [*narrow, "--out", target]) == 2
     err = capsys.readouterr().err
-    assert "--out" in err and "Traceback" not in err
+    assert OPTION.get(command, "--out") in err and "Traceback" not in err
     assert files(tmp_path) == before and [p.name for p in tmp_path.iterdir()] == list(before)
 
 
@@ -137,6 +180,7 @@ def test_a_failed_or_interrupted_run_leaves_the_folder_as_it_was(command, failur
     results and the user's files are as they were, no staging folder is left, and a fresh --out is not made."""
     _, _, _, narrow, narrower = COMMANDS[command]
     out = tmp_path / "out"
+    out.mkdir()
     assert call(command, [*narrow, "--out", str(out)]) == 0, capsys.readouterr().err
     before = put(out, ["notes.txt"])
     staged = []
@@ -150,7 +194,7 @@ def test_a_failed_or_interrupted_run_leaves_the_folder_as_it_was(command, failur
     assert "Traceback" not in capsys.readouterr().err
     assert staged  # it failed with its results staged
     assert files(out) == before and not [p for p in out.iterdir() if p.name.startswith(STAGING_PREFIX)]
-    if code == 3:  # once a command (the work is its cost): a fresh --out is not left behind, nor its parent
+    if code == 3 and command in MADE:  # once a command (the work is its cost): a fresh --out is not left behind
         fresh = tmp_path / "fresh" / "deeper"
         assert call(command, [*narrow, "--out", str(fresh)]) == code
         assert not (tmp_path / "fresh").exists()
@@ -160,15 +204,117 @@ def test_a_failed_or_interrupted_run_leaves_the_folder_as_it_was(command, failur
 def test_a_killed_runs_staging_folder_is_cleaned_at_the_next_start(command, tmp_path, capsys):
     _, _, _, narrow, narrower = COMMANDS[command]
     out = tmp_path / "out"
+    out.mkdir()
     gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
     stale = out / f"{STAGING_PREFIX}{command}-{int(gone.stdout)}-abc123"
     live = out / f"{STAGING_PREFIX}{command}-{os.getppid()}-def456"  # a running process's: kept
     for folder in (stale, live):
-        (folder / "sub").mkdir(parents=True)
+        (folder / "sub").mkdir(parents=True)  # (out exists: mjcf and animate write into an existing folder)
         (folder / "sub" / "summary.json").write_text("half written")
     assert call(command, [*narrow, "--out", str(out)]) == 0, capsys.readouterr().err
     assert not stale.exists() and live.exists()
     assert results(out) == narrower
+
+
+HOLD = """
+import sys, time
+from pathlib import Path
+from acroboter.cli.outputs import folder_lock
+with folder_lock(Path(sys.argv[1])):
+    print("held", flush=True)
+    time.sleep(300)
+"""
+
+
+def holding(folder: Path) -> subprocess.Popen:
+    """Another process writing into `folder` (holding its lock, as a running command does)."""
+    proc = subprocess.Popen([sys.executable, "-c", HOLD, str(folder)], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout.readline() == "held\n"
+    return proc
+
+
+@pytest.mark.parametrize("command", EVERY)
+def test_a_second_command_into_a_folder_in_use_is_refused_naming_the_other(command, tmp_path, capsys, monkeypatch):
+    """Two commands into one folder at once: the second exits 3 before any work, naming the first's process, and
+    the folder is as the first left it."""
+    _, _, _, narrow, _ = COMMANDS[command]
+    out = tmp_path / "out"
+    before = put(out, ["notes.txt"])
+    other = holding(out)
+    try:
+        monkeypatch.setattr(outputs.ResultsFolder, "publish", lambda self: pytest.fail("the work ran"))
+        assert call(command, [*narrow, "--out", str(out)]) == 3
+    finally:
+        other.kill()
+        other.wait()
+    err = capsys.readouterr().err
+    assert f"process {other.pid}" in err and "another acroboter command is writing into it" in err, err
+    assert OPTION.get(command, "--out") in err and "Traceback" not in err
+    assert files(out) == before and not [p for p in out.iterdir() if p.name.startswith(STAGING_PREFIX)]
+
+
+def test_two_real_runs_into_one_folder(tmp_path):
+    """A run in progress (a long one) and a second into its folder: refused (exit 3, naming the first); the first
+    finishes, or is interrupted, unharmed."""
+    out = tmp_path / "out"
+    first = subprocess.Popen([sys.executable, "-m", "acroboter", "run", "--method", "iterative", "--iterations",
+                              "300", "--duration", "30", "--no-plots", "-q", "--out", str(out)],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 300
+    while not (out.exists() and any(p.name.startswith(STAGING_PREFIX) for p in out.iterdir())):
+        assert first.poll() is None and time.monotonic() < deadline, first.communicate()
+        time.sleep(0.1)
+    second = subprocess.run([sys.executable, "-m", "acroboter", "run", "--duration", "0.2", "--no-plots", "-q",
+                             "--out", str(out)], capture_output=True, text=True, timeout=300)
+    first.send_signal(subprocess.signal.SIGINT)
+    _, err = first.communicate(timeout=120)
+    assert second.returncode == 3 and f"process {first.pid}" in second.stderr, second.stderr
+    assert first.returncode in (0, 130), err  # interrupted, or (a fast machine) done first
+    left = list(out.iterdir()) if out.exists() else []  # (interrupted, the first removes the folder it made)
+    assert not [p for p in left if p.name.startswith(STAGING_PREFIX)]
+    assert not (out / "summary.json").exists() or "iterative-300" in json.loads((out / "summary.json").read_text())[
+        "methods"]  # never the second's
+
+
+def test_generate_never_replaces_a_folder_that_is_not_generated_code(tmp_path, capsys):
+    """generate --out DIR writes DIR/<crane>/ whole: a folder of that name that is not a crane's generated code is
+    the user's and refused before any work (exit 2); a killed generate's staging goes at the next start."""
+    from acroboter.cli import generate
+
+    out = tmp_path / "out"
+    before = put(out, ["lab_crane/notes.txt"])
+    spec = str(REPO / "model_spec" / "lab_crane.toml")
+    assert generate.main(["generate", spec, "--out", str(out), "--no-compile-check"]) == 2
+    err = capsys.readouterr().err
+    assert "--out" in err and "lab_crane" in err and "not the generated code" in err and "Traceback" not in err
+    assert files(out) == before
+    shutil.rmtree(out / "lab_crane")
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    stale = [out / ".lab_crane.new-abcd1234", out / f".lab_crane.old-{int(gone.stdout)}"]
+    live = out / f".lab_crane.old-{os.getpid()}"
+    for folder in (*stale, live):
+        (folder / "lab_crane_phi.c").parent.mkdir(parents=True)
+        (folder / "lab_crane_phi.c").write_text("/* half */")
+    assert generate.main(["generate", spec, "--out", str(out), "--no-compile-check"]) == 0
+    assert not any(p.exists() for p in stale) and live.exists()
+    assert json.loads((out / "lab_crane" / "manifest.json").read_text())["spec"] == "lab_crane"
+    assert generate.main(["generate", spec, "--out", str(out), "--no-compile-check"]) == 0  # its own: replaced
+
+
+def test_generate_into_a_folder_in_use_is_refused(tmp_path, capsys):
+    from acroboter.cli import generate
+
+    out = tmp_path / "out"
+    out.mkdir()
+    other = holding(out)
+    try:
+        code = generate.main(["generate", str(REPO / "model_spec" / "lab_crane.toml"), "--out", str(out)])
+    finally:
+        other.kill()
+        other.wait()
+    err = capsys.readouterr().err
+    assert code == 3 and f"process {other.pid}" in err and "Traceback" not in err, err
+    assert list(out.iterdir()) == []
 
 
 def test_a_run_replaces_the_videos_animate_recorded_in_its_folder_and_no_other(tmp_path, capsys):

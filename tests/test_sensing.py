@@ -355,3 +355,34 @@ def test_cli_runs_with_sensing_and_records_it(tmp_path):
                                     "quantization": None}
     api = Crane.from_example("acroboter").simulate("penalty", duration=1.0, sensing=NOISY).summary()
     assert summary["methods"]["penalty"]["max_position_error_mm"] == pytest.approx(api["max_position_error_mm"])
+
+
+# --- a sensing far too coarse: its failure names it -----------------------------------------------------
+
+
+def _with_noise(crane: Crane, group: str, std: float):
+    """The default groups with `group`'s noise at `std`, as a Sensing (built unchecked: any range a noise option
+    or field may have does not decide what this test sees)."""
+    chosen = every_coordinate(crane, noise={group: 0.0})
+    groups = [g.model_copy(update={"noise": std}) if g.name == group else g for g in chosen.groups]
+    return chosen.model_copy(update={"groups": groups})
+
+
+@pytest.mark.parametrize("method", ["penalty", "mlm"])
+def test_a_noise_far_beyond_the_crane_is_named_as_the_cause(default, method):
+    """Issue 24: a positions noise of 1e6 ended in 'the penalty matrix ... is not positive definite: check the
+    penalty numbers' (MLM: 'the constraints are redundant'). The estimate is 5e5 m off the plant's state: the
+    failure says that, and names the noise."""
+    from acroboter.sim.sensing import SensingError
+
+    with pytest.raises(SensingError, match=r"estimate of the state from the measurements \(positions noise 1e\+06\)"
+                                           r" was [0-9.e+]+ away from the plant's state"):
+        default.simulate(method, duration=0.2, warm_up=0, sensing=_with_noise(default, "positions", 1e6))
+    # later in a run: the divergence's cause is the estimate too
+    result = default.simulate(method, duration=1.0, warm_up=0, sensing=_with_noise(default, "positions", 1.0))
+    assert result.diverged_at is not None
+    assert result.run.divergence.startswith("the controller's estimate of the state from the measurements "
+                                            "(positions noise 1) was ")
+    # a noise the crane can live with says nothing of the kind
+    fine = default.simulate(method, duration=0.2, warm_up=0, sensing=_with_noise(default, "positions", 1e-4))
+    assert fine.diverged_at is None

@@ -20,6 +20,7 @@ a GIF drawn with matplotlib needs only the core.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
 import sys
@@ -34,7 +35,7 @@ from ..report.animation.encode import write_complete, write_gif, write_mp4
 from ..report.animation.mujoco_frames import GL_FIX, RendererUnavailable, mujoco_ready, probe_gl
 from ..report.animation.scene import AnimationInputError, diverged_note, frame_rows, load
 from .entry import carrying, file_write_problem, folder_write_problem, guarded, ranged
-from .outputs import MANIFEST, out_path, record_file, recorded
+from .outputs import out_path, results_folder
 
 log = logging.getLogger("acroboter")
 
@@ -203,44 +204,57 @@ def _animate(args: argparse.Namespace) -> int:
         return None if note is None else max(0, len(rows) - max(1, round(NOTE_SECONDS * fps)))
 
     written = []
-    # Into a folder, the video is animation_<method>.<ext>, recorded in the folder's manifest (docs/run.md): the
-    # next animate, or the next run into a run folder, replaces it. A file of that name the manifest does not
-    # list is the user's: refused (exit 2), before any frame is drawn.
-    folders = {}
+    # Into a folder, the video is animation_<method>.<ext>, written under the output-folder contract (docs/run.md):
+    # the folder locked, the video staged and swapped in, recorded in its manifest (the next animate, or the next
+    # run into a run folder, replaces it); a file of that name the manifest does not list is the user's: refused
+    # (exit 2) before any frame is drawn. A file named by --out or --gif is written through a temporary name.
+    mp4 = gif_out = None
     if not args.no_mp4:
-        out = args.out if args.out is not None else args.results
-        if out.is_dir():
-            folders[out / f"animation_{data.method}.mp4"] = (out, "--out" if args.out is not None else "RESULTS_DIR")
-            out = out / f"animation_{data.method}.mp4"
-    if args.gif is not None and args.gif.is_dir():
-        folders[args.gif / f"animation_{data.method}.gif"] = (args.gif, "--gif")
-    for path, (folder, option) in folders.items():
-        if (path.exists() or path.is_symlink()) and not recorded(folder, path, ("animate",)):
-            raise AnimationInputError(f"{option} {folder} holds {path.name}, which no earlier `acroboter animate` "
-                                      f"wrote there (it is not in {MANIFEST}); move it away, or give a file name")
-    if not args.no_mp4:
-        rows = frame_rows(data.scene.t, args.fps, args.speed)
-        start = time.perf_counter()
-        count = write_complete(write_mp4, frames(data.scene, data.spec, rows, args.size, data.method,
-                                                 note_from(rows, args.fps)), out, args.fps, len(rows), args.quiet)
-        if out in folders:
-            record_file(folders[out][0], out, "animate")
-        written.append(f"{out} ({_frames(count)}, {args.size[0]}x{args.size[1]}, "
-                       f"{time.perf_counter() - start:.1f} s)")
+        mp4 = args.out if args.out is not None else args.results
+        mp4_option = "--out" if args.out is not None else "RESULTS_DIR"
+        mp4 = mp4 / f"animation_{data.method}.mp4" if mp4.is_dir() else mp4
     if args.gif is not None:
         gif_out = args.gif / f"animation_{data.method}.gif" if args.gif.is_dir() else args.gif
-        width, height = _gif_size(args)
-        rows = frame_rows(data.scene.t, args.gif_fps, args.gif_speed)
-        start = time.perf_counter()
-        # one palette for either renderer's frames: the first frame's colours and the drawing's own, kept exact
-        gif = partial(write_gif, keep=matplotlib_frames.drawing_colours())
-        count = write_complete(gif, frames(data.scene, data.spec, rows, (width, height), data.method,
-                                           note_from(rows, args.gif_fps)), gif_out, args.gif_fps, len(rows),
-                               args.quiet)
-        if gif_out in folders:
-            record_file(folders[gif_out][0], gif_out, "animate")
-        written.append(f"{gif_out} ({_frames(count)}, {width}x{height}, {gif_out.stat().st_size / 1e6:.2f} MB, "
-                       f"{time.perf_counter() - start:.1f} s)")
+    into_folder = {}  # a video's path -> (its folder, the option that named it)
+    if mp4 is not None and mp4 != args.out:
+        into_folder[mp4] = (mp4.parent, mp4_option)
+    if gif_out is not None and gif_out != args.gif:
+        into_folder[gif_out] = (gif_out.parent, "--gif")
+    with contextlib.ExitStack() as stack:
+        staged = {}  # a folder (resolved) -> its ResultsFolder
+        for folder, option in into_folder.values():
+            key = folder.resolve()
+            if key not in staged:
+                names = [p.name for p, (f, _) in into_folder.items() if f.resolve() == key]
+                staged[key] = stack.enter_context(results_folder(folder, "animate", option=option, expected=names,
+                                                                 accumulate=True))
+
+        def where(path: Path) -> Path:  # where a video is written now: its folder's staging, or the file itself
+            folder = staged.get(path.parent.resolve()) if path in into_folder else None
+            return path if folder is None else folder.staging / path.name
+
+        if mp4 is not None:
+            rows = frame_rows(data.scene.t, args.fps, args.speed)
+            start = time.perf_counter()
+            count = write_complete(write_mp4, frames(data.scene, data.spec, rows, args.size, data.method,
+                                                     note_from(rows, args.fps)), where(mp4), args.fps, len(rows),
+                                   args.quiet)
+            written.append(f"{mp4} ({_frames(count)}, {args.size[0]}x{args.size[1]}, "
+                           f"{time.perf_counter() - start:.1f} s)")
+        if gif_out is not None:
+            width, height = _gif_size(args)
+            rows = frame_rows(data.scene.t, args.gif_fps, args.gif_speed)
+            start = time.perf_counter()
+            # one palette for either renderer's frames: the first frame's colours and the drawing's own, kept exact
+            gif = partial(write_gif, keep=matplotlib_frames.drawing_colours())
+            count = write_complete(gif, frames(data.scene, data.spec, rows, (width, height), data.method,
+                                               note_from(rows, args.gif_fps)), where(gif_out), args.gif_fps,
+                                   len(rows), args.quiet)
+            size = where(gif_out).stat().st_size
+            written.append(f"{gif_out} ({_frames(count)}, {width}x{height}, {size / 1e6:.2f} MB, "
+                           f"{time.perf_counter() - start:.1f} s)")
+        for folder in staged.values():  # every video drawn: swapped in together
+            folder.publish()
     stops = "" if note is None else f" (it {note}: the video stops there, short of the scenario's end)"
     log.info(f"{data.method} drawn with {name}{stops}: " + "; ".join(written))
     return 0

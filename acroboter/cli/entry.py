@@ -6,8 +6,13 @@ and the documented exit code, never a traceback:
     2    bad input: a spec, an option, stale or tampered generated code, an unwritable --out, an option
          whose optional extra is not installed (the line names the `pip install` that fixes it)
     3    cannot run: the computation failed (a singular system, a failed build, a plant that
-         found no consistent state, an I/O error while writing)
-    130  interrupted (Ctrl-C): nothing half-written is left that looks complete
+         found no consistent state, an I/O error while writing), or another command is writing into
+         the output folder
+    130  interrupted (Ctrl-C, at any phase, within a second): nothing half-written is left that looks
+         complete, no staging folder is left behind
+
+A helper library's warning (numpy's, Dask's) or log line never reaches the terminal: -v shows it as a
+debug line (acroboter.model.quiet).
 
 A core dependency that does not import is one line naming it and its `pip install` (exit 3). An error no
 class names (a bug) is reported the same way, as "internal error", with exit 3; set ACROBOTER_TRACEBACK=1 to
@@ -53,8 +58,10 @@ def _cannot_run_errors() -> tuple[type[BaseException], ...]:
     from ..control.recovery import RecoveryError
     from ..runtime.build import BuildError
     from ..sim.plant import SimulationError
+    from .outputs import OutputFolderBusy
 
-    return BuildError, SingularSystemError, DistributionError, SimulationError, RecoveryError, OSError
+    return (BuildError, SingularSystemError, DistributionError, SimulationError, RecoveryError, OutputFolderBusy,
+            OSError)
 
 
 def guarded(main: Callable[..., int]) -> Callable[..., int]:
@@ -62,8 +69,14 @@ def guarded(main: Callable[..., int]) -> Callable[..., int]:
 
     @functools.wraps(main)
     def wrapper(*args, **kwargs) -> int:
+        from ..model.interrupts import remembered_interrupt
+        from ..model.quiet import contained
+
         try:
-            return main(*args, **kwargs)
+            # a helper library's warning or log line: -v only (acroboter.model.quiet); Ctrl-C at once, or as soon
+            # as CasADi returns (acroboter.model.interrupts: inside it, it would be swallowed)
+            with contained(), remembered_interrupt():
+                return main(*args, **kwargs)
         except KeyboardInterrupt:
             print("interrupted", file=sys.stderr)
             return EXIT_INTERRUPTED
@@ -175,8 +188,8 @@ def spec_file(text: str) -> Path:
     from ..model.locations import example_names, example_spec
 
     path = Path(text)
-    if path.suffix == ".toml" or path.exists() or os.sep in text:
-        return path
+    if path.suffix == ".toml" or (path.exists() and not path.is_dir()) or os.sep in text:  # (a folder is no spec:
+        return path  # `--spec acroboter` in the checkout, beside the package's folder, is the example)
     names = example_names()
     if text in names:
         return example_spec(text)

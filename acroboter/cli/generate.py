@@ -11,6 +11,7 @@ import argparse
 import ctypes
 import filecmp
 import json
+import re
 import shutil
 import sys
 import tempfile
@@ -21,7 +22,7 @@ from ..model.interrupts import remembered_interrupt
 from ..model.locations import checkout_root, example_spec, shipped_generated_folder, spec_folder
 from ..model.spec import Spec, SpecError, load_spec
 from .entry import check_out_folder, guarded, ranged, spec_file
-from .outputs import no_empty_folder_left, out_path
+from .outputs import OutputFolderError, folder_lock, no_empty_folder_left, out_path, results_folder
 
 SPEC_DIR = spec_folder()
 GENERATED_DIR = shipped_generated_folder()
@@ -106,10 +107,61 @@ class GenerationError(RuntimeError):
     pass
 
 
+# The code generator's staging and retired folders (acroboter.codegen.generate): .<spec>.new-<8 characters>,
+# .<spec>.old-<pid>
+STAGING = re.compile(r"\.[A-Za-z0-9_]+\.(new-[a-z0-9_]{8}|old-(\d+))")
+
+
+def refuse_foreign(specs: list[tuple[Path, Spec]], out_root: Path) -> None:
+    """A folder <name>/ in --out that is not generated code of that spec (no manifest.json naming it) is the
+    user's: never replaced (OutputFolderError, exit 2, before any work). generated/ of a checkout is the
+    project's own: each of its folders is generated code."""
+    if out_root.resolve() == GENERATED_DIR.resolve():
+        return
+    for _, spec in specs:
+        folder = out_root / spec.name
+        if not (folder.exists() or folder.is_symlink()):
+            continue
+        try:
+            ours = folder.is_dir() and not folder.is_symlink() and \
+                json.loads((folder / "manifest.json").read_text()).get("spec") == spec.name
+        except (OSError, ValueError, AttributeError):
+            ours = False
+        if not ours:
+            raise OutputFolderError(f"cannot write into --out {out_root}: it holds {spec.name}, which is not the "
+                                    f"generated code of spec '{spec.name}' (no manifest.json of it there): move it "
+                                    "away or choose another --out")
+
+
+def remove_stale_staging(out_root: Path) -> None:
+    """The staging and retired folders a killed generate left in `out_root` (called under its lock: no other
+    generate writes there; a retired folder only when its process is gone)."""
+    import os
+
+    for entry in out_root.iterdir():
+        found = STAGING.fullmatch(entry.name)
+        if found is None or not entry.is_dir() or entry.is_symlink():
+            continue
+        if found.group(2) is not None:
+            try:
+                os.kill(int(found.group(2)), 0)
+                continue  # alive
+            except ProcessLookupError:
+                pass
+            except OSError:
+                continue
+        shutil.rmtree(entry, ignore_errors=True)
+
+
 def cmd_generate(spec_paths: list[Path], out_root: Path, check_compiles: bool = True) -> int:
     specs = load_all(spec_paths)  # all valid before anything is written
     refuse_collisions(specs, out_root)
-    with remembered_interrupt() as interrupt:  # Ctrl-C inside CasADi is honoured before any file is replaced
+    refuse_foreign(specs, out_root)
+    out_root.mkdir(parents=True, exist_ok=True)
+    # One command at a time writes into --out (a second one: exit 3, naming it); Ctrl-C at once, inside CasADi as
+    # soon as it returns, and never after a folder was half replaced (acroboter.codegen.generate swaps whole)
+    with folder_lock(out_root), remembered_interrupt() as interrupt:
+        remove_stale_staging(out_root)
 
         def verify(folder: Path) -> None:
             interrupt.check()
@@ -200,8 +252,16 @@ def main(argv: list[str] | None = None) -> int:
 @guarded
 def export_step_main(argv: list[str] | None = None) -> int:
     """`acroboter export-step`: one method's complete control step as self-contained C and a header."""
-    from ..codegen.export_step import GAIN_OPTIONS, MLM_SYSTEMS, PENALTY_SYSTEMS, ExportError, export_step
+    from ..codegen.export_step import (
+        GAIN_OPTIONS,
+        MLM_SYSTEMS,
+        PENALTY_SYSTEMS,
+        ExportError,
+        export_step,
+        step_name,
+    )
     from ..model.ranges import GAIN_RANGES, sampled_gain_problems
+    from ..model.settings import Gains
     from ..model.spec import RECOVERIES
 
     parser = argparse.ArgumentParser(
@@ -231,16 +291,19 @@ def export_step_main(argv: list[str] | None = None) -> int:
     overrides = {name: getattr(args, name) for name in (*GAIN_OPTIONS, "recovery")}  # each in its range already
     try:
         spec = load_spec(args.spec)
-        spec_name = spec.name
         kp = spec.controller.kp if args.kp is None else args.kp
         kd = spec.controller.kd if args.kd is None else args.kd
         for name, problem in sampled_gain_problems(kp, kd, spec.controller.rate_hz, ("kp", "kd")):
             print(f"error: --{name}: {problem}", file=sys.stderr)  # before any work: the law it bakes in is unstable
             return 2
-        out = args.out if args.out is not None else DEFAULT_EMBEDDED / f"{spec_name}_{args.method}"
-        with no_empty_folder_left(out):
-            written = export_step(args.spec, args.method, out, args.mlm_system, args.penalty_system, **overrides)
-    except (SpecError, ExportError, OSError) as err:
+        out = args.out if args.out is not None else DEFAULT_EMBEDDED / f"{spec.name}_{args.method}"
+        name = step_name(spec, args.method, Gains.from_spec(spec, **overrides).recovery)
+        # the output-folder contract (docs/run.md): checked and locked now, staged, swapped in; each method's
+        # files are its own (accumulate): exporting another method into the folder keeps the first one's
+        with results_folder(out, "export-step", expected=[f"{name}.c", f"{name}.h"], accumulate=True) as folder:
+            export_step(args.spec, args.method, folder.staging, args.mlm_system, args.penalty_system, **overrides)
+            written = folder.publish()
+    except (SpecError, ExportError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     for path in written:

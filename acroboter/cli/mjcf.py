@@ -13,6 +13,8 @@ A static start that needs an input beyond its limits (a winch that would have to
 its max) is written as it is, with a warning on stderr, as `acroboter run` warns: MuJoCo clamps the
 keyframe's ctrl to the actuator's ctrlrange, so the crane does not stay in that pose.
 It needs the mujoco extra (pip install 'acroboter[mujoco]'); without it, it says so before any work.
+Into a folder (-o FOLDER, or the current folder by default) the XML follows the output-folder contract of every
+command (docs/run.md): recorded in the folder's manifest, a file of yours of that name never written over.
 """
 
 from __future__ import annotations
@@ -21,12 +23,11 @@ import argparse
 import dataclasses
 import os
 import sys
-import tempfile
 from pathlib import Path
 
 from ..model.ranges import MUJOCO_TIMESTEP, mujoco_work_problem
 from .entry import file_write_problem, guarded, ranged, spec_file
-from .outputs import out_path
+from .outputs import out_path, partial_path, remove_stale_partials, results_folder
 
 TIMESTEP = dataclasses.replace(MUJOCO_TIMESTEP, name="timestep")  # --timestep: MuJoCo's step, as run's option
 
@@ -63,7 +64,6 @@ def main(argv: list[str] | None = None) -> int:
     import mujoco
 
     from ..model.locations import example_spec
-    from ..model.mjcf_model import mjcf_xml
     from ..model.spec import load_spec
 
     spec_path = args.spec if args.spec is not None else example_spec("acroboter")
@@ -71,16 +71,29 @@ def main(argv: list[str] | None = None) -> int:
     if (problem := mujoco_work_problem(args.timestep, 1.0 / spec.controller.rate_hz)) is not None:
         print(f"error: --timestep: {problem.replace('mujoco_timestep', 'timestep')}", file=sys.stderr)
         return 2  # before any work: a model that steps that finely is no model to simulate with
-    out = None
+    out, folder = None, None
     if str(args.out) != "-":  # checked before any work (the static pose compiles the crane's library)
         out = args.out if args.out is not None else Path(f"{spec.name}.xml")
-        if out.is_dir():
-            out = out / f"{spec.name}.xml"
+        if out.is_dir() or args.out is None:  # into a folder (the current one by default): <spec name>.xml
+            folder = out if out.is_dir() else Path(".")
+            out = folder / f"{spec.name}.xml"
         problem = file_write_problem(out)
         if problem:
             print(f"error: -o {args.out}: {problem}: give a file in a folder you can write to, or - for stdout",
                   file=sys.stderr)
             return 2
+    if folder is None:
+        return _write(args, spec, spec_path, out, mujoco)
+    # Into a folder: the output-folder contract (docs/run.md): locked, <spec>.xml recorded in its manifest, a file
+    # of that name that no earlier mjcf wrote refused before any work; each spec's XML is its own (accumulate).
+    with results_folder(folder, "mjcf", option="-o", expected=[out.name], accumulate=True) as staged:
+        return _write(args, spec, spec_path, out, mujoco, staged)
+
+
+def _write(args: argparse.Namespace, spec, spec_path: Path, out: Path | None, mujoco, staged=None) -> int:
+    """The XML on stdout (out None), into the staged folder, or into the file `out` through a temporary file."""
+    from ..model.mjcf_model import mjcf_xml
+
     start = None
     if args.pose == "static":
         from ..api.crane import Crane
@@ -102,23 +115,26 @@ def main(argv: list[str] | None = None) -> int:
     if out is None:
         sys.stdout.write(xml)
         return 0
-    target = out.resolve() if out.is_symlink() else out  # a link keeps pointing at the written file
-    # Written beside the target and renamed: an interrupted write never leaves half an XML.
-    tmp = None
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
-        with os.fdopen(fd, "w") as f:
-            f.write(xml)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # as an ordinary new file (mkstemp's 0600 would stick)
-        os.replace(tmp, target)
-    except OSError as err:
-        print(f"error: -o {args.out}: cannot write it: {err.strerror or err}", file=sys.stderr)
-        return 2
-    finally:
-        if tmp is not None and os.path.exists(tmp):
-            os.unlink(tmp)
+    if staged is not None:
+        (staged.staging / out.name).write_text(xml)
+        staged.publish()
+    else:
+        target = out.resolve() if out.is_symlink() else out  # a link keeps pointing at the written file
+        # Written beside the target and renamed: an interrupted write never leaves half an XML; the temporary
+        # file carries this process's id, and one a killed mjcf left is removed by the next write of the file.
+        remove_stale_partials(target)
+        tmp = None
+        try:
+            tmp = partial_path(target)
+            with open(tmp, "x") as f:  # an ordinary new file (mode 0666 less the umask)
+                f.write(xml)
+            os.replace(tmp, target)
+        except OSError as err:
+            print(f"error: -o {args.out}: cannot write it: {err.strerror or err}", file=sys.stderr)
+            return 2
+        finally:
+            if tmp is not None and os.path.exists(tmp):
+                os.unlink(tmp)
     if not args.quiet:
         print(f"wrote {out}: {model.nbody - 1} bodies, {model.njnt} joints, {model.ntendon} tendons, "
               f"{model.nu} actuators (MuJoCo {mujoco.__version__}, time step {model.opt.timestep:g} s)")

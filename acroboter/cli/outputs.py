@@ -17,11 +17,17 @@
 - Without `publish` (an error, a return code, Ctrl-C) the staging folder goes, the folder is as it was,
   and a folder this call created is removed again when it is empty.
 - A staging folder whose process is gone (a run killed with SIGKILL) is removed at the next start.
+- One command at a time: the folder is locked (flock on the folder itself) from the check to the swap; a
+  second command writing into it meanwhile is refused at once (OutputFolderBusy, exit 3, naming the other
+  process), so two runs never interleave their files or the manifest.
+- `accumulate=True` (export-step, mjcf, animate: one file per spec, method or video): a run replaces only the
+  files of its own names; those of other names its earlier runs wrote stay in its entry.
 """
 
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import os
 import shutil
@@ -38,6 +44,53 @@ FORMAT = 1
 
 class OutputFolderError(Exception):
     """An output folder that cannot be used (bad input, exit 2): the message names the option."""
+
+
+class OutputFolderBusy(Exception):
+    """Another command is writing into the output folder (cannot run now, exit 3): the message names it."""
+
+
+def lock_holder(fd: int) -> str:
+    """Who holds the flock on the open folder `fd`: 'process PID (its command line)' from /proc/locks, or
+    'another process' where that cannot be read (not Linux)."""
+    st = os.fstat(fd)
+    where = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/locks").read_text().splitlines():
+            fields = line.split()
+            if len(fields) > 5 and fields[1] == "FLOCK" and fields[5] == where:
+                pid = fields[4]
+                try:
+                    argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+                    command = " ".join(Path(a.decode()).name if i == 0 else a.decode()
+                                       for i, a in enumerate(argv) if a)
+                except OSError:
+                    return f"process {pid}"
+                return f"process {pid} ({command[:120]}{'...' if len(command) > 120 else ''})"
+    return "another process"
+
+
+@contextlib.contextmanager
+def folder_lock(folder: Path, option: str = "--out") -> Iterator[None]:
+    """Hold the output folder `folder` (an existing folder) for one command: an exclusive flock on the folder
+    itself, released when the block ends or the process dies. Held by another command: OutputFolderBusy.
+    Where folders cannot be locked (a file system without flock) the block runs unlocked."""
+    try:
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError:
+        yield  # checked by the caller: a folder it cannot open it will not write either
+        return
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise OutputFolderBusy(f"{option} {folder}: another acroboter command is writing into it "
+                                   f"({lock_holder(fd)}); wait for it to finish, or choose another {option}") from None
+        except OSError:
+            pass  # no flock here: unlocked
+        yield
+    finally:
+        os.close(fd)  # releases the lock
 
 
 def read_manifest(out: Path) -> dict[str, dict[str, list[str]]]:
@@ -99,16 +152,19 @@ def clean_stale_staging(out: Path) -> None:
 class ResultsFolder:
     """An output folder opened for one command's run (use `results_folder`)."""
 
-    def __init__(self, out: Path | str, command: str, option: str = "--out", replaces: Iterable[str] = ()):
+    def __init__(self, out: Path | str, command: str, option: str = "--out", replaces: Iterable[str] = (),
+                 accumulate: bool = False):
         if str(out) == "":
             raise OutputFolderError(f"{option}: an empty folder name; give a folder, e.g. {option} results")
         self.out = Path(out)
         self.command = command
         self.option = option
         self.replaces = (command, *replaces)  # entries whose files this run's results replace
+        self.accumulate = accumulate  # replace only the files of the new results' names
         self.created: list[Path] = []  # folders this call made, outermost first
         self.staging: Path = Path()
         self.published = False
+        self._lock: contextlib.ExitStack | None = None
 
     def _error(self, problem: str) -> OutputFolderError:
         return OutputFolderError(f"cannot write results into {self.option} {self.out}: {problem}")
@@ -120,12 +176,16 @@ class ResultsFolder:
                 raise self._error("it is a file, not a folder")
             self.created = missing_folders(out)
             out.mkdir(parents=True, exist_ok=True)
+            self._lock = contextlib.ExitStack()
+            self._lock.enter_context(folder_lock(out, self.option))  # one command at a time
             clean_stale_staging(out)
             self.staging = Path(tempfile.mkdtemp(prefix=f"{STAGING_PREFIX}{self.command}-{os.getpid()}-", dir=out))
         except OSError as err:
+            self._unlock()
             self._remove_created()
             raise self._error(err.strerror or str(err)) from None
-        except OutputFolderError:
+        except (OutputFolderError, OutputFolderBusy):
+            self._unlock()
             self._remove_created()
             raise
         try:
@@ -166,10 +226,15 @@ class ResultsFolder:
         manifest = read_manifest(out)
         old_files = [f for c in self.replaces for f in manifest.get(c, {}).get("files", [])]
         old_folders = {f for c in self.replaces for f in manifest.get(c, {}).get("folders", [])}
+        kept_files, kept_folders = [], set()
+        if self.accumulate:  # the earlier results of other names stay (and stay this command's)
+            kept_files = [f for f in old_files if f not in new and (t := _inside(out, f)) is not None
+                          and (t.is_file() or t.is_symlink())]
+            kept_folders, old_files, old_folders = old_folders, [f for f in old_files if f in new], set()
         with deferred_interrupt():
             # first the union: killed at any point from here, the next run still knows every file as its own
-            write_manifest(out, {**manifest, self.command: {"files": sorted(set(old_files) | set(new)),
-                                                            "folders": sorted(old_folders)}})
+            write_manifest(out, {**manifest, self.command: {"files": sorted({*old_files, *new, *kept_files}),
+                                                            "folders": sorted(old_folders | kept_folders)}})
             for name in old_files:
                 target = _inside(out, name)
                 if target is not None and (target.is_file() or target.is_symlink()):
@@ -190,17 +255,23 @@ class ResultsFolder:
                     with contextlib.suppress(OSError):
                         target.rmdir()  # only when empty: a file the user put there keeps it
             entries = {c: e for c, e in manifest.items() if c not in self.replaces}
-            entries[self.command] = {"files": new, "folders": sorted(folders)}
+            entries[self.command] = {"files": [*new, *sorted(kept_files)], "folders": sorted(folders | kept_folders)}
             write_manifest(out, entries)
             shutil.rmtree(staging, ignore_errors=True)
-        self.published = True
+            self.published = True  # a Ctrl-C held back during the swap is raised after this: the results are in
         return [out / name for name in new]
 
     def discard(self) -> None:
         """Leave the folder as it was: the staging folder goes, and a folder this call made if it is empty."""
         if self.staging != Path():
             shutil.rmtree(self.staging, ignore_errors=True)
+        self._unlock()
         self._remove_created()
+
+    def _unlock(self) -> None:
+        if self._lock is not None:
+            self._lock.close()
+            self._lock = None
 
     def _remove_created(self) -> None:
         remove_if_empty(self.created)
@@ -208,42 +279,33 @@ class ResultsFolder:
 
 @contextlib.contextmanager
 def results_folder(out: Path | str, command: str, *, option: str = "--out", expected: Iterable[str] = (),
-                   replaces: Iterable[str] = ()) -> Iterator[ResultsFolder]:
-    """Open `out` for `command`'s results (checked now: OutputFolderError, exit 2) and yield it; the
-    results written into `.staging` are swapped in by `.publish()`, else the folder stays as it was.
-    `replaces`: other commands whose earlier files this run's results make stale (run: animate's videos)."""
-    folder = ResultsFolder(out, command, option, replaces)
+                   replaces: Iterable[str] = (), accumulate: bool = False) -> Iterator[ResultsFolder]:
+    """Open `out` for `command`'s results (checked now: OutputFolderError, exit 2; another command writing
+    there: OutputFolderBusy, exit 3) and yield it; the results written into `.staging` are swapped in by
+    `.publish()`, else the folder stays as it was. `replaces`: other commands whose earlier files this run's
+    results make stale (run: animate's videos); `accumulate`: replace only the files of the new names."""
+    folder = ResultsFolder(out, command, option, replaces, accumulate)
     folder.open(expected)
     try:
         yield folder
     finally:
         if not folder.published:
             folder.discard()
+        folder._unlock()
 
 
-def record_file(folder: Path, path: Path, command: str) -> None:
-    """Add one file written straight into `folder` (animate's videos in a run folder) to the manifest's
-    entry for `command`, so that the command's next run, or the run it shows, may replace it."""
-    try:
-        name = str(path.resolve().relative_to(folder.resolve()))
-    except ValueError:
-        return  # written elsewhere: not this folder's
-    manifest = read_manifest(folder)
-    entry = manifest.setdefault(command, {"files": [], "folders": []})
-    if name not in entry["files"]:
-        entry["files"].append(name)
-    with deferred_interrupt():
-        write_manifest(folder, manifest)
+def partial_path(target: Path) -> Path:
+    """The temporary file of this process beside `target` (a file a command names: mjcf -o FILE)."""
+    return target.with_name(f".{target.name}.{os.getpid()}.partial")
 
 
-def recorded(folder: Path, path: Path, commands: Iterable[str]) -> bool:
-    """Whether the manifest of `folder` lists `path` under one of `commands`."""
-    try:
-        name = str(path.resolve().relative_to(folder.resolve()))
-    except ValueError:
-        return False
-    manifest = read_manifest(folder)
-    return any(name in manifest.get(c, {}).get("files", []) for c in commands)
+def remove_stale_partials(target: Path) -> None:
+    """Remove the temporary files beside `target` whose process is gone (killed before it could clean up)."""
+    with contextlib.suppress(OSError):
+        for entry in target.parent.glob(f".{target.name}.*.partial"):
+            pid = entry.name[len(target.name) + 2:-len(".partial")]
+            if pid.isdigit() and not _alive(int(pid)) and entry.is_file():
+                entry.unlink(missing_ok=True)
 
 
 def out_path(text: str) -> Path:

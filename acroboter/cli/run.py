@@ -37,12 +37,16 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {args.view_problem}", file=sys.stderr)
         return 3
     existed = args.out.exists()
+    folder = None
     try:
         # --out checked now (exit 2); the results are staged and swapped in at the end (docs/run.md). The
         # videos `acroboter animate` wrote into this folder show the earlier run: they go with its files.
         with results_folder(args.out, "run", expected=["summary.json"], replaces=("animate",)) as folder:
             return _run(args, folder)
     except KeyboardInterrupt:
+        if folder is not None and folder.published:  # Ctrl-C during the swap: held back until it was done
+            print(f"interrupted (the results in {args.out} are complete: they were in place first)", file=sys.stderr)
+            return 130
         earlier = f"the earlier ones in {args.out} are as they were" if existed else f"{args.out} was not created"
         print(f"interrupted: no results written ({earlier})", file=sys.stderr)
         return 130
@@ -62,6 +66,7 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
     from ..report.report import format_table, write_figures, write_summary
     from ..runtime.compiled import StaleModelError
     from ..sim.plant import SimulationError
+    from ..sim.sensing import SensingError
     from ..sim.simulation import check_mujoco_timestep
     from ..sim.statics import EquilibriumError
 
@@ -117,7 +122,8 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
                     # This method cannot handle this system (e.g. MLM and redundant constraints), or
                     # failed at its first step: say why, and go on with the others.
                     summaries[method] = {"error": str(err)}
-                    warnings.append(f"{method} cannot run on this spec: {err}")
+                    cause = "with this sensing" if isinstance(err, SensingError) else "on this spec"
+                    warnings.append(f"{method} cannot run {cause}: {err}")
                     bar.update(steps)
                     continue
                 results[method] = r
@@ -139,7 +145,7 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
     if not results:  # nothing to show: the earlier results in --out stay as they were
         for w in warnings:
             print(f"warning: {w}", file=sys.stderr)
-        print("error: no method could run on this spec (see the warnings above); nothing was written",
+        print("error: no method could run (see the warnings above); nothing was written",
               file=sys.stderr)
         return 3
     args.sensing_used = sensing

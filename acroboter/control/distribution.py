@@ -163,7 +163,7 @@ class BoundedInputs:
         # G's scale: its mean eigenvalue. Exact and cheap (also in the exported C, which needs no
         # eigenvalue solver for it); between 1/l of the largest eigenvalue and the largest.
         scale = float(hessian.trace()) / self.l
-        if not math.isfinite(scale + float(gradient @ gradient)):
+        if not (math.isfinite(scale) and np.isfinite(gradient).all()):  # (gradient @ gradient would overflow)
             raise DistributionError("the input distribution's terms are not finite")
         np.copyto(self._hessian, hessian)
         self._gradient[:] = gradient

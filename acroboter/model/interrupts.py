@@ -1,10 +1,19 @@
-"""Hold Ctrl-C back while a few file operations that belong together run (a dependency-free helper
-for the code generator's swap and the run's publishing of its results)."""
+"""Ctrl-C, promptly and safely (a dependency-free helper for the code generator, the compiler and the output
+folders; docs/errors.md).
+
+- `deferred_interrupt`: held back while a few file operations that belong together run (the code generator's
+  swap, a command's publishing of its results), raised right after them.
+- `remembered_interrupt`: for work that calls CasADi. Its SWIG layer swallows a KeyboardInterrupt raised inside
+  one of its calls (the call then goes on as if nothing happened), so inside CasADi a Ctrl-C is remembered and
+  raised as soon as CasADi returns to our code; anywhere else in the block (our own code between CasADi calls, a
+  compiler being waited for) it is raised at once.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import signal
+import sys
 import threading
 
 
@@ -31,27 +40,47 @@ class _Remembered:
     def check(self) -> None:
         """Raise the remembered Ctrl-C now (at a point where stopping leaves nothing half-done)."""
         if self.caught:
+            self.caught = False
             raise KeyboardInterrupt
+
+
+def inside_casadi(frame) -> bool:
+    """Whether the Python stack at `frame` runs inside a CasADi call (a frame of its SWIG module on it)."""
+    while frame is not None:
+        if frame.f_globals.get("__name__", "").startswith("casadi"):
+            return True
+        frame = frame.f_back
+    return False
 
 
 @contextlib.contextmanager
 def remembered_interrupt():
-    """SIGINT during the block is remembered, raised at the next `check()` and at the end.
-
-    For work inside CasADi: its SWIG layer swallows a KeyboardInterrupt raised in the middle of a
-    symbolic operation, so the code generator checks between steps instead (before it replaces any
-    file)."""
+    """SIGINT during the block: KeyboardInterrupt at once outside CasADi, as soon as CasADi returns to our code
+    inside it (a profile hook, set only then, sees the return), at the latest at `check()` or the block's end."""
     state = _Remembered()
     if threading.current_thread() is not threading.main_thread():
         yield state
         return
+    profile = sys.getprofile()
 
-    def remember(signum, frame):
-        state.caught = True
+    def on_return(frame, event, arg):
+        if not inside_casadi(frame.f_back if event == "return" else frame):
+            sys.setprofile(profile)
+            state.caught = False
+            raise KeyboardInterrupt
 
-    previous = signal.signal(signal.SIGINT, remember)
+    def on_interrupt(signum, frame):
+        if inside_casadi(frame):  # raised here it would be swallowed: raised once CasADi has returned
+            state.caught = True
+            sys.setprofile(on_return)
+            return
+        state.caught = False
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, on_interrupt)
     try:
         yield state
     finally:
         signal.signal(signal.SIGINT, previous)
+        sys.setprofile(profile)
     state.check()

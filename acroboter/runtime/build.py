@@ -22,11 +22,13 @@ import hashlib
 import logging
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
+import threading
 from concurrent.futures import ThreadPoolExecutor, as_completed
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 
 from ..model.locations import cache_dir, shipped_generated_folder, spec_folder
@@ -89,9 +91,58 @@ def compile_jobs() -> int:
         return os.cpu_count() or 2
 
 
+class _Compilers:
+    """The compiler processes of one build. Each runs in a process group of its own, so that the build, not the
+    terminal, decides its end: a Ctrl-C (to the process group, as a terminal sends it, or to this process alone)
+    or a failed file stops every one at once (`stop`), instead of waiting for the largest file to compile."""
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._running: set[subprocess.Popen] = set()
+        self.stopped = False
+
+    def run(self, command: list[str]) -> tuple[int, str]:
+        """The compiler's exit status and its messages (stderr); -SIGTERM once the build was stopped."""
+        with self._lock:
+            if self.stopped:
+                return -signal.SIGTERM, ""
+            proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                                    process_group=0)
+            self._running.add(proc)
+        try:
+            _, err = proc.communicate()
+        except BaseException:  # Ctrl-C while this thread waited (the link step runs in the main thread)
+            self.stop()
+            raise
+        finally:
+            with self._lock:
+                self._running.discard(proc)
+        return proc.returncode, err
+
+    def stop(self) -> None:
+        with self._lock:
+            self.stopped = True
+            running = list(self._running)
+        for proc in running:  # the whole group: the driver and its cc1/as (the driver removes its temporary files)
+            with suppress(ProcessLookupError, PermissionError):
+                os.killpg(proc.pid, signal.SIGTERM)
+
+
+def _failed(what: str, code: int, err: str, compilers: _Compilers) -> BaseException:
+    """The error of a compiler that exited with `code`: a Ctrl-C that reached it is an interrupt, not a failure."""
+    if compilers.stopped or code in (-signal.SIGINT, 128 + signal.SIGINT):
+        return KeyboardInterrupt()
+    if code < 0:
+        name = signal.Signals(-code).name if -code in signal.valid_signals() else str(-code)
+        return BuildError(f"{what} failed: the compiler was killed by {name} (out of memory?)")
+    return BuildError(f"{what} failed:\n{err}" if err.strip() else f"{what} failed: the compiler exited with "
+                      f"status {code} and printed nothing")
+
+
 def build(spec_name: str, source_dir: Path, cache_root: Path) -> Path:
     """Compile source_dir/*.c into library_path(...), replacing what is there (atomically): one gcc per
-    translation unit, compile_jobs() at once, a progress bar per file on a terminal (tqdm, stderr)."""
+    translation unit, compile_jobs() at once, a progress bar per file on a terminal (tqdm, stderr). Ctrl-C or a
+    failed file stops the other compilers at once; the staging folder goes."""
     from tqdm import tqdm
 
     sources = sorted(source_dir.glob("*.c"))
@@ -104,16 +155,16 @@ def build(spec_name: str, source_dir: Path, cache_root: Path) -> Path:
     lib = library_path(spec_name, source_dir, cache_root, key)
     lib.parent.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{lib.parent.name}.new-", dir=lib.parent.parent))
+    compilers = _Compilers()
     try:
         embedded = staging / f"{spec_name}_build_key.c"  # in the staging folder: the sources stay as generated
         embedded.write_text(key_source(spec_name, key))
         sources = [*sources, embedded]
         def compile_one(src: Path) -> Path:
             obj = staging / (src.stem + ".o")
-            result = subprocess.run([compiler, *CFLAGS, "-c", str(src), "-o", str(obj)], capture_output=True,
-                                    text=True)
-            if result.returncode != 0:
-                raise BuildError(f"compiling {src.name} failed:\n{result.stderr}")
+            code, err = compilers.run([compiler, *CFLAGS, "-c", str(src), "-o", str(obj)])
+            if code != 0:
+                raise _failed(f"compiling {src.name}", code, err, compilers)
             return obj
 
         # largest first: the big translation units (the penalty terms) bound the wall time
@@ -122,16 +173,20 @@ def build(spec_name: str, source_dir: Path, cache_root: Path) -> Path:
                 tqdm(total=len(sources), unit="file", desc=f"compiling {spec_name}", file=sys.stderr,
                      disable=progress_disabled(), leave=False) as bar:
             futures = {pool.submit(compile_one, src): src for src in ordered}
-            for future in as_completed(futures):
-                future.result()  # a failed file raises here (BuildError with gcc's message)
-                bar.set_postfix_str(futures[future].name, refresh=False)
-                bar.update()
+            try:
+                for future in as_completed(futures):
+                    future.result()  # a failed file raises here (BuildError with gcc's message)
+                    bar.set_postfix_str(futures[future].name, refresh=False)
+                    bar.update()
+            except BaseException:  # Ctrl-C or a failed file: the others stop now, none starts
+                compilers.stop()
+                pool.shutdown(wait=False, cancel_futures=True)
+                raise
         objects = [staging / (src.stem + ".o") for src in sources]  # link order: sorted, deterministic
         built = staging / lib.name
-        result = subprocess.run([compiler, "-shared", *CFLAGS, *map(str, objects), "-lm", "-o", str(built)],
-                                capture_output=True, text=True)
-        if result.returncode != 0:
-            raise BuildError(f"linking {lib.name} failed:\n{result.stderr}")
+        code, err = compilers.run([compiler, "-shared", *CFLAGS, *map(str, objects), "-lm", "-o", str(built)])
+        if code != 0:
+            raise _failed(f"linking {lib.name}", code, err, compilers)
         for obj in [*objects, embedded]:
             obj.unlink()
         (staging / (lib.name + ".sha256")).write_text(hashlib.sha256(built.read_bytes()).hexdigest() + "\n")
@@ -142,6 +197,15 @@ def build(spec_name: str, source_dir: Path, cache_root: Path) -> Path:
     finally:
         shutil.rmtree(staging, ignore_errors=True)  # gone already after the rename
     return lib
+
+
+def remove_stale_staging(folder: Path, prefix: str) -> None:
+    """Remove the staging folders `prefix`* in `folder` that a killed process left (call it under the lock of
+    what they stage: no live process is writing one then)."""
+    with suppress(OSError):
+        for entry in folder.iterdir():
+            if entry.name.startswith(prefix) and entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry, ignore_errors=True)
 
 
 @contextmanager
@@ -173,6 +237,7 @@ def ensure_built(spec_name: str, source_dir: Path, cache_root: Path, key: str | 
     try:
         with cache_lock(cache_root, lib.parent.name):
             if not is_current(lib, key):  # another process may have built it while we waited
+                remove_stale_staging(lib.parent.parent, f".{lib.parent.name}.new-")
                 if lib.exists():
                     log.warning("the library %s is not the file its build wrote (damaged or replaced): compiling it "
                                 "again", lib)
@@ -216,6 +281,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"up to date {lib}")
                 continue
             with cache_lock(root, lib.parent.name):
+                remove_stale_staging(lib.parent.parent, f".{lib.parent.name}.new-")
                 print(f"built {build(name, source, root)}")
     except OSError as err:
         raise BuildError(cache_write_error(root, err)) from None

@@ -29,7 +29,7 @@ from ..model.interrupts import remembered_interrupt
 from ..model.locations import cache_dir as resolve_cache_dir
 from ..model.locations import shipped_generated_folder
 from ..model.spec import Spec
-from .build import BuildError, cache_lock, cache_write_error
+from .build import BuildError, cache_lock, cache_write_error, remove_stale_staging
 from .compiled import CompiledModel, DamagedLibraryError, NotBuiltError, StaleModelError
 
 log = logging.getLogger(__name__)
@@ -106,6 +106,7 @@ def _generate_into(spec: Spec, folder: Path, source: Path) -> Path:
 
     log.info("generating the C of spec '%s' into %s (once per spec version) ...", spec.name, folder)
     folder.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_staging(folder.parent, f".{folder.name}.new-")  # a killed process's (we hold the lock)
     staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.new-", dir=folder.parent))
     try:
         with remembered_interrupt() as interrupt:  # CasADi swallows Ctrl-C: honour it before the rename

@@ -36,12 +36,31 @@ from ..model.layout import nominal_coordinates
 from ..model.schema import Sensing, SpecError, _Strict, sensing_coordinates
 from ..model.spec_checks import sensing_problems
 from ..model.spec_errors import format_pydantic
+from .cable_events import SimulationError
 
 # Gauss–Newton stops once max |φ| is this small (the plant itself holds φ to about 1e-13).
 PROJECTION_TOLERANCE = 1e-13
 # A column-rank deficit of φ_q on the unmeasured coordinates: singular values below this × the largest.
 RANK_TOLERANCE = 1e-9
 OVERRIDE_KEYS = ("noise", "quantization", *Sensing.model_fields)  # groups, delay_periods, seed, ...
+# An estimate further than this from the plant's state (m; unitless for the axes) is not the crane's: a failure
+# that follows it is the measurements' doing, and its message says so (`Estimator.trouble`).
+ESTIMATE_LIMIT = 0.5
+
+
+class SensingError(SimulationError):
+    """A run that cannot start because the controller's estimate of the state, made from the measurements, is
+    nowhere near the plant's state: the sensing's noise, quantisation or delay is the cause (exit 3)."""
+
+
+def describe(sensing: Sensing) -> str:
+    """The sensing's settings that make an estimate differ from the state: 'positions noise 1e+06, delay 2
+    periods' (or 'no noise, quantisation or delay')."""
+    parts = [f"{g.name} noise {g.noise:g}" + (f" quantisation {g.quantization:g}" if g.quantization else "")
+             for g in sensing.groups if g.noise or g.quantization]
+    if sensing.delay_periods:
+        parts.append(f"delay {sensing.delay_periods} control period(s)")
+    return ", ".join(parts) or "no noise, quantisation or delay"
 
 
 class _SensingOnly(_Strict):
@@ -334,6 +353,21 @@ class Estimator:
         self.project(out_q, self.path.flat(t))
         self._consistent_rates(out_qd)
         return out_q, out_qd
+
+    def trouble(self, q_plant: np.ndarray) -> str | None:
+        """Why the last estimate handed to the controller cannot stand for the plant's state `q_plant` (the state
+        it was made from), naming the sensing; None when it is within ESTIMATE_LIMIT (or the state itself is not
+        finite: then nothing can be said)."""
+        if not np.isfinite(q_plant).all():
+            return None
+        finite = bool(np.isfinite(self.q).all())
+        off = float(np.abs(self.q - q_plant).max()) if finite else math.inf
+        if off <= ESTIMATE_LIMIT:
+            return None
+        how = f"{off:.3g} away from the plant's state (m; unitless for the axes)" if finite else "not finite"
+        return (f"the controller's estimate of the state from the measurements ({describe(self.sensing)}) was {how}: "
+                "the sensing is far too coarse for this crane; lower its noise, quantisation or delay "
+                "(docs/sensing.md)")
 
     def _consistent_rates(self, qd: np.ndarray) -> None:
         """qd onto φ_q q̇ = −φ_t in place (minimal-norm) at the q and signals in the model's buffers."""

@@ -13,6 +13,7 @@ from ..control.path import DesiredPath
 from ..model.spec import MAX_CONTROL_STEPS, PositionTask, WinchTension, YawTask
 from ..runtime.compiled import CompiledModel
 from .plant import Plant, SimulationError
+from .sensing import SensingError
 
 
 @dataclass
@@ -210,6 +211,9 @@ def simulate(
                 sensor.applied(controller.qdd)  # the filter's prediction over the next period
         except SingularSystemError as err:
             if k == 0:
+                if sensor is not None and (trouble := sensor.trouble(q)) is not None:  # the estimate's doing
+                    raise SensingError(f"{controller.name}: {trouble}; at that estimate its system has no "
+                                       f"solution ({err})") from None
                 raise  # not a divergence: the method cannot handle this system at all
             diverged_at = t
             divergence = str(err) if np.isfinite(x).all() else "the state became non-finite"
@@ -257,6 +261,9 @@ def simulate(
         if progress is not None:
             progress(1)
     wall = clock() - wall0
+    # x is the plant's state at the last instant the controller computed (a failure stops before the plant step)
+    if diverged_at is not None and sensor is not None and (trouble := sensor.trouble(x[:n])) is not None:
+        divergence = f"{trouble}; then {divergence}"
     if diverged_at is not None:
         if not allow_divergence or k == 0:  # k == 0: not one instant was recorded, nothing to report
             raise SimulationError(f"{controller.name}: the loop diverged at t = {diverged_at:.2f} s: {divergence}")

@@ -243,10 +243,9 @@ def status_of(err: Exception) -> str:
 @contextmanager
 def open_client(scheduler: str | None = None, workers: int = 2, connect_timeout: float = 10.0) -> Iterator:
     """A dask.distributed Client: to the scheduler at `scheduler`, or to a LocalCluster of `workers`
-    single-threaded worker processes on 127.0.0.1 (closed on exit)."""
-    import logging
-
-    from distributed import Client, LocalCluster
+    single-threaded worker processes on 127.0.0.1 in a session of its own (acroboter.studies.cluster: a Ctrl-C
+    reaches this process alone, which ends the cluster at once; closed in order after the study)."""
+    from distributed import Client
 
     if scheduler:
         try:
@@ -262,16 +261,13 @@ def open_client(scheduler: str | None = None, workers: int = 2, connect_timeout:
         return
     if workers < 1:
         raise GridError("the local cluster needs at least one worker")
-    # Processes, one thread each: a task holds the GIL for its whole run, and a model is per thread.
-    # Logs at CRITICAL only: a failed case comes back through its future (a row saying why), and on a
-    # loaded machine the workers' heartbeats to a scheduler that is shutting down log CommClosedError
-    # tracebacks that are noise, not a failure of the study.
-    with (
-        LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                     dashboard_address=None, silence_logs=logging.CRITICAL) as cluster,
-        Client(cluster) as client,
-    ):
-        yield client
+    from .cluster import ClusterError, local_cluster
+
+    try:
+        with local_cluster(workers) as address, Client(address, timeout=max(connect_timeout, 60.0)) as client:
+            yield client
+    except ClusterError as err:
+        raise GridError(str(err)) from None
 
 
 def worker_count(client) -> int:

@@ -35,9 +35,25 @@ def write_mp4(frames: Iterator[np.ndarray], path: Path, fps: float, total: int, 
                           disable=progress_disabled(quiet), file=sys.stderr):
             writer.append_data(frame)
             count += 1
-    finally:
-        writer.close()
+    except BaseException:  # Ctrl-C or an error: the video is abandoned
+        _abandon(writer)
+        raise
+    writer.close()
     return count
+
+
+def _abandon(writer) -> None:
+    """Stop an MP4 writer's ffmpeg at once: killed before its input closes (closed, it would print its complaint
+    about a half frame on the terminal, and the writer would wait for it), then the writer closed."""
+    frame = getattr(getattr(writer, "_write_gen", None), "gi_frame", None)  # imageio-ffmpeg's write_frames
+    ffmpeg = frame.f_locals.get("p") if frame is not None else None
+    if ffmpeg is not None and hasattr(ffmpeg, "kill") and ffmpeg.poll() is None:
+        ffmpeg.kill()
+        ffmpeg.wait()
+    try:
+        writer.close()
+    except Exception:  # noqa: BLE001 - abandoned: the error that stopped it is the one to report
+        pass
 
 
 def write_gif(frames: Iterator[np.ndarray], path: Path, fps: float, total: int, quiet: bool,
@@ -63,12 +79,28 @@ def write_gif(frames: Iterator[np.ndarray], path: Path, fps: float, total: int, 
 
 
 def write_complete(writer, frames: Iterable[np.ndarray], path: Path, fps: float, total: int, quiet: bool) -> int:
-    """Write through a temporary name: an interrupted or failed render leaves no file that looks complete. The
-    folder must exist (the command line checks it before any work): none is created."""
-    partial = path.with_name(f".{path.stem}.partial{path.suffix}")
+    """Write through a temporary name of this process (.<stem>.<pid>.partial<suffix>): an interrupted or failed
+    render leaves no file that looks complete, two renders of one file never write into each other's, and one
+    that a killed render left is removed by the next render of the same file. The folder must exist (the
+    command line checks it before any work): none is created."""
+    for stale in path.parent.glob(f".{path.stem}.*.partial{path.suffix}"):
+        pid = stale.name[len(path.stem) + 2:-len(".partial" + path.suffix)]
+        if pid.isdigit() and not _alive(int(pid)):
+            stale.unlink(missing_ok=True)
+    partial = path.with_name(f".{path.stem}.{os.getpid()}.partial{path.suffix}")
     try:
         count = writer(frames, partial, fps, total, quiet)
         os.replace(partial, path)
         return count
     finally:
         partial.unlink(missing_ok=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process
+        return True
+    return True
