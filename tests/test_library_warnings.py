@@ -54,11 +54,9 @@ def test_a_successful_run_shows_no_library_warning(tmp_path):
 
 
 def test_a_reported_failure_shows_no_library_warning(tmp_path):
-    """No method can run (input limits no input can meet): the package's message, and nothing else."""
-    bad = tmp_path / "acroboter.toml"
-    bad.write_text((REPO / "model_spec" / "acroboter.toml").read_text().replace(
-        'cable = "L1"', 'cable = "L1"\nlimits = [1e300, inf]'))
-    proc = run_noisy(tmp_path, ["run", "--spec", str(bad), "--duration", "0.2", "--method", "mlm,penalty",
+    """No method can run (MLM where the constraints are redundant: a singular system at its first step): the
+    package's message, and nothing else."""
+    proc = run_noisy(tmp_path, ["run", "--spec", "acroboter_redundant", "--duration", "0.2", "--method", "mlm",
                                 "--out", str(tmp_path / "out")], hook=("acroboter.api.crane", "load_spec"))
     assert proc.returncode == 3 and "error: no method could run" in proc.stderr, proc.stderr
     assert not [w for w in LEAKS if w in proc.stderr], proc.stderr

@@ -54,12 +54,29 @@ def version() -> str:
     return __version__
 
 
+class _CurrentStderr(logging.StreamHandler):
+    """Writes to sys.stderr as it is at each message, not as it was when the handler was made: a command
+    called in-process after another (tests, a notebook) may run with sys.stderr replaced, and a handler
+    holding the earlier, closed stream prints logging's own traceback instead of the message."""
+
+    def __init__(self) -> None:
+        super().__init__(sys.stderr)
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value) -> None:  # StreamHandler.__init__ and setStream assign it: sys.stderr it stays
+        pass
+
+
 def configure_logging(verbosity: int) -> None:
     """-q (verbosity -1): warnings only; default: progress and notes; -v: debugging detail."""
     level = {-1: logging.WARNING, 0: logging.INFO}.get(verbosity, logging.DEBUG)
     logger = logging.getLogger("acroboter")
     if not logger.handlers:
-        handler = logging.StreamHandler(sys.stderr)
+        handler = _CurrentStderr()
         handler.setFormatter(logging.Formatter("%(message)s"))
         logger.addHandler(handler)
         logger.propagate = False
