@@ -9,6 +9,7 @@ signals), never through `model.term` with only some inputs.
 from __future__ import annotations
 
 import copy
+import logging
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -129,6 +130,16 @@ def start_signals(spec: Spec, layout: Layout) -> np.ndarray:
     s[p : p + 3] = body.initial_position
     s[p + 3] = 0.0
     return s
+
+
+@pytest.fixture(autouse=True)
+def _package_log_level():
+    """A command run in-process with -v leaves the package logger at DEBUG (its console configures it per run);
+    the next test in the same worker would see debug lines on stderr that a user without -v never sees."""
+    logger = logging.getLogger("acroboter")
+    level = logger.level
+    yield
+    logger.setLevel(level)
 
 
 @pytest.fixture(scope="session")

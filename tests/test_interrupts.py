@@ -277,3 +277,24 @@ def test_an_interrupt_inside_casadi_is_not_swallowed(monkeypatch):
         time.sleep(5)  # were it swallowed, the timer's signal would still be raised here: not within register_all
         wrote.append("register_all returned")
     assert wrote == []
+
+
+def test_an_interrupt_a_library_turned_into_its_own_error_is_an_interrupt(capsys):
+    """A C extension that gets the KeyboardInterrupt from a Python call it makes may raise an error of its own
+    instead (matplotlib's Agg: "ValueError: Invalid bounding box", seen when Ctrl-C hit `animate` mid-frame): after a
+    SIGINT the command exits 130 with "interrupted", not an internal error. Without a SIGINT the error stays one."""
+    from acroboter.cli.entry import EXIT_INTERRUPTED, guarded
+
+    def drawing(interrupted: bool) -> int:
+        if interrupted:
+            try:
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(5)  # the handler raises here
+            except KeyboardInterrupt:  # what the extension does with it
+                raise ValueError("Invalid bounding box") from None
+        raise ValueError("Invalid bounding box")
+
+    assert guarded(drawing)(True) == EXIT_INTERRUPTED
+    assert capsys.readouterr().err.strip() == "interrupted"
+    assert guarded(drawing)(False) == 3
+    assert "internal error (ValueError: Invalid bounding box)" in capsys.readouterr().err

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import time
 import warnings
 from pathlib import Path
 
@@ -77,33 +76,27 @@ def test_a_successful_sweep_shows_only_its_own_lines(tmp_path):
 
 
 @pytest.mark.needs_dask
-def test_the_local_clusters_output_is_not_the_terminals():
+def test_the_local_clusters_output_is_not_the_terminals(monkeypatch):
     """The cluster process (and so its workers) write into a pipe the command reads, in a session of its own."""
     import os
 
-    from acroboter.studies.cluster import local_cluster
+    from acroboter.studies import cluster
 
-    def ours() -> list[int]:  # the cluster processes this process started (a worker's fork has another parent)
-        found = []
-        for p in Path("/proc").iterdir():
-            try:
-                if (p.name.isdigit() and b"acroboter.studies.cluster" in (p / "cmdline").read_bytes()
-                        and int((p / "stat").read_text().rsplit(")", 1)[1].split()[1]) == os.getpid()):
-                    found.append(int(p.name))
-            except OSError:  # a process that ended while we looked
-                continue
-        return found
+    started = []
 
-    with local_cluster(1) as address:
+    class Recorded(subprocess.Popen):  # the process local_cluster starts, as it started it (no search of /proc)
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            started.append(self)
+
+    monkeypatch.setattr(cluster.subprocess, "Popen", Recorded)
+    with cluster.local_cluster(1) as address:
         assert address.startswith("tcp://127.0.0.1:")
-        for _ in range(50):  # /proc under load: looked at again for up to 5 s
-            if found := ours():
-                break
-            time.sleep(0.1)
-        [pid] = found
+        [proc] = started
+        assert "acroboter.studies.cluster" in proc.args
         for fd in (1, 2):
-            assert os.readlink(f"/proc/{pid}/fd/{fd}").startswith("pipe:")
-        assert os.getsid(pid) == pid != os.getsid(0)
+            assert os.readlink(f"/proc/{proc.pid}/fd/{fd}").startswith("pipe:")
+        assert os.getsid(proc.pid) == proc.pid != os.getsid(0)
 
 
 def test_the_input_distributions_check_of_huge_terms_warns_nothing():

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import logging
 import os
 import sys
 import tempfile
@@ -35,6 +36,8 @@ from ..model.ranges import Range
 from ..runtime.progress import (
     progress_disabled as progress_disabled,  # every command's --quiet (shared with the animation)
 )
+
+log = logging.getLogger(__name__)
 
 EXIT_BAD_INPUT = 2
 EXIT_CANNOT_RUN = 3
@@ -72,15 +75,20 @@ def guarded(main: Callable[..., int]) -> Callable[..., int]:
         from ..model.interrupts import remembered_interrupt
         from ..model.quiet import contained
 
+        interrupt = None
         try:
             # a helper library's warning or log line: -v only (acroboter.model.quiet); Ctrl-C at once, or as soon
             # as CasADi returns (acroboter.model.interrupts: inside it, it would be swallowed)
-            with contained(), remembered_interrupt():
+            with contained(), remembered_interrupt() as interrupt:
                 return main(*args, **kwargs)
         except KeyboardInterrupt:
             print("interrupted", file=sys.stderr)
             return EXIT_INTERRUPTED
         except Exception as err:  # noqa: BLE001 - the boundary: every error becomes a message and a code
+            if interrupt is not None and interrupt.received:  # a Ctrl-C that a library turned into an error of its own
+                log.debug("after Ctrl-C: %s: %s", type(err).__name__, err)
+                print("interrupted", file=sys.stderr)
+                return EXIT_INTERRUPTED
             if (line := core_import_problem(err)) is not None:
                 print(f"error: {line}", file=sys.stderr)
                 return EXIT_CANNOT_RUN

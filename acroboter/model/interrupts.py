@@ -36,6 +36,10 @@ def deferred_interrupt():
 class _Remembered:
     def __init__(self):
         self.caught = False
+        # set at any SIGINT in the block, and kept: a C extension that gets the KeyboardInterrupt from a Python call
+        # it makes may turn it into an error of its own (matplotlib's Agg: "Invalid bounding box"), which is then
+        # still a Ctrl-C (acroboter.cli.entry.guarded)
+        self.received = False
 
     def check(self) -> None:
         """Raise the remembered Ctrl-C now (at a point where stopping leaves nothing half-done)."""
@@ -70,6 +74,7 @@ def remembered_interrupt():
             raise KeyboardInterrupt
 
     def on_interrupt(signum, frame):
+        state.received = True
         if inside_casadi(frame):  # raised here it would be swallowed: raised once CasADi has returned
             state.caught = True
             sys.setprofile(on_return)
