@@ -74,7 +74,8 @@ def cable_dampratio(mujoco_timestep: float) -> float:
 # 1e-5 s, while the bodies agree), so a difference that shrinks there is MuJoCo's, one that stays is the own
 # plant's. The second step: in the 2,000-case run of 2026-12-02 two cases with a long chain of impacts (lab_crane
 # seed 749: 167 re-tensions in 4 s; acroboter seed 1974) differed by 25.5 and 23.8 µm at 1e-5 s, and by 9.3 and
-# 14.4 µm at 5e-6 s, while the own plant at a quarter of its step (0.5 ms) moved by 0.05 and 0.2 µm: MuJoCo's.
+# 14.4 µm at 5e-6 s (lab_crane 749: 7.5 µm at 2.5e-6 s), while the own plant at a quarter of its step (0.5 ms)
+# moved by 0.06 and 0.16 µm: MuJoCo's.
 # Each step's worst difference is kept (Outcome.position_diff_by_step), so the report shows the convergence.
 CONFIRM_TIMESTEPS = (1e-5, 5e-6)
 DURATION_S = (2.0, 5.0)
