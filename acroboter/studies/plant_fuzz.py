@@ -1,10 +1,9 @@
 """Differential fuzzing of the plant: open-loop experiments nobody chose, on the own plant and on MuJoCo.
 
-Why: the own plant's cables switch between slack and taut by an event logic (acroboter.sim.plant) whose
-hard cases are cables handing the load to each other; hand-picked scenarios missed a cascade that
-left a slack cable stretched by 1.25 mm (issue 18). Here a generator draws experiments, each one
-is run on the own plant and on MuJoCo (an engine written by others, on the spec's MJCF model), and
-the two must agree within stated bounds, while the own plant's invariants hold at every substep.
+Why: the own plant's cables switch between slack and taut by an event logic (acroboter.sim.plant) whose hard
+cases are cables handing the load to each other; hand-picked scenarios missed a cascade that left a slack cable
+stretched by 1.25 mm (issue 18). Here generated experiments run on the own plant and on MuJoCo (an engine
+written by others, on the spec's MJCF model) must agree within stated bounds, with the own plant's invariants.
 
 An experiment (`random_experiment`, from a `random.Random`, so that hypothesis can draw and shrink
 it in tests/test_plant_fuzz.py and `make plant-fuzz` can replay it from a seed): a spec, 2-5 s, the
@@ -21,9 +20,8 @@ What is compared, plant step by plant step (`compare`):
 - each cable's slack/taut state at the end of every plant step, outside +-1 plant step of the own
   plant's transitions, from the cables' gaps (|p_a - p_b| - L): a cable is clearly slack where its
   gap is below -SLACK_GAP_M and clearly taut where it is above -TAUT_GAP_M; the states differ where
-  one plant has a cable clearly slack and the other clearly taut. Not from MuJoCo's limit forces:
-  its soft limits flicker to zero force for a step at a time (0.1-4 µm off the limit) while the
-  own plant's cable carries tens of newtons;
+  one plant has a cable clearly slack and the other clearly taut (not from MuJoCo's limit forces, which
+  flicker to zero for a step at a time 0.1-4 µm off the limit while the cable carries tens of newtons);
 - the kinetic energy each impact takes (`impact_windows`, `replayed_loss`): the own plant's −(T⁺ − T⁻) of
   its re-tensions (CableEvent.delta_kinetic) against −(the work of MuJoCo's constraint forces) over a window
   around them (acroboter.sim.mujoco_energy: each MuJoCo step's energy balance, with what its soft limits
@@ -57,26 +55,18 @@ MUJOCO_TIMESTEP = 5e-5  # s: MuJoCo converges on the own plant as its step shrin
 # constant of ~2·timeconst·ζ² = 4hζ² (timeconst = 2h, h MuJoCo's step), which must stay well inside the
 # RETENSION_WINDOW_S that positions are not compared in. So ζ = √(CABLE_CREEP_S / 4h): the creep is
 # CABLE_CREEP_S at every step and the restitution ~h/CABLE_CREEP_S vanishes with the step, as the
-# compliance does (ζ = 3.6 at 5e-5 s: 2.1 %; 8 at 1e-5 s: 0.38 %). Measured on the failed case of the
-# ζ = 2 run (acroboter, seed 906, a 1.8 J snap of a 0.05 kg drum): its bodies differed by 718/346/94/43/
-# 65 µm at ζ = 1/2/4/8/16 with MuJoCo at 5e-5 s (the creep, 12.8 ms at 8, beyond the window), and by 197/
-# 16.2/7.6 µm at ζ = 2/8/16 at 1e-5 s; at ζ = 8 for all steps 18 of 60 seeds needed the confirming step
-# (2 of them at ζ = 2).
+# compliance does (ζ = 3.6 at 5e-5 s: 2.1 %; 8 at 1e-5 s: 0.38 %). Measured on seed 906: docs/plant-fuzz.md.
 CABLE_CREEP_S = 2.56e-3
 
 
 def cable_dampratio(mujoco_timestep: float) -> float:
     """The damping ratio of MuJoCo's cable limits at its step (see CABLE_CREEP_S)."""
     return math.sqrt(CABLE_CREEP_S / (4.0 * mujoco_timestep))
-# A case that disagrees at MUJOCO_TIMESTEP is run again with MuJoCo at each of CONFIRM_TIMESTEPS in turn, and its
-# verdict is the first that agrees, or the finest's: MuJoCo's compliant cables converge to the inextensible ones
-# as its step shrinks (a light drum kicked by a snap elsewhere: 3.9 mm off the own plant at 5e-5 s, 0.96 mm at
-# 1e-5 s, while the bodies agree), so a difference that shrinks there is MuJoCo's, one that stays is the own
-# plant's. The second step: in the 2,000-case run of 2026-12-02 two cases with a long chain of impacts (lab_crane
-# seed 749: 167 re-tensions in 4 s; acroboter seed 1974) differed by 25.5 and 23.8 µm at 1e-5 s, and by 9.3 and
-# 14.4 µm at 5e-6 s (lab_crane 749: 7.5 µm at 2.5e-6 s), while the own plant at a quarter of its step (0.5 ms)
-# moved by 0.06 and 0.16 µm: MuJoCo's.
-# Each step's worst difference is kept (Outcome.position_diff_by_step), so the report shows the convergence.
+# A case that disagrees at MUJOCO_TIMESTEP is run again with MuJoCo at each of CONFIRM_TIMESTEPS in turn; the
+# verdict is the first that agrees, or the finest's: MuJoCo's compliant cables converge on the inextensible ones as
+# its step shrinks, the own plant does not move with its own step (docs/plant.md, "Differential fuzzing": a light
+# drum 3.9/0.96 mm off at 5e-5/1e-5 s; chains of impacts 25.5/9.3/7.5 µm off at 1e-5/5e-6/2.5e-6 s while the own
+# plant at a quarter step moves 0.06 µm). Each step's worst difference is kept (Outcome.position_diff_by_step).
 CONFIRM_TIMESTEPS = (1e-5, 5e-6)
 DURATION_S = (2.0, 5.0)
 MAX_AMPLITUDE = 1.5  # × the static tension

@@ -8,6 +8,7 @@ what the frames show: the colours a GIF's palette must keep exact are passed in 
 
 from __future__ import annotations
 
+import logging
 import os
 import sys
 from collections.abc import Iterable, Iterator, Sequence
@@ -28,8 +29,12 @@ def write_mp4(frames: Iterator[np.ndarray], path: Path, fps: float, total: int, 
     from tqdm import tqdm
 
     count = 0
+    # ffmpeg's own lines at -v only: a Ctrl-C that lands inside imageio's writer ends its generator, which closes
+    # ffmpeg's input mid-frame before it can be killed, and ffmpeg's "Invalid buffer size" is no news to a user
+    # who pressed Ctrl-C; a real failure still raises imageio's error with ffmpeg's exit code
+    level = "error" if logging.getLogger("acroboter").isEnabledFor(logging.DEBUG) else "fatal"
     writer = imageio.get_writer(path, fps=fps, codec="libx264", quality=7, pixelformat="yuv420p",
-                                macro_block_size=2, ffmpeg_log_level="error")
+                                macro_block_size=2, ffmpeg_log_level=level)
     try:
         for frame in tqdm(frames, total=total, unit="frame", desc=f"rendering {path.name}",
                           disable=progress_disabled(quiet), file=sys.stderr):
