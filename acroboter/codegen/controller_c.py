@@ -30,6 +30,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from ..model.layout import nominal_coordinates
 from ..model.schema import Sensing
 from ..model.sensing_layout import is_ideal, measured_groups, measured_indices
 from ..model.settings import Gains
@@ -39,6 +40,8 @@ from .generate import INPUT_NAMES
 from .step_graph import StepExport
 from .structured import cholesky_solve, independent_rows
 from .symbolic import build_symbolic_model
+
+RANK_TOLERANCE = 1e-9  # as acroboter.sim.sensing.RANK_TOLERANCE
 
 __all__ = ["ControllerExport", "build_controller", "controller_files", "controller_name", "export_controller"]
 
@@ -130,6 +133,7 @@ def build_controller(spec: Spec, method: str, gains: Gains, sensing: Sensing | N
         ]
         if export.unmeasured.size:
             au = a[:, export.unmeasured.tolist()]
+            _check_measurable(model, au, [lay.coordinates[i] for i in export.unmeasured])
             step_u = cholesky_solve(ca.mtimes(au.T, au), ca.mtimes(au.T, phi))  # as Estimator._least_squares
             functions.append(ca.Function(f"{name}_unmeasured_step", [q, s], [ca.densify(step_u)], ["q", "s"],
                                          ["dq_unmeasured"], {"cse": True}))
@@ -137,6 +141,27 @@ def build_controller(spec: Spec, method: str, gains: Gains, sensing: Sensing | N
     export.work = tuple(max(getattr(f, attr)() for f in functions)  # type: ignore[assignment]
                         for attr in ("sz_arg", "sz_res", "sz_iw", "sz_w"))
     return export
+
+
+def _check_measurable(model, au: ca.SX, names: list[str]) -> None:
+    """As acroboter.sim.sensing.check_measurable: φ_q's columns of the unmeasured coordinates must have full column
+    rank at the spec's nominal configuration (moving anchors at their spec positions), else ExportError."""
+    lay, spec = model.layout, model.spec
+    signals = np.zeros(lay.n_signals)
+    for anchor in spec.anchors:
+        if anchor.name in lay.anchor_signal:
+            j = lay.anchor_signal[anchor.name]
+            signals[j : j + 3] = anchor.position
+    fn = ca.Function("measurable", [model.inputs[0], model.inputs[2]], [ca.densify(au)])
+    block = np.array(fn(nominal_coordinates(spec, lay), signals).full())
+    sv = np.linalg.svd(block, compute_uv=False)
+    rank = int(np.count_nonzero(sv > RANK_TOLERANCE * max(sv.max(initial=0.0), 1.0)))
+    if rank < len(names):
+        raise ExportError(
+            f"the [sensing] section measures too little: {len(names)} unmeasured coordinates with only {rank} "
+            f"independent constraints on them ({', '.join(names)}); measure each body's r and two of its axes "
+            "(docs/sensing.md)"
+        )
 
 
 def controller_files(name: str) -> list[str]:
