@@ -286,3 +286,60 @@ def test_the_stateless_export_still_refuses_integral_action():
         from acroboter.codegen.export_step import build_step
         build_step(spec, "penalty", Gains.from_spec(spec, ki=KI))
     assert build_controller(spec, "penalty", Gains.from_spec(spec, ki=KI)).step.gains.ki == KI
+
+
+# --- the anti-windup where a limit binds (no sensing: the measurements are the state) ----------------------------
+
+@pytest.fixture(scope="module")
+def limited(tmp_path_factory):
+    """test_integral_action's lift with the winches at most 27.5 N: the limit binds for a while during the lift."""
+    from test_integral_action import LIFT, LIFT_START, LIFT_TIME, start_targets, with_winch_limits
+
+    import acroboter
+
+    crane = acroboter.Crane.from_toml(with_winch_limits(tmp_path_factory.mktemp("lift"), 27.5))
+    target, _ = start_targets(crane.model)
+
+    def lift(t):
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        tau = np.clip((t - LIFT_START) / LIFT_TIME, 0.0, 1.0)
+        moving = (tau > 0) & (tau < 1)
+        pos = np.tile(target, (t.size, 1))
+        vel, acc = np.zeros((t.size, 3)), np.zeros((t.size, 3))
+        pos[:, 2] += LIFT * (10 * tau**3 - 15 * tau**4 + 6 * tau**5)
+        vel[:, 2] = moving * LIFT * (30 * tau**2 - 60 * tau**3 + 30 * tau**4) / LIFT_TIME
+        acc[:, 2] = moving * LIFT * (60 * tau - 180 * tau**2 + 120 * tau**3) / LIFT_TIME**2
+        return pos, vel, acc
+
+    return crane, crane.desired(lift, 8.0)
+
+
+@pytest.mark.parametrize("method", ["penalty", "mlm"])
+def test_anti_windup_matches_python_where_a_limit_binds(method, limited, tmp_path):
+    crane, path = limited
+    spec, model = crane.spec, crane.model
+    gains = crane.gains(ki=KI)
+    controller = make_controller(method, model, path, gains)
+    rows, compute, held = [], controller.compute, []
+
+    def recording_compute(q, qd, t, signals=None):
+        y = np.concatenate([q, qd])
+        u = compute(q, qd, t, signals)
+        rows.append([float(t), y, np.array(path.flat(t)), u.copy()])
+        held.append(controller._hold)
+        return u
+
+    controller.compute = recording_compute
+    start = solve_equilibrium(model, path)
+    simulate(model, path, controller, setup_default(model, path), start.q, 3.0, spec.controller.rate_hz,
+             spec.simulation.step)
+    assert sum(held) >= 10  # the anti-windup holds z over a stretch of the lift
+    export = build_controller(spec, method, gains, None)
+    assert not export.estimator
+    write_controller(export, tmp_path)
+    exe = compile_driver(tmp_path, export.name, model.layout.n)
+    write_data(tmp_path / "data.txt", start.q, rows, model.layout.l)
+    u_c, _ = run_driver(exe, tmp_path / "data.txt", len(rows), model.layout.l)
+    error = relative_error(u_c, np.array([r[3] for r in rows]))
+    print(f"\n{method} (lift, limit binds {sum(held)} steps): worst relative difference {error.max():.2e}")
+    assert error.max() <= RTOL, f"step {int(error.argmax())}: {error.max():.2e}"
