@@ -308,6 +308,10 @@ def test_cli_writes_the_stateful_controller(tmp_path, capsys):
     assert export_step_main(["--spec", str(spec), "--stateful", "--method", "mlm", "--mlm-system", "full",
                              "--out", str(tmp_path / "full")]) == 2
     assert "--mlm-system reduced" in capsys.readouterr().err
+    assert export_step_main(["--spec", str(spec), "--stateful", "--ki", "300", "--out", str(tmp_path / "k")]) == 2
+    assert "Routh" in capsys.readouterr().err  # ki above 2·kd·kp², named before any work
+    assert export_step_main(["--spec", str(SPEC_PATH), "--ki", "18", "--out", str(tmp_path / "plain")]) == 2
+    assert "--stateful" in capsys.readouterr().err  # the stateless step refuses integral action, pointing here
 
 
 def test_the_stateless_export_still_refuses_integral_action():
