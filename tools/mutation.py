@@ -44,7 +44,7 @@ TESTS = [
 ]
 # Never part of a selection: the freshness check and the cross-implementation comparisons.
 EXCLUDED = {"tests/test_freshness.py", "tests/test_generated_integrity.py", "tests/test_integrity_chain.py",
-            "tests/test_export_step.py", "tests/test_compiled_vs_casadi.py"}
+            "tests/test_export_step.py", "tests/test_export_controller.py", "tests/test_compiled_vs_casadi.py"}
 
 
 def toml_list(items) -> str:

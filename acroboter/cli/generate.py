@@ -252,6 +252,7 @@ def main(argv: list[str] | None = None) -> int:
 @guarded
 def export_step_main(argv: list[str] | None = None) -> int:
     """`acroboter export-step`: one method's complete control step as self-contained C and a header."""
+    from ..codegen.controller_c import controller_files, controller_name, export_controller
     from ..codegen.export_step import (
         GAIN_OPTIONS,
         MLM_SYSTEMS,
@@ -262,7 +263,7 @@ def export_step_main(argv: list[str] | None = None) -> int:
     )
     from ..model.ranges import GAIN_RANGES, sampled_gain_problems
     from ..model.settings import Gains
-    from ..model.spec import RECOVERIES
+    from ..model.spec import RECOVERIES, integral_gain_problem
 
     parser = argparse.ArgumentParser(
         prog="acroboter export-step",
@@ -283,12 +284,19 @@ def export_step_main(argv: list[str] | None = None) -> int:
                         help="penalty methods: solve the (m+k) x (m+k) multiplier matrix D^-1 + J M^-1 J^T, or the "
                         "n x n penalty matrix A = M + J^T D J; the same iterates. auto: multipliers, unless the "
                         "spec has redundant constraints (then matrix) (default: %(default)s)")
+    parser.add_argument("--stateful", action="store_true",
+                        help="export the stateful controller instead (docs/controller.md): a state struct and "
+                        "init/step/reset with the spec's [sensing] estimator (none: the state is measured) and "
+                        "integral action (ki)")
+    parser.add_argument("--ki", default=None, type=ranged(GAIN_RANGES["ki"]),
+                        help="override the spec's integral gain (as run's option; --stateful only: the stateless "
+                        "step refuses integral action)")
     parser.add_argument("--out", type=out_path, default=None,
                         help=f"output folder (default: {DEFAULT_EMBEDDED}/<spec>_<method>/)")
     args = parser.parse_args(argv)
     if args.out is not None:
         check_out_folder(parser, args.out)
-    overrides = {name: getattr(args, name) for name in (*GAIN_OPTIONS, "recovery")}  # each in its range already
+    overrides = {name: getattr(args, name) for name in (*GAIN_OPTIONS, "recovery", "ki")}  # each in its range
     try:
         spec = load_spec(args.spec)
         kp = spec.controller.kp if args.kp is None else args.kp
@@ -296,8 +304,21 @@ def export_step_main(argv: list[str] | None = None) -> int:
         for name, problem in sampled_gain_problems(kp, kd, spec.controller.rate_hz, ("kp", "kd")):
             print(f"error: --{name}: {problem}", file=sys.stderr)  # before any work: the law it bakes in is unstable
             return 2
+        gains = Gains.from_spec(spec, **overrides)
+        if (problem := integral_gain_problem(gains.kp, gains.kd, gains.ki)) is not None:
+            print(f"error: --ki: {problem}", file=sys.stderr)
+            return 2
         out = args.out if args.out is not None else DEFAULT_EMBEDDED / f"{spec.name}_{args.method}"
-        name = step_name(spec, args.method, Gains.from_spec(spec, **overrides).recovery)
+        if args.stateful:
+            name = controller_name(spec, args.method, gains.recovery)
+            with results_folder(out, "export-step", expected=controller_files(name), accumulate=True) as folder:
+                export_controller(args.spec, args.method, folder.staging, args.mlm_system, args.penalty_system,
+                                  **overrides)
+                written = folder.publish()
+            for path in written:
+                print(f"wrote {_shown(path)}")
+            return 0
+        name = step_name(spec, args.method, gains.recovery)
         # the output-folder contract (docs/run.md): checked and locked now, staged, swapped in; each method's
         # files are its own (accumulate): exporting another method into the folder keeps the first one's
         with results_folder(out, "export-step", expected=[f"{name}.c", f"{name}.h"], accumulate=True) as folder:

@@ -108,8 +108,12 @@ def step_name(spec: Spec, method: str, recovery: str) -> str:
 
 
 def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = None, name: str | None = None,
-               mlm_system: str = "reduced", penalty_system: str = "auto") -> StepExport:
-    """Build the MX function u = step(q, qd, s, sd, sdd) of one method with the given (baked-in) gains."""
+               mlm_system: str = "reduced", penalty_system: str = "auto", stateful: bool = False) -> StepExport:
+    """Build the MX function u = step(q, qd, s, sd, sdd) of one method with the given (baked-in) gains.
+
+    stateful (the core of acroboter.codegen.controller_c): (u, q̈) = step(q, qd, s, sd, sdd, z), the
+    integral z = ∫σ dt an input (k_I z in ρ_s) and the commanded acceleration q̈ an output (the estimator's
+    prediction); integral action is then allowed."""
     iterations = parse_method(method)
     if gains.recovery not in RECOVERIES:
         raise ExportError(f"unknown input recovery '{gains.recovery}': choose one of {', '.join(RECOVERIES)}")
@@ -117,12 +121,12 @@ def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = N
         raise ExportError(f"unknown penalty system '{penalty_system}': choose one of {', '.join(PENALTY_SYSTEMS)}")
     if mlm_system not in MLM_SYSTEMS:
         raise ExportError(f"unknown MLM system '{mlm_system}': choose one of {', '.join(MLM_SYSTEMS)}")
-    if gains.ki != 0:
+    if gains.ki != 0 and not stateful:
         raise ExportError(
             f"integral action (ki = {gains.ki:g}) cannot be exported: the exported step is stateless "
             "(u from q, qd, s, sd, sdd) and the integral z = ∫σ dt with its anti-windup is state the Python "
             "controller holds (docs/integral_action.md): export from a spec without ki (or ki = 0) in its "
-            "[controller], and add the integral on the target"
+            "[controller], or export the stateful controller (export-step --stateful), which holds z"
         )
     model = build_symbolic_model(spec)
     name = name or step_name(spec, method, gains.recovery)
@@ -132,8 +136,11 @@ def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = N
         # manifold, their multipliers large: λ̂ then carries their round-off (~1e-7 relative in trials).
         penalty_system = "matrix" if redundant else "multipliers"
     system = mlm_system if iterations is None else penalty_system
-    export = StepExport(name, None, spec, spec_path, method, iterations, gains, model.layout, system)  # type: ignore[arg-type]
+    export = StepExport(name, None, spec, spec_path, method, iterations, gains, model.layout, system,  # type: ignore[arg-type]
+                        integral=stateful)
     graph = StepGraph(export, model)
+    if stateful:
+        stateful_problem(graph, iterations)
     if iterations is not None and redundant and system == "multipliers":
         export.notes.append(
             "the spec has redundant constraints: the multiplier matrix is nearly singular and, off the constraint "
@@ -144,13 +151,36 @@ def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = N
             "formulation 'matrix': the spec has redundant constraints, which make the multiplier form's matrix "
             "nearly singular."
         )
+    graph.bounds.report = stateful and graph.bounds.bounded and gains.ki != 0  # the anti-windup's judgement
     if iterations is None:
         u = mlm_step(graph, mlm_system)
     else:
         u = penalty_step(graph, iterations, penalty_system)
-    export.function = ca.Function(name, graph.inputs, [ca.densify(u)], list(INPUT_NAMES), ["u"])
+    if stateful:
+        saturated = ca.MX(0.0)
+        if graph.bounds.report:  # [u; QP ran; step 2's minimiser] -> u and the saturation judgement
+            l = graph.l
+            if u.shape[0] != 2 * l + 1:
+                raise ExportError(f"internal: the bounded step of {method} did not report its distribution")
+            u, saturated = u[:l], graph.bounds.saturation(u[l], u[l + 1 :])
+        export.function = ca.Function(name, graph.inputs, [ca.densify(u), ca.densify(graph.qdd), saturated],
+                                      graph.input_names, ["u", "qdd", "saturated"])
+    else:
+        export.function = ca.Function(name, graph.inputs, [ca.densify(u)], list(INPUT_NAMES), ["u"])
     export.qp_used = graph.bounds.used_qp
     return export
+
+
+def stateful_problem(graph: StepGraph, iterations: int | None) -> None:
+    """Refuse what the stateful controller cannot export yet (ExportError naming the cause and the way out)."""
+    bounded, redundant_inputs = graph.bounds.bounded, graph.l > graph.k
+    if iterations is None and (redundant_inputs or (bounded and graph.export.system == "full")):
+        raise ExportError(
+            "the stateful controller needs the commanded acceleration q̈ for its estimator; with MLM it is exported "
+            "for the reduced system (--mlm-system reduced) and no more inputs than servo-constraints only (elsewhere "
+            "the Python controller's multipliers come from a least squares this export does not generate): export "
+            "the penalty or iterative penalty method"
+        )
 
 
 def export_step(spec_path: Path, method: str, out_dir: Path | None = None, mlm_system: str = "reduced",

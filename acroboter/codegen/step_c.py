@@ -94,6 +94,8 @@ def _comment_block(export: StepExport) -> str:
         "  gains (baked in as constants; change them by re-exporting, e.g. --kp 6):",
         f"    kp = {g.kp!r} 1/s, kd = {g.kd!r} 1/s   (servo error dynamics s^2 + 2 kd s + kp^2)",
     ]
+    if export.integral:
+        lines.append(f"    ki = {g.ki!r} 1/s^3   (integral action: s^3 + 2 kd s^2 + kp^2 s + ki, rho_s + ki z)")
     if export.iterations is not None:
         lines.append(
             f"    alpha_geometric = {g.alpha_geometric!r}, alpha_servo = {g.alpha_servo!r}, "
@@ -112,7 +114,12 @@ def _comment_block(export: StepExport) -> str:
         f"    arg[2] = s   [{ns}]   signals: moving anchor positions (3 each), then x_d, y_d, z_d, yaw_d",
         f"    arg[3] = sd  [{ns}]   their first time derivatives",
         f"    arg[4] = sdd [{ns}]   their second time derivatives",
+        *([f"    arg[5] = z   [{lay.k}]   integral of the servo-constraints, z = int sigma dt (k_I z enters rho_s; "
+            "held by the stateful controller)"] if export.integral else []),
         f"    res[0] = u   [{l}]   inputs",
+        *([f"    res[1] = qdd [{n}]  the commanded acceleration (the estimator's prediction)",
+           "    res[2] = saturated [1]  the anti-windup's saturation judgement (1 saturated, 0 not)"]
+          if export.integral else []),
         f"  Work sizes ({export.name}_work() or the macros in {export.name}.h): sz_arg = {sz_arg}, "
         f"sz_res = {sz_res}, sz_iw = {sz_iw}, sz_w = {sz_w};",
         "  arg and res must have sz_arg and sz_res slots (entries past the inputs/outputs are scratch).",

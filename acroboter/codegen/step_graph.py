@@ -49,6 +49,7 @@ class StepExport:
     gains: Gains
     layout: Layout
     system: str  # MLM: reduced | full; penalty methods: multipliers | matrix
+    integral: bool = False  # stateful export: z = ∫σ dt is a sixth input and the step also returns q̈
     linear_solvers: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     distribution: list[str] = field(default_factory=list)  # how the input limits are honoured (header)
@@ -89,6 +90,8 @@ class StepGraph:
     """
 
     def __init__(self, export: StepExport, model: SymbolicModel):
+        """With export.integral (the stateful controller, acroboter.codegen.controller_c): a sixth input z
+        (the servo-constraints' integral, per row) enters ρ_s as k_I z, as in the Python controllers."""
         self.export, self.model, self.gains = export, model, export.gains
         lay = model.layout
         self.n, self.m, self.k, self.l, ns = lay.n, lay.m, lay.k, lay.l, lay.n_signals
@@ -100,18 +103,29 @@ class StepGraph:
         self.inv_mass_dm = constant(self.inv_chol.T @ self.inv_chol)
         self.inputs = [ca.MX.sym("q", self.n), ca.MX.sym("qd", self.n)]
         self.inputs += [ca.MX.sym(name, ns) for name in ("s", "sd", "sdd")]
+        self.sx_inputs = list(model.inputs)  # what the SX pieces (prelude, bounded terms) are functions of
+        self.input_names = list(INPUT_NAMES)
         g, T = self.gains, self.sx
         # ρ = γ + 2Ωμ φ̇ + Ω² φ (geometric penalty); ρ_s = γ_s + 2 k_D σ̇ + k_P² σ (servo error dynamics)
         self.rho = T["gamma"] + 2.0 * g.omega * g.mu * T["phi_dot"] + g.omega**2 * T["phi"]
         self.rho_s = T["gamma_s"] + 2.0 * g.kd * T["sigma_dot"] + g.kp**2 * T["sigma"]
         self.params = ca.DM(g.parameter_vector(self.k))  # codegen.structured's p, as constants (z = 0)
+        self.qdd: ca.MX | None = None  # the commanded acceleration, set by the method (stateful export)
+        if export.integral:
+            z = ca.SX.sym("z", self.k)
+            self.sx_inputs.append(z)
+            self.input_names.append("z")
+            self.inputs.append(ca.MX.sym("z", self.k))
+            self.rho_s = self.rho_s + g.ki * z  # + k_I z, as codegen.structured.servo_and_constraint_rates
+            scalars = g.parameter_vector(self.k)[: -self.k] if self.k else g.parameter_vector(0)
+            self.params = ca.vertcat(ca.SX(ca.DM(scalars)), z)  # p with the symbolic z
         self.bounds = Bounds(self)
 
     def prelude(self, outputs: dict[str, ca.SX]) -> dict[str, ca.MX]:
         names = list(outputs)
         fn = ca.Function(
-            f"{self.export.name}_terms", self.model.inputs, [outputs[k] for k in names],
-            list(INPUT_NAMES), names, {"cse": True},
+            f"{self.export.name}_terms", self.sx_inputs, [outputs[k] for k in names],
+            self.input_names, names, {"cse": True},
         )
         return dict(zip(names, fn(*self.inputs), strict=True))
 
@@ -125,6 +139,7 @@ class StepGraph:
                 j = lay.anchor_signal[anchor.name]
                 s0[j : j + 3] = anchor.position
         zeros_q, zeros_s = np.zeros(lay.n), np.zeros(lay.n_signals)
-        fn = ca.Function("nominal", self.model.inputs, [ca.densify(expr)])
-        return np.array(fn(q0, zeros_q, s0, zeros_s, zeros_s).full())
+        fn = ca.Function("nominal", self.sx_inputs, [ca.densify(expr)])
+        extra = [np.zeros(self.k)] if self.export.integral else []
+        return np.array(fn(q0, zeros_q, s0, zeros_s, zeros_s, *extra).full())
 

@@ -68,8 +68,13 @@ def mlm_step(graph: StepGraph, system: str) -> ca.MX:
             f"{rcond:.1e}): the constraints are redundant or the task is not reachable by the inputs. "
             "Export the penalty or iterative penalty method, which handle redundancy."
         )
-    P = graph.prelude({"matrix": matrix, "rhs": rhs})
+    pre = {"matrix": matrix, "rhs": rhs}
+    if export.integral and system == "reduced":  # q̈ = −M⁻¹(c + W y), as controllers.MLM.qdd
+        pre.update({"minv_bias": ca.mtimes(minv, c), "minv_w": ca.mtimes(minv, w)})
+    P = graph.prelude(pre)
     x = ca.solve(P["matrix"], P["rhs"], LINSOL_GENERAL)
+    if export.integral:  # where a limit binds: _mlm_bounded_qdd (the reduced system only)
+        graph.qdd = x[:n] if system == "full" else -(P["minv_bias"] + ca.mtimes(P["minv_w"], x))
     what = "reduced by the constant M (Schur complement in [lambda; u])" if system == "reduced" else "as written"
     export.linear_solvers.append(
         f"'{LINSOL_GENERAL}' (sparse Householder QR) on the {size}x{size} MLM system, {what}; reciprocal "
@@ -93,11 +98,32 @@ def mlm_step(graph: StepGraph, system: str) -> ca.MX:
     )
 
     def branch(inputs, _extra):
-        hessian, gradient = graph.bounds.sx_call("mlm_terms", graph.model.inputs,
+        hessian, gradient = graph.bounds.sx_call("mlm_terms", graph.sx_inputs,
                                                  [symmetric(terms["hessian"]), terms["gradient"]], inputs)
         return graph.bounds.full_rank(hessian, gradient)
 
-    return bounds.after_unbounded(u0, [], branch)
+    out = bounds.after_unbounded(u0, [], branch)
+    if export.integral:
+        graph.qdd = _mlm_bounded_qdd(graph, P, x, out[:l], u0)
+    return out
+
+
+def _mlm_bounded_qdd(graph: StepGraph, P: dict, x: ca.MX, u: ca.MX, u0: ca.MX) -> ca.MX:
+    """controllers.MLM.qdd where a limit may bind: q̈ = −M⁻¹(c + W y) with y the Schur solution if u0 is within
+    the limits, else y = [λ; u] with λ the least squares of the Schur rows, schur[:, :m] λ = rhs − schur[:, m:] u
+    (Python's lstsq; here its normal equations by LDLᵀ), evaluated only then (a Switch)."""
+    m = graph.m
+
+    def reactions(a):
+        schur, rhs = a[2], a[3]
+        lam_map = schur[:, :m]
+        residual = rhs - ca.mtimes(schur[:, m:], a[1])
+        lam = ca.solve(ca.mtimes(lam_map.T, lam_map), ca.mtimes(lam_map.T, residual), LINSOL_SPD)
+        return -(a[4] + ca.mtimes(a[5], ca.vertcat(lam, a[1])))
+
+    return graph.bounds.switch("reactions", graph.bounds.within(u0),
+                               [x, u, P["matrix"], P["rhs"], P["minv_bias"], P["minv_w"]],
+                               lambda a: -(a[4] + ca.mtimes(a[5], a[0])), reactions)
 
 
 def _mlm_internal_forces(graph: StepGraph) -> ca.MX:
@@ -192,13 +218,15 @@ def penalty_step(graph: StepGraph, iterations: int, system: str) -> ca.MX:
         pre = {"k": matrix, "rhs": ca.vertcat(graph.rho, graph.rho_s) + ca.mtimes(jac, qdd0)}
         if kind == "eq13":
             pre.update({"minv_jt": minv_jt, "qdd0": qdd0, "bias_forces": c, "phi_q": phi_q})
+        elif export.integral:
+            pre.update({"minv_jt": minv_jt, "qdd0": qdd0})
         P = graph.prelude(pre | recovery)
         step = ca.solve(P["k"], P["rhs"], LINSOL_SPD)
         multipliers = step
         for _ in range(iterations - 1):
             step = ca.solve(P["k"], ca.DM(inv_penalty) * step, LINSOL_SPD)
             multipliers = multipliers + step
-        if kind == "eq13":
+        if kind == "eq13" or export.integral:
             x = P["qdd0"] - ca.mtimes(P["minv_jt"], multipliers)  # q̈_N
         size = m + k
         export.linear_solvers.append(
@@ -206,6 +234,8 @@ def penalty_step(graph: StepGraph, iterations: int, system: str) -> ca.MX:
             f"{iterations} solve(s)"
         )
         lam, lam_hat = multipliers[:m], multipliers[m:]
+    if export.integral:
+        graph.qdd = x  # q̈_N, the acceleration the method commands (controllers.Penalty.qdd)
     bounds = graph.bounds
     if kind == "projected" and l > k:
         # More inputs than servo-constraints: as controllers.Penalty, always the distribution of the fit
@@ -250,7 +280,7 @@ def _bounded_projected(graph: StepGraph, u0: ca.MX, lam_hat: ca.MX) -> ca.MX:
     )
 
     def branch(inputs, extra):
-        hessian, gradient = bounds.sx_call("projected_terms", [*model.inputs, lam_sx], outputs, [*inputs, *extra])
+        hessian, gradient = bounds.sx_call("projected_terms", [*graph.sx_inputs, lam_sx], outputs, [*inputs, *extra])
         return bounds.full_rank(hessian, gradient)
 
     return bounds.after_unbounded(u0, [lam_hat], branch)
@@ -259,7 +289,7 @@ def _bounded_projected(graph: StepGraph, u0: ca.MX, lam_hat: ca.MX) -> ca.MX:
 def _bounded_fit(graph: StepGraph, u0: ca.MX, gradient: ca.MX) -> ca.MX:
     """eq12/eq13: u0 if within the limits, else their least squares in H u bounded (G = HᵀH): lexicographic,
     or weighted (PENALTY_SECONDARY_WEIGHT) with more inputs than servo-constraints, as controllers.Penalty."""
-    bounds, model, l = graph.bounds, graph.model, graph.l
+    bounds, l = graph.bounds, graph.l
     if not bounds.bounded:
         return u0
     H = graph.sx["input_matrix"]
@@ -276,7 +306,7 @@ def _bounded_fit(graph: StepGraph, u0: ca.MX, gradient: ca.MX) -> ca.MX:
     )
 
     def branch(inputs, extra):
-        (hessian,) = bounds.sx_call("fit_terms", list(model.inputs), [symmetric(hth)], inputs)
+        (hessian,) = bounds.sx_call("fit_terms", list(graph.sx_inputs), [symmetric(hth)], inputs)
         if weighted:
             return bounds.weighted(hessian, extra[0], PENALTY_SECONDARY_WEIGHT)
         return bounds.full_rank(hessian, extra[0])
@@ -292,7 +322,7 @@ def _box_projection(graph: StepGraph, u: ca.MX) -> ca.MX:
         f"u = the {graph.gains.recovery} recovery clipped onto the limits (its bounded form min 1/2 |u - u_rec|^2, "
         "G = I, as acroboter.recovery.InputRecovery.least_squares: the box projection, fmin/fmax)"
     )
-    return graph.bounds.clip(u)
+    return graph.bounds.report_clip(u)
 
 
 def _recovery_prelude(graph: StepGraph) -> dict[str, ca.SX]:

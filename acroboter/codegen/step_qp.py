@@ -11,8 +11,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from ..model.settings import SECONDARY_WEIGHT
-from .structured import cholesky_solve
+from ..model.settings import SATURATION_TOLERANCE, SECONDARY_WEIGHT
+from .structured import cholesky_solve, mlm_bounded_terms
 
 # --- Input limits: acroboter.control.distribution's bounded distribution, in the graph ----------------------------
 #
@@ -58,6 +58,10 @@ class Bounds:
         self._count = 0
         self._qp_solver = None
         self.used_qp = False
+        # The stateful export with integral action (acroboter.codegen.controller_c): every bounded branch returns
+        # [u; QP ran (0/1); step 2's minimiser] (what BoundedInputs records as bounded_step and unbounded), for
+        # the anti-windup's saturation judgement (saturation below).
+        self.report = False
 
     def name(self, what: str) -> str:
         self._count += 1
@@ -126,16 +130,48 @@ class Bounds:
                                  x0=self.clip(start), lam_x0=lam0)["x"]
         return self.clip(result)
 
-    def finish(self, u2: ca.MX, qp_args: list[ca.MX], qp_terms) -> ca.MX:
-        """Step 2's u2 if within the limits, else the QP; qp_terms(qp_args) -> (H, g), in the QP branch."""
+    def finish(self, u2: ca.MX, qp_args: list[ca.MX], qp_terms, report: bool | None = None) -> ca.MX:
+        """Step 2's u2 if within the limits, else the QP; qp_terms(qp_args) -> (H, g), in the QP branch.
+        report (default self.report): [u; QP ran; u2] instead of u."""
         if not self.bounded:
             return u2
+        if self.report if report is None else report:
+            return self.switch("bounded", self.within(u2), [u2, *qp_args], lambda a: ca.vertcat(a[0], 0, a[0]),
+                               lambda a: ca.vertcat(self.qp(*qp_terms(a[1:]), a[0]), 1, a[0]))
         return self.switch("bounded", self.within(u2), [u2, *qp_args], lambda a: a[0],
                            lambda a: self.qp(*qp_terms(a[1:]), a[0]))
 
+    def report_clip(self, u: ca.MX) -> ca.MX:
+        """eq15/kappa's clip with the report: Python's distribution of G = I has u2 = the recovery's u."""
+        if not self.report:
+            return self.clip(u)
+        return ca.vertcat(self.clip(u), 1 - self.within(u), u)
+
+    def saturation(self, ran: ca.MX, u2: ca.MX) -> ca.MX:
+        """controllers.Controller.saturation in the graph, evaluated only where the QP ran (a Switch): the servo
+        accelerations a = E u2 of step 2's minimiser (E = sigma_q P H, codegen.structured.mlm_bounded_terms) asked
+        of the limits in the bounded least squares min |E u - a|^2 (BoundedInputs, lexicographic); saturated (1)
+        if its input misses a by more than SATURATION_TOLERANCE * max(1, max |a|)."""
+        graph = self.graph
+        l, k = self.l, graph.k
+        e_sx = mlm_bounded_terms(graph.model, graph.params)["servo_map"]
+        n_in = len(graph.inputs)
+
+        def judged(a):
+            (e_map,) = self.sx_call("judge_map", graph.sx_inputs, [e_sx], a[1 : 1 + n_in])
+            asked = ca.mtimes(e_map, a[0])
+            if l > k:
+                best = self.internal(e_map, asked, report=False)
+            else:
+                best = self.full_rank(ca.mtimes(e_map.T, e_map), -ca.mtimes(e_map.T, asked), report=False)
+            miss = ca.mmax(ca.fabs(ca.mtimes(e_map, best) - asked))
+            return miss > SATURATION_TOLERANCE * ca.fmax(1.0, ca.mmax(ca.fabs(asked)))
+
+        return self.switch("saturation", ran, [u2, *graph.inputs], judged, lambda a: ca.MX(0.0))
+
     # -- the three forms of step 2 --
 
-    def full_rank(self, hessian: ca.MX, gradient: ca.MX) -> ca.MX:
+    def full_rank(self, hessian: ca.MX, gradient: ca.MX, report: bool | None = None) -> ca.MX:
         """Lexicographic, G nonsingular (no internal forces): u2 = −G⁻¹g, QP Hessian G (divided by tr(G)/l)."""
         l = self.l
         g, f = ca.SX.sym("G", l, l), ca.SX.sym("g", l)
@@ -145,7 +181,7 @@ class Bounds:
             scale, _ = scale_and_weight(g, 0.0)
             return self.sx_call("qp_terms", [g, f], [symmetric(g) / scale, f / scale], a)
 
-        return self.finish(u2, [hessian, gradient], terms)
+        return self.finish(u2, [hessian, gradient], terms, report)
 
     def weighted(self, hessian: ca.MX, gradient: ca.MX, weight: float) -> ca.MX:
         """(G + μI) u2 = −g + μ u_pref by Cholesky, μ = weight · tr(G)/l (1 if G = 0); the QP has the same
@@ -159,7 +195,7 @@ class Bounds:
                                   [hessian, gradient])
         return self.finish(u2, [hq, gq], lambda a: a)
 
-    def internal(self, servo_map: ca.MX, target: ca.MX) -> ca.MX:
+    def internal(self, servo_map: ca.MX, target: ca.MX, report: bool | None = None) -> ca.MX:
         """Lexicographic with internal forces (MLM, more inputs than servo-constraints), E full row rank.
 
         Python's eigen split of G = EᵀE keeps the range of Eᵀ and sets the null space Z to u_pref:
@@ -180,7 +216,7 @@ class Bounds:
             gradient = -ca.mtimes(e_map.T, e) - mu * ca.mtimes(projector, pref)
             return self.sx_call("internal_qp", [e_map, e], [(hess + mu * projector) / scale, gradient / scale], a)
 
-        return self.finish(u2, [servo_map, target], terms)
+        return self.finish(u2, [servo_map, target], terms, report)
 
     def task(self, hessian: ca.MX, gradient: ca.MX, servo_map: ca.MX) -> ca.MX:
         """The fit ½uᵀGu + gᵀu with redundant inputs, lexicographic in the servo accelerations E u, as
@@ -199,7 +235,9 @@ class Bounds:
             return u0
         inputs = self.graph.inputs
         n_in = len(inputs)
-        return self.switch("limits", self.within(u0), [u0, *inputs, *extra], lambda a: a[0],
+        report = self.report
+        return self.switch("limits", self.within(u0), [u0, *inputs, *extra],
+                           lambda a: ca.vertcat(a[0], 0, a[0]) if report else a[0],
                            lambda a: branch(a[1 : 1 + n_in], a[1 + n_in :]))
 
 

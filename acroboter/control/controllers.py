@@ -19,16 +19,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import lapack
 
-from ..model.settings import MLM_RCOND_LIMIT, PENALTY_SECONDARY_WEIGHT, Gains
+from ..model.settings import MLM_RCOND_LIMIT, PENALTY_SECONDARY_WEIGHT, SATURATION_TOLERANCE, Gains
 from ..model.spec import Spec
 from .distribution import BoundedInputs, DistributionError
 from .path import DesiredPath
 from .recovery import InputRecovery
-
-# A step saturates when no input within the limits causes the servo-constraint accelerations the
-# unbounded input would, to this fraction of max(1, their size): a limit that only moves internal
-# forces (redundant inputs) is not saturation, whatever distribution the method then applies.
-SATURATION_TOLERANCE = 1e-6
 
 
 class SingularSystemError(RuntimeError):

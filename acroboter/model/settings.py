@@ -14,6 +14,11 @@ from .spec import Spec
 
 # MLM: a reciprocal condition number below this means a singular system (redundant constraints).
 MLM_RCOND_LIMIT = 1e-13
+# A step saturates when no input within the limits causes the servo-constraint accelerations the
+# unbounded input would, to this fraction of max(1, their size): a limit that only moves internal
+# forces (redundant inputs) is not saturation, whatever distribution the method then applies. Shared by
+# the Python controllers' anti-windup and the stateful exported controller's (acroboter.codegen.controller_c).
+SATURATION_TOLERANCE = 1e-6
 # Eigenvalues of G below this fraction of its mean eigenvalue are internal forces (round-off leaves
 # them at ~1e-15 relative where they are exactly zero).
 RANK_TOLERANCE = 1e-9

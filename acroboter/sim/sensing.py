@@ -33,13 +33,15 @@ from scipy.linalg.lapack import dpotrf, dpotrs
 
 from ..control.path import DesiredPath
 from ..model.layout import nominal_coordinates
-from ..model.schema import Sensing, SpecError, _Strict, sensing_coordinates
+from ..model.schema import Sensing, SpecError, _Strict
+from ..model.sensing_layout import PROJECTION_TOLERANCE, is_ideal, measured_indices
 from ..model.spec_checks import sensing_problems
 from ..model.spec_errors import format_pydantic
 from .cable_events import SimulationError
 
-# Gauss–Newton stops once max |φ| is this small (the plant itself holds φ to about 1e-13).
-PROJECTION_TOLERANCE = 1e-13
+__all__ = ["PROJECTION_TOLERANCE", "Estimator", "SensingError", "check_measurable", "describe", "is_ideal",
+           "make_estimator", "measured_indices", "resolve"]
+
 # A column-rank deficit of φ_q on the unmeasured coordinates: singular values below this × the largest.
 RANK_TOLERANCE = 1e-9
 OVERRIDE_KEYS = ("noise", "quantization", *Sensing.model_fields)  # groups, delay_periods, seed, ...
@@ -118,27 +120,6 @@ def resolve(spec, sensing=None, source: str = "sensing") -> Sensing | None:
     if problems:
         raise SpecError(source, problems)
     return chosen
-
-
-def measured_indices(spec, layout, sensing: Sensing) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(coordinate indices, noise standard deviation, quantisation step or 0) per measured coordinate."""
-    index, noise, step = [], [], []
-    for group in sensing.groups:
-        for selector in group.coordinates:
-            for name in sensing_coordinates(spec, selector):
-                index.append(layout.coordinates.index(name))
-                noise.append(group.noise)
-                step.append(group.quantization or 0.0)
-    return np.array(index, dtype=np.intp), np.array(noise), np.array(step)
-
-
-def is_ideal(spec, layout, sensing: Sensing | None) -> bool:
-    """Every coordinate measured without noise, quantisation or delay: the plant's state itself."""
-    if sensing is None:
-        return True
-    index, noise, step = measured_indices(spec, layout, sensing)
-    return (len(set(index.tolist())) == layout.n and not noise.any() and not step.any()
-            and sensing.delay_periods == 0)
 
 
 def _rows(model) -> np.ndarray:
