@@ -24,7 +24,7 @@ LAYERS = ["model", "codegen", "runtime", "control", "sim", "planning", "api", "s
 # `python -m acroboter.<command>` form, each a forward to the command's module.
 TOP = "top"
 TOP_MODULES = {"__init__", "__main__", "run", "bench", "study", "sweep", "robustness", "build", "animate", "mjcf",
-               "plant_fuzz"}
+               "plant_fuzz", "plan"}
 ORDER = [*LAYERS, TOP]
 # Besides the order (which leaves the code generator only the model below it): of the runtime only these
 # two modules may call the code generator; the rest of it, control and sim never import it.

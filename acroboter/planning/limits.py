@@ -40,9 +40,9 @@ def margin_achieved(inputs: np.ndarray, lower: np.ndarray, upper: np.ndarray) ->
 
 
 def active_intervals(times: np.ndarray, inputs: np.ndarray, low: np.ndarray, high: np.ndarray, names: list[str],
-                     tolerance: float = 1e-3) -> list[dict]:
+                     tolerance: float = 1e-2) -> list[dict]:
     """Where an input is on its tightened limit (within `tolerance` of the span, or of 1 unit without one):
-    [{"input", "side", "from_s", "to_s"}, ...] in time order."""
+    [{"input", "side", "from_s", "to_s"}, ...] in time order; stretches apart by at most two samples are one."""
     found = []
     span = np.where(np.isfinite(high - low), high - low, 1.0)
     for i, name in enumerate(names):
@@ -51,7 +51,12 @@ def active_intervals(times: np.ndarray, inputs: np.ndarray, low: np.ndarray, hig
                 continue
             on = sign * (inputs[:, i] - limit) >= -tolerance * span[i]
             edges = np.flatnonzero(np.diff(np.concatenate([[0], on.astype(int), [0]])))
+            mine: list[dict] = []
             for start, stop in zip(edges[::2], edges[1::2], strict=True):
-                found.append({"input": name, "side": side, "from_s": float(times[start]),
-                              "to_s": float(times[stop - 1])})
+                if mine and start - mine[-1]["_stop"] <= 2:
+                    mine[-1].update(to_s=float(times[stop - 1]), _stop=stop)
+                else:
+                    mine.append({"input": name, "side": side, "from_s": float(times[start]),
+                                 "to_s": float(times[stop - 1]), "_stop": stop})
+            found += [{k: v for k, v in a.items() if k != "_stop"} for a in mine]
     return sorted(found, key=lambda a: a["from_s"])

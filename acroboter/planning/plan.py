@@ -142,7 +142,7 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
     trajectory = sample(geometry, solution, problem.n)
     achieved, where = margin_achieved(solution.inputs, lower, upper)
     result = Plan(
-        duration=solution.duration, path_duration=geometry.end, times=solution.times,
+        duration=solution.duration, path_duration=geometry.path_duration, times=solution.times,
         s=solution.states[:, -2] / geometry.end, sd=solution.states[:, -1] / geometry.end,
         sdd=np.append(solution.tau_dd, solution.tau_dd[-1]) / geometry.end, trajectory=trajectory,
         input_names=list(lay.inputs), input_units=list(lay.input_units), input_times=solution.input_times,

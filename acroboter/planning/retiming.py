@@ -44,6 +44,8 @@ BISECTION_RELATIVE = 1e-3
 # error then stalls far from zero while the duration has long converged.
 ACCEPTABLE = {"acceptable_tol": 1e3, "acceptable_iter": 5, "acceptable_constr_viol_tol": 1e-8,
               "acceptable_compl_inf_tol": 1e-6, "acceptable_obj_change_tol": 1e-7}
+# The longest RK4 step of the problem's integration (s).
+MAX_STEP_S = 0.1
 # The fewest intervals a phase (an edge of a waypoint path) gets.
 MIN_PHASE_INTERVALS = 6
 
@@ -150,6 +152,11 @@ class Retiming:
         uniform_duration = factor * self.geo.path_duration
         counts = self.grid(intervals)
         N, n, phases = sum(counts), self.n, self.geo.phases
+        # RK4 steps per interval: none longer than MAX_STEP_S at the starting guess (the Baumgarte terms and the
+        # connector's swing are not resolved by longer ones; RK4 turns unstable near 2.8 / Ω)
+        longest = factor * max(T / c for (_, _, T), c in zip(phases, counts, strict=True))
+        self.substeps = max(self.substeps, int(math.ceil(longest / MAX_STEP_S)))
+        self.step = rk4_step(self.dyn, self.geo, self.substeps)
         opti = ca.Opti()
         A = opti.variable(1, N)
         durations = opti.variable(len(phases))
