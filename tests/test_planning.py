@@ -136,7 +136,10 @@ def test_limits_that_cannot_hold_the_load_at_rest_are_found_before_any_solve(tmp
 
 def test_a_margin_the_statics_do_not_leave_is_refused_with_the_largest_that_would(tmp_path):
     crane = acroboter.Crane.from_toml(lift_spec(tmp_path, 24.0, 29.0))
-    with pytest.raises(StaticLimitError, match=r"with a margin of 45 %.*a margin of at most 4\.\d+ %"):
+    """Limits [24, 29] N: the static need is 26.754 N at the start and 26.965 N at the top, so the statics leave
+    (29 − 26.965) / 5 = 40.7 % of the span; 45 % is refused at the start, naming the largest margin that fits."""
+    with pytest.raises(StaticLimitError, match=r"with a margin of 45 %.*needs tension_1 = 26\.754 N, beyond 26\.75 N "
+                                               r".*a margin of at most 40\.\d %"):
         crane.plan(margin=0.45)
 
 

@@ -74,7 +74,7 @@ def check_statics(model, geometry: PathGeometry, lower, upper, low, high, margin
             bound = high[i] if value > high[i] else low[i]
             room = worst_static_margin(needs, lower, upper)
             raise StaticLimitError(f"no timing can help with a margin of {100 * margin:.4g} %: at {where} holding the "
-                                   f"load at rest needs {name} = {value:.4g} {unit}, beyond {bound:.4g} {unit} (its "
+                                   f"load at rest needs {name} = {value:.5g} {unit}, beyond {bound:.5g} {unit} (its "
                                    f"limits less the margin); the statics along the path leave a margin of at most "
                                    f"{100 * max(room, 0.0):.3g} %: give a smaller --margin or wider limits")
     return needs
