@@ -18,13 +18,13 @@ PACKAGE = REPO / "acroboter"
 
 # The folders of acroboter/, lowest first. A module may import its own folder and the folders below, never
 # one above. Each folder's __init__.py says in one sentence what it holds.
-LAYERS = ["model", "codegen", "runtime", "control", "sim", "api", "studies", "report", "cli"]
+LAYERS = ["model", "codegen", "runtime", "control", "sim", "planning", "api", "studies", "report", "cli"]
 # acroboter/ itself holds only the public face and forwarding modules (above every layer): __init__.py
 # (acroboter.Crane, ... loaded on first use), __main__.py (`python -m acroboter`) and one module per
 # `python -m acroboter.<command>` form, each a forward to the command's module.
 TOP = "top"
 TOP_MODULES = {"__init__", "__main__", "run", "bench", "study", "sweep", "robustness", "build", "animate", "mjcf",
-               "plant_fuzz"}
+               "plant_fuzz", "plan"}
 ORDER = [*LAYERS, TOP]
 # Besides the order (which leaves the code generator only the model below it): of the runtime only these
 # two modules may call the code generator; the rest of it, control and sim never import it.

@@ -54,6 +54,8 @@ COMMANDS = {
     "export-step": ("generate:export_step_main", ["--spec", "lab_crane", "--method", "mlm"],
                     {"lab_crane_mlm_step.c", "lab_crane_mlm_step.h"}, ["--spec", "lab_crane", "--method", "penalty"],
                     {"lab_crane_penalty_step.c", "lab_crane_penalty_step.h"}),
+    "plan": ("plan", ["--spec", "{lift}", "--margin", "20%", "-q"], {"trajectory.csv", "summary.json", "plan.png"},
+             ["--spec", "{lift}", "--margin", "20%", "--no-plots", "-q"], {"trajectory.csv", "summary.json"}),
     "mjcf": ("mjcf", ["acroboter", "--pose", "spec", "-q"], {"acroboter.xml"},
              ["lab_crane", "--pose", "spec", "-q"], {"lab_crane.xml"}),
     "animate": ("animate", ["{run}", "--method", "mlm", *ANIMATE], {"animation_mlm.mp4"},
@@ -74,6 +76,35 @@ LOOKALIKES = ["mlm.csv", "penalty.csv", "iterative-3.csv", "inputs.png", "summar
               "animation_penalty.mp4", "sweep_condition.png", "redundant/table.md", "noncollocated/notes.txt",
               ".hidden", "lab_crane.xml", "lab_crane_mlm_step.c", "animation_mlm.mp4"]
 _RUN: list[Path] = []
+_LIFT: list = []
+
+
+def lift_plan():
+    """A spec whose path is one short vertical lift with winch limits, and its plan, made once: the folder tests
+    replace Crane.plan by this answer (the planner itself: tests/test_planning.py)."""
+    if not _LIFT:
+        import re
+
+        import acroboter
+
+        folder = Path(tempfile.mkdtemp(prefix="acroboter-plan-source-"))
+        atexit.register(shutil.rmtree, folder, True)
+        text = (REPO / "model_spec" / "acroboter.toml").read_text()
+        text = re.sub(r'(cable = "L\d")', r"\1\nlimits = [24.0, 29.0]", text)
+        text = re.sub(r"waypoints = \[.*?\n\]", "waypoints = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.1]]", text, flags=re.S)
+        (folder / "lift.toml").write_text(text.replace("yaw_deg = 90.0", "yaw_deg = 0.0"))
+        plan = acroboter.Crane.from_toml(folder / "lift.toml").plan(margin=0.2, intervals=8)
+        _LIFT.extend([folder / "lift.toml", plan])
+    return _LIFT
+
+
+@pytest.fixture(autouse=True)
+def _planned(request, monkeypatch):
+    """For `plan`: the lift's plan, computed once, stands in for the optimisation in every folder test."""
+    callspec = getattr(request.node, "callspec", None)
+    if callspec is not None and callspec.params.get("command") == "plan":
+        spec, plan = lift_plan()
+        monkeypatch.setattr("acroboter.api.crane.Crane.plan", lambda self, **kwargs: plan)
 
 
 def animated_run() -> Path:
@@ -94,6 +125,7 @@ def call(command: str, args: list[str]) -> int:
     module, _, function = COMMANDS[command][0].partition(":")
     main = getattr(importlib.import_module(f"acroboter.cli.{module}"), function or "main")
     args = [str(animated_run()) if a == "{run}" else a for a in args]
+    args = [str(lift_plan()[0]) if a == "{lift}" else a for a in args]
     try:
         return main(args)
     except SystemExit as stop:

@@ -5,6 +5,7 @@
     acroboter study        redundancy and non-collocation study over the example cranes
     acroboter sweep        penalty-number sweep on a Dask cluster
     acroboter robustness   Monte Carlo over plant parameters: every method, with and without ki, on Dask
+    acroboter plan         the fastest timing of the path under the input limits with a margin (docs/planning.md)
     acroboter generate     write a spec's C (generated/ in a checkout)
     acroboter check        regenerate into a temporary folder and compare with generated/
     acroboter build        compile the example specs' libraries into the cache
@@ -37,6 +38,7 @@ COMMANDS: dict[str, tuple[str, str, tuple[str, ...]]] = {
     "study": ("acroboter.cli.study", "main", ()),
     "sweep": ("acroboter.cli.sweep", "main", ()),
     "robustness": ("acroboter.cli.robustness", "main", ()),
+    "plan": ("acroboter.cli.plan", "main", ()),
     "generate": ("acroboter.cli.generate", "main", ("generate",)),
     "check": ("acroboter.cli.generate", "main", ("check",)),
     "build": ("acroboter.cli.generate", "build_main", ()),
@@ -137,7 +139,7 @@ def forward(command: str):
 
 
 # The commands whose own options include -q/--quiet (no progress bars); -v is the console's alone.
-QUIET_OPTION = {"run", "sweep", "robustness", "animate", "mjcf", "plant-fuzz"}
+QUIET_OPTION = {"run", "plan", "sweep", "robustness", "animate", "mjcf", "plant-fuzz"}
 
 
 def _noise_after_command(command: str, arguments: list[str], verbosity: int) -> tuple[list[str], int]:

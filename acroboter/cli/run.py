@@ -59,7 +59,9 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
 
     from ..api.crane import Crane
     from ..control.controllers import SingularSystemError
+    from ..control.path import TrajectoryError
     from ..control.recovery import RecoveryError
+    from ..control.trajectory_file import read_trajectory_csv
     from ..model.physical import PlantParameterError, with_parameters
     from ..model.ranges import delay_problem
     from ..model.spec import SpecError
@@ -75,6 +77,7 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
     try:
         crane = Crane.from_toml(args.spec, cache_dir=args.cache_dir)
         spec = crane.spec
+        trajectory = read_trajectory_csv(args.trajectory) if args.trajectory is not None else None
         with_parameters(spec, args.plant_params)  # names and values checked before any work (exit 2)
         if args.mujoco_timestep is not None:
             try:
@@ -91,7 +94,7 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
         except ValueError as err:  # e.g. --kd outside what the control rate samples, --ki past Routh–Hurwitz
             print(f"error: {_as_option(err)}", file=sys.stderr)
             return 2
-        path = crane.path
+        path = crane.desired(trajectory)
         duration = args.duration if args.duration is not None else path.duration
         rate, step = spec.controller.rate_hz, spec.simulation.step
         steps = int(round(duration * rate))
@@ -104,10 +107,10 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
             where = "--sensing-delay" if given else "sensing.delay_periods (the spec's)"
             print(f"error: {where}: {problem}", file=sys.stderr)
             return 2
-        start = crane.equilibrium()
+        start = crane.equilibrium(trajectory)
         results, summaries, warnings = {}, {}, [f"spec: {w}" for w in crane.warnings]
         # Before the run: can the path be followed within the limits at all?
-        feasibility = crane.check_path(duration, **overrides)
+        feasibility = crane.check_path(duration, trajectory=trajectory, **overrides)
         if feasibility.feasible is False:
             warnings.append(f"the desired path is {feasibility.message}")
         with tqdm(total=steps * len(methods), unit="step", disable=progress_disabled(args.quiet),
@@ -115,7 +118,7 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
             for method in methods:
                 bar.set_postfix_str(method)
                 try:
-                    r = crane.simulate(method, duration=duration, progress=bar.update,
+                    r = crane.simulate(method, duration=duration, trajectory=trajectory, progress=bar.update,
                                        plant_params=args.plant_params, sensing=sensing or False, plant=args.plant,
                                        mujoco_timestep=args.mujoco_timestep, **overrides)
                 except (SingularSystemError, RecoveryError, SimulationError) as err:
@@ -135,7 +138,7 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
                     if c["time_slack_s"] > 0 or c["transitions"] > 0:
                         warnings.append(f"{method}: cable {cable} was slack for {c['time_slack_s']:.3g} s "
                                         f"({c['transitions']} slack/taut transitions)")
-    except (SpecError, StaleModelError, EquilibriumError, PlantParameterError) as err:
+    except (SpecError, StaleModelError, EquilibriumError, PlantParameterError, TrajectoryError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     except ValueError as err:
@@ -186,7 +189,7 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
     if args.view:
         from ..report.viewer import replay
 
-        replay(crane.model, crane.path, results)
+        replay(crane.model, path, results)
     saturated = [m for m, s in summaries.items() if s.get("saturated")]
     if feasibility.feasible is False or saturated:
         if feasibility.feasible is False:
@@ -236,6 +239,8 @@ def provenance(args: argparse.Namespace, spec, gains, methods: list[str], durati
         "sensing": sensing.model_dump(mode="json") if (sensing := getattr(args, "sensing_used", None)) else None,
         "methods": methods,
         "duration_s": duration,
+        # the trajectory file flown instead of the spec's waypoints (None: the waypoints)
+        "trajectory_file": None if getattr(args, "trajectory", None) is None else str(args.trajectory),
         "rate_hz": spec.controller.rate_hz,
         "plant_step_s": spec.simulation.step,
         "acroboter_version": version,

@@ -93,6 +93,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="after the run, replay it in MuJoCo's interactive viewer (needs a display)")
     p.add_argument("--duration", type=ranged(DURATION), default=None,
                    help="simulated seconds (default: the whole path)")
+    p.add_argument("--trajectory", type=Path, default=None, metavar="FILE",
+                   help="fly this trajectory file instead of the spec's waypoints (CSV: t_s, x_m, y_m, z_m, vx_m_s, "
+                        "vy_m_s, vz_m_s, ax_m_s2, ay_m_s2, az_m_s2 and optionally yaw_rad, yaw_rate_rad_s, "
+                        "yaw_acc_rad_s2; what `acroboter plan` writes, docs/planning.md)")
     p.add_argument("--out", type=out_path, default=Path("results"), help="output folder (default: %(default)s)")
     p.add_argument("--state", action="store_true",
                    help="add the rates q̇ of the natural coordinates to each CSV (q is always there)")

@@ -247,6 +247,14 @@ GAIN_RANGES = {"kp": KP, "kd": KD, "alpha_geometric": ALPHA_GEOMETRIC, "alpha_se
 
 # --- numbers of the command lines only (acroboter.cli; docs/errors.md) --------------------------------------------
 
+MARGIN = Range("margin", 0.0, 0.5, "", high_open=True,
+               why="a retiming's margin: the fraction of each input's limit span kept free on each side (5 % = 0.05); "
+                   "half the span would leave nothing (docs/planning.md)")
+PLAN_SPEED = Range("max_speed", 0.0, 100.0, "m/s", low_open=True, why="a retiming's bound on the tracked point's speed")
+PLAN_ACCEL = Range("max_accel", 0.0, 1000.0, "m/s²", low_open=True,
+                   why="a retiming's bound on the tracked point's acceleration (about 100 g at most)")
+PLAN_INTERVALS = Range("intervals", 4, 5000, "", whole=True,
+                       why="the retiming's grid: intervals over the whole path (each edge gets at least 6)")
 DURATION = Range("duration", 0.0, 1e6, "s", low_open=True,
                  why="simulated seconds; also 1 to 360,000 control steps of the spec's rate (checked with the spec)")
 STUDY_DURATION = Range("duration", 0.0, 7200.0, "s", low_open=True,

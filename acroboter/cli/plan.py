@@ -1,0 +1,147 @@
+"""Retime the path under the input limits: `acroboter plan` (or `python -m acroboter.plan`; see --help).
+
+A thin layer over the library (acroboter.Crane.plan, docs/planning.md): the fastest timing of the spec's path
+(or of a trajectory file's geometry) whose ideal motion keeps every input within its limits less the margin,
+certified by flying it with MLM on the own plant. Writes into --out (staged, swapped in whole):
+trajectory.csv (what `acroboter run --trajectory FILE` reads), summary.json (duration, where the limits are
+active, the margin achieved, the certificate, provenance) and plan.png (s(t) and the inputs against the limits).
+
+Exit codes: 0 planned; 2 bad input (an option, the spec, a trajectory file, limits that cannot hold the load at
+rest somewhere on the path: no timing can help, the place and the input named); 3 no plan (the problem not
+solved, the certificate failed); 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ..model.locations import example_spec
+from ..model.ranges import MARGIN, PLAN_ACCEL, PLAN_INTERVALS, PLAN_SPEED
+from .entry import carrying, guarded, ranged, spec_file
+from .outputs import out_path, results_folder
+
+FILES = ("trajectory.csv", "summary.json", "plan.png")
+
+
+def _percent(text: str) -> float:
+    """'5%' or '0.05': a fraction in MARGIN's range."""
+    try:
+        raw = str(text).strip()
+        value = float(raw[:-1]) / 100.0 if raw.endswith("%") else float(raw)
+        return MARGIN.check(value, "margin")
+    except ValueError as err:
+        message = str(err) if str(err).startswith("margin") else f"margin: expected a fraction or a percentage " \
+                                                                 f"({MARGIN.text()}), found {text!r}"
+        raise argparse.ArgumentTypeError(message) from None
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(
+        prog="acroboter plan",
+        description="Retime the spec's path (or a trajectory file's geometry) to the fastest timing whose ideal "
+                    "motion keeps every input within its limits less a margin (docs/planning.md).")
+    p.add_argument("--spec", type=spec_file, default=example_spec("acroboter"),
+                   help="model spec: a TOML file or an example's name (default: %(default)s)")
+    p.add_argument("--margin", type=carrying(_percent, "margin", (MARGIN,), "{}"), default=0.05,
+                   help="the fraction of each input's limit span kept free on each side, as 5%% or 0.05, "
+                        "0 <= margin < 50%% (default: 5%%)")
+    p.add_argument("--max-speed", type=ranged(PLAN_SPEED), default=None, metavar="M_S",
+                   help="a bound on the tracked point's speed, m/s, at most 100 (default: none)")
+    p.add_argument("--max-accel", type=ranged(PLAN_ACCEL), default=None, metavar="M_S2",
+                   help="a bound on the tracked point's acceleration, m/s², at most 1000 (default: none)")
+    p.add_argument("--trajectory", type=Path, default=None, metavar="FILE",
+                   help="retime this trajectory file's geometry instead of the spec's waypoints (the CSV format "
+                        "of docs/planning.md: t_s, x_m, y_m, z_m, vx_m_s, ...)")
+    p.add_argument("--intervals", type=ranged(PLAN_INTERVALS), default=120,
+                   help="the optimiser's grid: intervals over the whole path, 4..5000 (default: %(default)s)")
+    p.add_argument("--no-certificate", action="store_true",
+                   help="skip flying the plan with MLM on the own plant (the certificate)")
+    p.add_argument("--out", type=out_path, default=Path("results/plan"), help="output folder (default: %(default)s)")
+    p.add_argument("--cache-dir", type=Path, default=None,
+                   help="where compiled models are cached (default: $ACROBOTER_CACHE_DIR, else the per-user cache)")
+    p.add_argument("--no-plots", action="store_true", help="skip plan.png")
+    p.add_argument("-q", "--quiet", action="store_true", help="print only the result's line")
+    args = p.parse_args(argv)
+    try:
+        if args.out.exists() and not args.out.is_dir():
+            p.error(f"--out {args.out} is a file, not a folder")
+    except OSError as err:
+        p.error(f"cannot use --out {args.out}: {err.strerror or err}")
+    return args
+
+
+@guarded
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    args.command_line = ["acroboter", "plan", *(sys.argv[1:] if argv is None else argv)]
+    existed = args.out.exists()
+    try:
+        with results_folder(args.out, "plan", expected=["summary.json"]) as folder:
+            return _plan(args, folder)
+    except KeyboardInterrupt:
+        earlier = f"the earlier ones in {args.out} are as they were" if existed else f"{args.out} was not created"
+        print(f"interrupted: no plan written ({earlier})", file=sys.stderr)
+        return 130
+
+
+def _plan(args: argparse.Namespace, folder) -> int:
+    import json
+
+    from ..api.crane import Crane
+    from ..control.path import TrajectoryError
+    from ..control.trajectory_file import read_trajectory_csv
+    from ..model.spec import SpecError
+    from ..planning.checks import StaticLimitError
+    from ..planning.dynamics import PlanningError
+    from ..runtime.compiled import StaleModelError
+    from ..sim.statics import EquilibriumError
+    from .run import provenance
+
+    folder.claim(list(FILES[:2]) + ([] if args.no_plots else [FILES[2]]))
+    try:
+        crane = Crane.from_toml(args.spec, cache_dir=args.cache_dir)
+        trajectory = read_trajectory_csv(args.trajectory) if args.trajectory is not None else None
+        crane.desired(trajectory)  # its shapes and times checked before any work
+    except (SpecError, StaleModelError, EquilibriumError, TrajectoryError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    try:
+        plan = crane.plan(margin=args.margin, max_speed=args.max_speed, max_accel=args.max_accel,
+                          trajectory=trajectory, intervals=args.intervals, certify=not args.no_certificate)
+    except StaticLimitError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    except PlanningError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 3
+    out = folder.staging
+    plan.to_csv(out / "trajectory.csv")
+    summary = plan.summary()
+    summary["spec"] = crane.name
+    summary["trajectory_file"] = None if args.trajectory is None else str(args.trajectory)
+    args.plant, args.plant_params = "own", {}
+    summary["provenance"] = provenance(args, crane.spec, crane.gains(), ["mlm"], plan.duration)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    if not args.no_plots:
+        from ..report.plan_figures import plan_figure
+
+        plan_figure(plan, out / "plan.png")
+    folder.publish()
+    active = sorted({a["input"] for a in plan.active})
+    print(f"spec {crane.name}: planned {plan.duration:.4g} s (the path's own timing {plan.path_duration:.4g} s, its "
+          f"best uniform slowdown {plan.uniform_duration:.4g} s); margin {100 * plan.margin:.3g} %, achieved "
+          f"{100 * plan.margin_achieved:.3g} % planned" + (
+              f", {100 * plan.certificate.margin_achieved:.3g} % flown (MLM, max position error "
+              f"{plan.certificate.max_position_error_mm:.3g} mm)" if plan.certificate is not None else "")
+          + f"; limits active: {', '.join(active) or 'none'}; solved in {plan.solve_s:.3g} s")
+    for w in plan.warnings:
+        print(f"warning: {w}")
+    if not args.quiet:
+        print(f"results in {args.out}/ (acroboter run --trajectory {args.out}/trajectory.csv flies it)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

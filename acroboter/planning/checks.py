@@ -1,0 +1,115 @@
+"""The checks around a retiming: the statics along the path before it (a need at rest beyond the limits is
+one no timing can help), and after it the certificate: the planned trajectory flown by the project's own
+closed loop (MLM on the own plant, the limits not applied, so an excess shows) with its inputs compared
+with the limits and the margin.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..control.controllers import Gains, make_controller, unbounded
+from ..control.path import DesiredPath
+from ..sim.simulation import Scenario, setup_default, simulate
+from ..sim.statics import EquilibriumError, solve_equilibrium
+from .dynamics import PlanningError
+from .geometry import PathGeometry
+from .limits import margin_achieved
+
+# Places along the path where the statics are checked (besides every waypoint of a spec path).
+STATIC_SAMPLES = 101
+
+
+class StaticLimitError(PlanningError):
+    """A place on the path where holding the load at rest already needs an input beyond its limits (or beyond
+    them less the margin): no timing can help."""
+
+
+class _AtRest:
+    """The path frozen at σ, at rest: what solve_equilibrium reads (signal_arrays(0))."""
+
+    def __init__(self, geometry: PathGeometry, sigma: float):
+        self.g = geometry.evaluate([sigma])[0][0]
+
+    def signal_arrays(self, t: float):
+        return self.g, np.zeros_like(self.g), np.zeros_like(self.g)
+
+
+def static_needs(model, geometry: PathGeometry) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(τ, tracked point position, the inputs that hold the load at rest there) along the path."""
+    taus = np.linspace(0.0, geometry.end, STATIC_SAMPLES)
+    if geometry.edges:  # every corner
+        taus = np.unique(np.concatenate([taus, np.arange(geometry.end + 1)]))
+    needs = []
+    for tau in taus:
+        try:
+            needs.append(solve_equilibrium(model, _AtRest(geometry, float(tau))).inputs)
+        except EquilibriumError as err:
+            raise StaticLimitError(f"no static equilibrium at {geometry.place(float(tau))}: {err}") from None
+    g, _, _ = geometry.evaluate(taus)
+    return taus, g[:, geometry.point_rows], np.array(needs)
+
+
+def check_statics(model, geometry: PathGeometry, lower, upper, low, high, margin: float) -> np.ndarray:
+    """StaticLimitError at the first place where the inputs at rest are beyond the limits, or beyond them less the
+    margin (with the largest margin that would leave room); returns the static needs (places x inputs)."""
+    lay = model.layout
+    taus, points, needs = static_needs(model, geometry)
+    for k, u in enumerate(needs):
+        for i, value in enumerate(u):
+            tol = 1e-9 * max(1.0, abs(value))
+            raw = value > upper[i] + tol or value < lower[i] - tol
+            tight = value > high[i] + tol or value < low[i] - tol
+            if not (raw or tight):
+                continue
+            unit, name = lay.input_units[i], lay.inputs[i]
+            where = geometry.place(float(taus[k]), points[k])
+            if raw:
+                limit = upper[i] if value > upper[i] else lower[i]
+                raise StaticLimitError(f"no timing can help: at {where} holding the load at rest needs {name} = "
+                                       f"{value:.4g} {unit}, beyond its limit {limit:.4g} {unit}; raise the limit or "
+                                       "change the path there")
+            bound = high[i] if value > high[i] else low[i]
+            room = worst_static_margin(needs, lower, upper)
+            raise StaticLimitError(f"no timing can help with a margin of {100 * margin:.4g} %: at {where} holding the "
+                                   f"load at rest needs {name} = {value:.5g} {unit}, beyond {bound:.5g} {unit} (its "
+                                   f"limits less the margin); the statics along the path leave a margin of at most "
+                                   f"{100 * max(room, 0.0):.3g} %: give a smaller --margin or wider limits")
+    return needs
+
+
+def worst_static_margin(needs: np.ndarray, lower, upper) -> float:
+    """The margin the statics along the path leave (the margin achieved by the inputs at rest)."""
+    value, _ = margin_achieved(needs, lower, upper)
+    return value
+
+
+@dataclass
+class Certificate:
+    """The planned trajectory flown by MLM on the own plant from the static start, the limits not applied."""
+
+    times: np.ndarray
+    inputs: np.ndarray  # per control instant
+    max_position_error_mm: float
+    margin_achieved: float  # fraction of the span (inputs with two finite limits)
+    margin_input: str | None
+    beyond_margin: float  # the largest excess beyond the tightened limits, fraction of the span (≤ 0: none)
+
+
+def certify(model, path: DesiredPath, q0: np.ndarray, duration: float, lower, upper, low, high) -> Certificate:
+    spec, lay = model.spec, model.layout
+    controller = make_controller("mlm", model, path, Gains.from_spec(spec), limits=unbounded(spec))
+    run = simulate(model, path, controller, setup_default(model, path), q0, duration, spec.controller.rate_hz,
+                   spec.simulation.step, allow_divergence=True)
+    if run.diverged_at is not None:
+        raise PlanningError(f"the certificate failed: the planned trajectory flown by MLM diverged at t = "
+                            f"{run.diverged_at:.2f} s ({run.divergence})")
+    achieved, i = margin_achieved(run.u, lower, upper)
+    span = np.where(np.isfinite(high - low), high - low, 1.0)
+    over = np.maximum(run.u - high, low - run.u) / span
+    over = np.where(np.isnan(over), -np.inf, over)
+    rows = Scenario.from_model(model).position_rows
+    error = 1e3 * float(np.linalg.norm(run.sigma[:, rows], axis=1).max())
+    return Certificate(run.t, run.u, error, achieved, None if i is None else lay.inputs[i], float(over.max()))

@@ -1,0 +1,124 @@
+"""The geometry of a path as a function of one parameter σ: the signals g(σ) (tracked point, yaw, moving
+anchors) and their first two derivatives in σ, as CasADi expressions and as numbers. A retiming is a
+monotone σ(t); the signals at time t are then
+
+    s = g(σ),  ṡ = g'(σ) σ̇,  s̈ = g''(σ) σ̇² + g'(σ) σ̈.
+
+A waypoint path (the spec's) is K straight edges, each run rest to rest: σ ∈ [0, K], on edge k the point is
+the edge's start plus (σ − k) times the edge (linear, so g' ≠ 0 and a timing may leave a corner at full
+acceleration), the yaw is the spec's quintic yaw turn at the same fraction of the edge's own time (the
+path's own timing spends T_k on edge k). Each edge is a phase of the timing: at the corners σ̇ = 0.
+
+A user trajectory is one phase, σ ∈ [0, D] its own time: g is a C² cubic B-spline through its samples. Where
+its own timing is at rest (g' = 0) a retiming passes with the point at rest whatever σ̇ is.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from ..control.path import DesiredPath, TrajectoryPath, quintic_array
+
+# Samples of a user trajectory's geometry per second of its own time for the spline (at least 400).
+SPLINE_RATE_HZ = 20.0
+
+
+def _quintic(x):
+    x = ca.fmin(ca.fmax(x, 0), 1)
+    return x**3 * (10 - 15 * x + 6 * x**2)
+
+
+class PathGeometry:
+    """g(τ) for a DesiredPath (the spec's waypoints) or a TrajectoryPath (a user's motion).
+
+    `function` is a casadi.Function τ -> (g, g', g'') over the whole signal vector (layout order: moving
+    anchors, then x_d, y_d, z_d, yaw_d); `evaluate(taus)` gives the same as arrays (one row per τ)."""
+
+    def __init__(self, path: DesiredPath):
+        self.path = path
+        self.path_duration = float(path.duration)  # the path's own timing's duration
+        self.layout = path.layout
+        self.n_signals = path.n_signals
+        tau = ca.SX.sym("sigma")
+        self.edges = not isinstance(path, TrajectoryPath)
+        if not self.edges:
+            self.end = self.path_duration
+            self.phases = [(0.0, self.end, self.end)]  # (σ from, σ to, the own timing's seconds)
+            point, yaw = self._spline(path, tau)
+        else:
+            self.end = float(len(path.edge_duration))
+            self.phases = [(float(k), float(k + 1), float(T)) for k, T in enumerate(path.edge_duration)]
+            point = ca.DM(path.start_point + path.edge_start[0])
+            own = 0  # the path's own time at σ: piecewise linear
+            last = len(path.edge_duration) - 1
+            for k, (T, delta) in enumerate(zip(path.edge_duration, path.edge_delta, strict=True)):
+                # half-open edges: at a corner σ = k the slope is the outgoing edge's (fmin/fmax would give
+                # half of it there), at the path's end the last edge's
+                done = tau > k + 1 if k == last else tau >= k + 1
+                fraction = ca.if_else(tau < k, 0, ca.if_else(done, 1, tau - k))
+                point = point + ca.DM(delta) * fraction
+                own = own + T * fraction
+            yaw = path.start_yaw + path.yaw_turn * _quintic(own / self.path_duration)
+        g = self._signals(point, yaw)
+        d1 = ca.jacobian(g, tau)
+        d2 = ca.jacobian(d1, tau)
+        self.function = ca.Function("geometry", [tau], [g, d1, d2], ["tau"], ["g", "dg", "ddg"])
+        self._map: dict[int, ca.Function] = {}
+        p = self.layout.path_signal
+        self.point_rows, self.yaw_row = slice(p, p + 3), p + 3
+
+    def _signals(self, point, yaw):
+        out = [None] * self.n_signals
+        p = self.layout.path_signal
+        for c in range(3):
+            out[p + c] = point[c]
+        out[p + 3] = yaw
+        for j, anchor0, follows in self.path.anchors:
+            for c in range(3):
+                out[j + c] = anchor0[c] + (point[c] - self.path.start_point[c]) if follows[c] else ca.SX(anchor0[c])
+        return ca.vertcat(*out)
+
+    def _spline(self, path: TrajectoryPath, tau):
+        """A user's motion: a cubic B-spline (C², CasADi's interpolant) through its samples in its own time."""
+        count = max(400, int(np.ceil(self.end * SPLINE_RATE_HZ)) + 1)
+        taus = np.linspace(0.0, self.end, count)
+        table = path.table(taus)
+        p = path.layout.path_signal
+        columns = [ca.interpolant(f"trajectory_{c}", "bspline", [taus], table[:, p + c]) for c in range(4)]
+        point = ca.vertcat(*[columns[c](tau) for c in range(3)])
+        return point, columns[3](tau)
+
+    def own_timing(self, t) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """σ, σ̇, σ̈ of the path's own timing at its times t (the spec path's quintic edges)."""
+        t = np.asarray(t, dtype=float)
+        if not self.edges:
+            return np.clip(t, 0.0, self.end), np.where(t <= self.end, 1.0, 0.0), np.zeros_like(t)
+        path = self.path
+        k = np.clip(np.searchsorted(path.edge_t0, t, side="right") - 1, 0, len(path.edge_duration) - 1)
+        T = path.edge_duration[k]
+
+        s, ds, dds = quintic_array((t - path.edge_t0[k]) / T)
+        return k + s, ds / T, dds / T**2
+
+    def place(self, tau: float, point=None) -> str:
+        """Where τ is, in words: 's = 0.46 (x, y, z = 0.25, 0.25, 0.45 m)' (s = τ / D)."""
+        if point is None:
+            g, _, _ = self.evaluate([tau])
+            point = g[0, self.point_rows]
+        xyz = ", ".join(f"{v:.4g}" for v in point)
+        return f"s = {tau / self.end:.3f} of the path (x, y, z = {xyz} m)"
+
+    def evaluate(self, taus) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(g, g', g'') at each τ, one row per τ."""
+        taus = np.atleast_1d(np.asarray(taus, dtype=float))
+        if taus.size not in self._map:
+            self._map[taus.size] = self.function.map(taus.size)
+        g, d1, d2 = self._map[taus.size](taus[None, :])
+        return np.asarray(g).T, np.asarray(d1).T, np.asarray(d2).T
+
+    def signals(self, tau, tau_d, tau_dd):
+        """Flat [s, ṡ, s̈] rows for the retiming's τ, τ̇, τ̈ (arrays of one value per instant)."""
+        g, d1, d2 = self.evaluate(tau)
+        tau_d, tau_dd = np.asarray(tau_d, dtype=float)[:, None], np.asarray(tau_dd, dtype=float)[:, None]
+        return np.hstack([g, d1 * tau_d, d2 * tau_d**2 + d1 * tau_dd])

@@ -1,0 +1,195 @@
+"""`plan(...)`: the fastest timing of a crane's path under its input limits with a margin, certified, as a
+`Plan` (the response of `Crane.plan` and `acroboter plan`; docs/planning.md).
+
+Steps: the statics along the path (a need at rest beyond the limits: StaticLimitError, no timing can help);
+the best uniform slowdown of the path's own timing (bisection, the same dynamics: a feasible start and an
+upper bound); the time-optimal problem (acroboter.planning.retiming); the trajectory sampled from its
+solution; the certificate (the trajectory flown by MLM on the own plant, acroboter.planning.checks): an
+input beyond the limits less the margin by more than CERTIFICATE_TOLERANCE of the span is a PlanningError,
+never a silent result.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..control.path import DesiredPath, SampledTrajectory, TrajectoryPath
+from ..control.trajectory_file import write_trajectory_csv
+from .checks import Certificate, certify, check_statics
+from .dynamics import IdealDynamics, PlanningError
+from .geometry import PathGeometry
+from .limits import active_intervals, margin_achieved, tightened
+from .retiming import Retiming, Solution
+
+# The certificate: the closed loop samples the path at the control rate and holds its input in between, so
+# its inputs stray from the ideal ones the plan bounds, most where σ̈ jumps; that is what the margin is for.
+# The certificate fails when a flown input goes beyond the limits themselves (by more than this fraction of
+# the span: round-off), and reports the margin the flight achieved.
+CERTIFICATE_TOLERANCE = 1e-9
+# Samples of the written trajectory per second (and every node of the optimiser's grid).
+SAMPLE_RATE_HZ = 100.0
+DEFAULT_INTERVALS = 120
+# The two samples at a node of the grid, one on each side (s).
+NODE_GAP_S = 1e-6
+
+
+@dataclass
+class Plan:
+    """A retimed path: `duration` (s), the optimiser's grid (`times`, the path parameter `s` ∈ [0, 1] with its
+    rates `sd`, `sdd`), the `trajectory` (a SampledTrajectory for `crane.simulate(trajectory=...)`, `to_csv`
+    for `acroboter run --trajectory FILE`), the ideal `inputs` at `input_times` against the `limits` (min, max)
+    and the `bounds` kept (the limits less the margin), the `active` intervals (an input on a bound), the
+    `margin` asked and `margin_achieved` (fraction of the span), the best uniform slowdown of the path's own
+    timing (`uniform_duration`), the `certificate` and the solver's figures (`solve_s`, `iterations`)."""
+
+    duration: float
+    path_duration: float
+    times: np.ndarray
+    s: np.ndarray
+    sd: np.ndarray
+    sdd: np.ndarray
+    trajectory: SampledTrajectory
+    input_names: list[str]
+    input_units: list[str]
+    input_times: np.ndarray
+    inputs: np.ndarray
+    limits: tuple[np.ndarray, np.ndarray]
+    bounds: tuple[np.ndarray, np.ndarray]
+    margin: float
+    margin_achieved: float
+    margin_input: str | None
+    active: list[dict]
+    uniform_duration: float
+    uniform_slowdown: float
+    static_margin: float
+    solve_s: float
+    iterations: int
+    intervals: int
+    certificate: Certificate | None = None
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def positions(self) -> np.ndarray:
+        return self.trajectory.position[:, :3]
+
+    @property
+    def velocities(self) -> np.ndarray:
+        return self.trajectory.velocity[:, :3]
+
+    @property
+    def accelerations(self) -> np.ndarray:
+        return self.trajectory.acceleration[:, :3]
+
+    @property
+    def yaw(self) -> np.ndarray | None:
+        return self.trajectory.position[:, 3] if self.trajectory.position.shape[1] == 4 else None
+
+    def to_csv(self, path: str | Path) -> Path:
+        """The trajectory as `acroboter run --trajectory FILE` reads it (acroboter.control.trajectory_file)."""
+        return write_trajectory_csv(path, self.trajectory)
+
+    def summary(self) -> dict:
+        def finite(v):
+            return float(v) if math.isfinite(v) else None
+
+        out = {
+            "duration_s": self.duration,
+            "path_duration_s": self.path_duration,
+            "uniform_slowdown_duration_s": self.uniform_duration,
+            "uniform_slowdown_factor": self.uniform_slowdown,
+            "margin": self.margin,
+            "margin_achieved": finite(self.margin_achieved),
+            "margin_input": self.margin_input,
+            "static_margin": finite(self.static_margin),
+            "limits": {name: {"min": finite(lo), "max": finite(hi), "bound_min": finite(blo), "bound_max": finite(bhi),
+                              "unit": unit, "planned_min": float(self.inputs[:, i].min()),
+                              "planned_max": float(self.inputs[:, i].max())}
+                       for i, (name, unit, lo, hi, blo, bhi) in enumerate(zip(
+                           self.input_names, self.input_units, *self.limits, *self.bounds, strict=True))},
+            "active_limits": self.active,
+            "intervals": self.intervals,
+            "iterations": self.iterations,
+            "solve_s": self.solve_s,
+            "warnings": self.warnings,
+        }
+        if self.certificate is not None:
+            c = self.certificate
+            out["certificate"] = {"method": "mlm, own plant, limits not applied",
+                                  "max_position_error_mm": c.max_position_error_mm,
+                                  "margin_achieved": finite(c.margin_achieved), "margin_input": c.margin_input,
+                                  "beyond_bounds": c.beyond_margin, "tolerance": CERTIFICATE_TOLERANCE}
+        return out
+
+
+def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_speed: float | None = None,
+         max_accel: float | None = None, intervals: int = DEFAULT_INTERVALS, certify_plan: bool = True,
+         verbose: bool = False) -> Plan:
+    spec, lay = model.spec, model.layout
+    if not (isinstance(margin, (int, float)) and 0.0 <= margin < 0.5):
+        raise PlanningError(f"margin: expected a fraction from 0 to below 0.5 (0 to 50 %), found {margin!r}")
+    lower, upper, _ = spec.input_limits()
+    low, high = tightened(lower, upper, margin)
+    geometry = PathGeometry(path)
+    needs = check_statics(model, geometry, lower, upper, low, high, margin)
+    static_margin, _ = margin_achieved(needs, lower, upper)
+    dynamics = IdealDynamics(spec)
+    problem = Retiming(dynamics, geometry, q0, low, high, max_speed=max_speed, max_accel=max_accel)
+    solution = problem.solve(intervals, verbose=verbose)
+    trajectory = sample(geometry, solution, problem.n)
+    achieved, where = margin_achieved(solution.inputs, lower, upper)
+    result = Plan(
+        duration=solution.duration, path_duration=geometry.path_duration, times=solution.times,
+        s=solution.states[:, -2] / geometry.end, sd=solution.states[:, -1] / geometry.end,
+        sdd=np.append(solution.tau_dd, solution.tau_dd[-1]) / geometry.end, trajectory=trajectory,
+        input_names=list(lay.inputs), input_units=list(lay.input_units), input_times=solution.input_times,
+        inputs=solution.inputs, limits=(lower, upper), bounds=(low, high), margin=float(margin),
+        margin_achieved=achieved, margin_input=None if where is None else lay.inputs[where],
+        active=active_intervals(solution.input_times, solution.inputs, low, high, list(lay.inputs)),
+        uniform_duration=solution.uniform_duration, uniform_slowdown=solution.uniform_slowdown,
+        static_margin=static_margin, solve_s=solution.solve_s, iterations=solution.iterations, intervals=intervals)
+    if certify_plan:
+        # what is certified is the written trajectory (its samples, interpolated), as `run --trajectory` flies it
+        flown_path = TrajectoryPath(spec, lay, trajectory, trajectory.duration, float(path.start_yaw))
+        result.certificate = certify(model, flown_path, q0, trajectory.duration, lower, upper, low, high)
+        c = result.certificate
+        if c.margin_achieved < -CERTIFICATE_TOLERANCE:
+            raise PlanningError(f"the certificate failed: flown by MLM on the own plant, the planned trajectory takes "
+                                f"{c.margin_input} {100 * -c.margin_achieved:.3g} % of its span beyond its limits; "
+                                "give a larger --margin (the closed loop's deviations from the ideal inputs need it)")
+        if c.beyond_margin > 0:
+            result.warnings.append(f"flown by MLM, {c.margin_input} came within {100 * c.margin_achieved:.3g} % of the "
+                                   f"span of a limit (the plan keeps {100 * margin:.3g} %): the margin absorbed the "
+                                   "closed loop's deviations")
+    return result
+
+
+def sample(geometry: PathGeometry, solution: Solution, n: int) -> SampledTrajectory:
+    """The tracked point's motion along the solution: σ(t) is exact between nodes (σ̈ held), so every sample is
+    the path's geometry at the retimed σ. Samples at SAMPLE_RATE_HZ inside each interval and at both sides of
+    every node (NODE_GAP_S apart, each with its own interval's acceleration): the interpolant between samples
+    then never smears a jump of σ̈ over a whole sample period."""
+    nodes, N = solution.times, solution.tau_dd.size
+    pieces, owner = [], []
+    for k in range(N):
+        t0, t1 = nodes[k], nodes[k + 1]
+        inner = np.linspace(t0, t1, max(2, int(math.ceil((t1 - t0) * SAMPLE_RATE_HZ)) + 1))
+        inner[0] = t0 + (NODE_GAP_S if k > 0 else 0.0)
+        inner[-1] = t1 - (NODE_GAP_S if k < N - 1 else 0.0)
+        pieces.append(inner)
+        owner.append(np.full(inner.size, k))
+    times, k = np.concatenate(pieces), np.concatenate(owner)
+    keep = np.concatenate([[True], np.diff(times) > 0])
+    times, k = times[keep], k[keep]
+    dt = times - nodes[k]
+    tau0, rate0, a = solution.states[k, 2 * n], solution.states[k, 2 * n + 1], solution.tau_dd[k]
+    tau = np.clip(tau0 + rate0 * dt + 0.5 * a * dt**2, 0.0, geometry.end)
+    rate = np.maximum(rate0 + a * dt, 0.0)
+    rows = geometry.signals(tau, rate, a)
+    ns, p = geometry.n_signals, geometry.layout.path_signal
+    pick = [slice(p, p + 4), slice(ns + p, ns + p + 4), slice(2 * ns + p, 2 * ns + p + 4)]
+    position, velocity, acceleration = (rows[:, s] for s in pick)
+    return SampledTrajectory(times, position, velocity, acceleration)

@@ -1,0 +1,252 @@
+"""The fastest timing of a path under the input limits: a time-optimal control problem over the path
+parameter σ (acroboter.planning.geometry), solved by direct shooting with IPOPT (casadi.Opti, exact Hessian).
+
+Decision variables: the duration T_j of each phase (each edge of a waypoint path; a user trajectory is one
+phase) and, on a grid of intervals of T_j / N_j per phase, the path acceleration σ̈ held over each interval.
+The state x = (q, q̇, σ, σ̇) is the integration of the ideal motion's dynamics from the static start
+(acroboter.planning.dynamics: σ ≡ 0 for the servo-constraints, so the connector's swing is integrated as the
+internal dynamics it is, not assumed at rest; RK4, `substeps` steps per interval). Single shooting: the
+internal dynamics are stable and damped, and with the redundant natural coordinates as variables (multiple
+shooting) IPOPT wandered. Constraints:
+
+- each phase ends where it should (σ = its end) and, at a corner of a waypoint path, at rest (σ̇ = 0);
+  the path ends at rest (σ̇ = 0) unless the path itself is at rest there (g' = 0);
+- σ̇ ≥ 0 (the path is not run backwards);
+- every input with a finite limit within its limits tightened by the margin (acroboter.planning.limits),
+  at the start of every RK4 step and at the end;
+- optionally the tracked point's speed ≤ max_speed and acceleration ≤ max_accel at every node.
+
+Objective: T. The uniform slowdown of the path's own timing that is just feasible (a bisection with the
+same dynamics) is the starting guess: it is feasible, so the solution can only be faster.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from .dynamics import IdealDynamics, PlanningError, inputs_at, rk4_step
+from .geometry import PathGeometry
+
+# The uniform slowdown's check: interval of the integration (s) and RK4 steps per interval.
+CHECK_INTERVAL_S = 0.1
+CHECK_SUBSTEPS = 2
+# Slowdown factors the bisection searches (the path's own timing x factor).
+MAX_SLOWDOWN = 1000.0
+BISECTION_RELATIVE = 1e-3
+# When to stop: the timing feasible (constraints to 1e-8), complementary, and the duration no longer
+# changing (relative 1e-7 over 5 iterations). The dual error is left out on purpose: inputs that reach their
+# limits together (the three winches of a symmetric lift) make the multipliers non-unique, and IPOPT's dual
+# error then stalls far from zero while the duration has long converged.
+ACCEPTABLE = {"acceptable_tol": 1e3, "acceptable_iter": 5, "acceptable_constr_viol_tol": 1e-8,
+              "acceptable_compl_inf_tol": 1e-6, "acceptable_obj_change_tol": 1e-7}
+# The longest RK4 step of the problem's integration (s).
+MAX_STEP_S = 0.1
+# The fewest intervals a phase (an edge of a waypoint path) gets.
+MIN_PHASE_INTERVALS = 6
+
+
+@dataclass
+class Solution:
+    """The optimiser's answer on its grid: node times, states (nodes x (2n + 2)), τ̈ per interval, the inputs
+    at the start of every RK4 step (steps x l) with their times, IPOPT's status and the wall time."""
+
+    duration: float
+    times: np.ndarray
+    states: np.ndarray
+    tau_dd: np.ndarray
+    input_times: np.ndarray
+    inputs: np.ndarray
+    status: str
+    iterations: int
+    solve_s: float
+    uniform_slowdown: float  # the best uniform slowdown factor of the path's own timing (feasible)
+    uniform_duration: float
+
+
+class Retiming:
+    """The problem for one crane, path and set of bounds; `solve(intervals)` returns a Solution."""
+
+    def __init__(self, dynamics: IdealDynamics, geometry: PathGeometry, q0: np.ndarray, lower: np.ndarray,
+                 upper: np.ndarray, substeps: int = 2, max_speed: float | None = None,
+                 max_accel: float | None = None):
+        self.dyn, self.geo = dynamics, geometry
+        self.n = dynamics.layout.n
+        self.x0 = np.concatenate([q0, np.zeros(self.n)])
+        self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
+        self.substeps = substeps
+        self.max_speed, self.max_accel = max_speed, max_accel
+        self.step = rk4_step(dynamics, geometry, substeps)
+        _, d_start, _ = geometry.evaluate([0.0])
+        _, d_end, _ = geometry.evaluate([geometry.end])
+        # must τ̇ be 0 at an end? only where the path's own timing moves there
+        self.rest_start = bool(np.abs(d_start).max() > 1e-9)
+        self.rest_end = bool(np.abs(d_end).max() > 1e-9)
+        self._check_cache: dict[int, ca.Function] = {}
+        self.ipopt: dict = {}  # extra IPOPT options (exact Hessian: L-BFGS stalls short of the bang-bang optimum)
+
+    # --- the uniform slowdown: a lower-bound check and the starting guess ---------------------------
+    def uniform(self, factor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The ideal motion along the path's own timing slowed by `factor`: node states, inputs at every RK4
+        step start (steps x l) and their times (σ̈ held per interval at its value mid-interval)."""
+        duration = factor * self.geo.path_duration
+        count = max(2, int(math.ceil(duration / CHECK_INTERVAL_S)))
+        if count not in self._check_cache:
+            step = rk4_step(self.dyn, self.geo, CHECK_SUBSTEPS)
+            self._check_cache[count] = step.mapaccum(count)
+        h = duration / count
+        _, rate0, _ = self.geo.own_timing([0.0])
+        _, _, acc = self.geo.own_timing((np.arange(count) + 0.5) * h / factor)
+        x0 = np.concatenate([self.x0, [0.0, rate0[0] / factor]])
+        xs, us = self._check_cache[count](x0, acc[None, :] / factor**2, h)
+        states = np.hstack([x0[:, None], np.asarray(xs)]).T
+        inputs = np.asarray(us).T
+        times = np.arange(inputs.shape[0]) * h / CHECK_SUBSTEPS
+        return states, inputs, times
+
+    def excess(self, inputs: np.ndarray) -> float:
+        """The largest step of any input beyond its (tightened) limits, relative to the limits' span (≤ 0: within)."""
+        span = np.where(np.isfinite(self.upper - self.lower), self.upper - self.lower, 1.0)
+        over = np.maximum(inputs - self.upper, self.lower - inputs) / span
+        over = np.where(np.isnan(over), -np.inf, over)  # inf - inf: an unbounded side
+        return float(np.max(over)) if over.size else -math.inf
+
+    def best_uniform(self) -> float:
+        """The smallest slowdown factor (within BISECTION_RELATIVE) whose ideal motion keeps every input within
+        the tightened limits, by bisection; PlanningError when none up to MAX_SLOWDOWN does."""
+        low, high = None, 1.0
+        while self.excess(self.uniform(high)[1]) > 0:
+            low, high = high, 2.0 * high
+            if high > MAX_SLOWDOWN:
+                raise PlanningError(f"no uniform slowdown of the path up to {MAX_SLOWDOWN:g}x keeps the inputs within "
+                                    "the limits with the margin: the path's statics are too close to a limit")
+        if low is None:  # the path's own timing is feasible: search faster timings
+            low = 1.0
+            while self.excess(self.uniform(low)[1]) <= 0:
+                high, low = low, low / 2.0
+                if low < 1e-3:
+                    raise PlanningError("the path is feasible at a thousandth of its own timing: the limits do not "
+                                        "bound this motion; give max_speed / max_accel (--max-speed, --max-accel)")
+        while high - low > BISECTION_RELATIVE * high:
+            mid = 0.5 * (low + high)
+            if self.excess(self.uniform(mid)[1]) > 0:
+                low = mid
+            else:
+                high = mid
+        return high
+
+    # --- the optimal control problem ----------------------------------------------------------------
+    def grid(self, intervals: int) -> list[int]:
+        """Intervals per phase: in proportion to the phase's own time, at least MIN_PHASE_INTERVALS."""
+        own = np.array([T for _, _, T in self.geo.phases])
+        return [max(MIN_PHASE_INTERVALS, int(round(intervals * T / own.sum()))) for T in own]
+
+    def solve(self, intervals: int, guess_factor: float | None = None, max_iter: int = 400,
+              verbose: bool = False) -> Solution:
+        started = time.perf_counter()
+        factor = self.best_uniform() if guess_factor is None else guess_factor
+        uniform_duration = factor * self.geo.path_duration
+        counts = self.grid(intervals)
+        N, n, phases = sum(counts), self.n, self.geo.phases
+        # RK4 steps per interval: none longer than MAX_STEP_S at the starting guess (the Baumgarte terms and the
+        # connector's swing are not resolved by longer ones; RK4 turns unstable near 2.8 / Ω)
+        longest = factor * max(T / c for (_, _, T), c in zip(phases, counts, strict=True))
+        self.substeps = max(self.substeps, int(math.ceil(longest / MAX_STEP_S)))
+        self.step = rk4_step(self.dyn, self.geo, self.substeps)
+        opti = ca.Opti()
+        A = opti.variable(1, N)
+        durations = opti.variable(len(phases))
+        steps = ca.horzcat(*[ca.repmat(durations[j] / c, 1, c) for j, c in enumerate(counts)])
+        # single shooting: the states are the integration of the dynamics from the static start (the
+        # internal dynamics are stable and damped; without the states as variables IPOPT sees a problem in
+        # the timing alone, which it solves reliably, where multiple shooting's many redundant states of the
+        # natural coordinates made it wander)
+        x0 = ca.DM(np.concatenate([self.x0, [0.0, 0.0]]))
+        x_end, inputs = self.step.mapaccum(N)(x0, A, steps)
+        X = ca.horzcat(x0, x_end)
+        boundaries = np.concatenate([[0], np.cumsum(counts)])
+        for j, (start, stop, _) in enumerate(phases):  # each phase from its start to its end
+            if j > 0:
+                opti.subject_to(X[2 * n, boundaries[j]] == start)
+            opti.subject_to(X[2 * n, boundaries[j + 1]] == stop)
+            if self.geo.edges:  # a corner: at rest
+                opti.subject_to(X[2 * n + 1, boundaries[j + 1]] == 0)
+        opti.subject_to(X[2 * n + 1, 1:] >= 0)
+        if self.rest_end:
+            opti.subject_to(X[2 * n + 1, N] == 0)
+        last = inputs_at(self.dyn, self.geo, X[:, N], A[N - 1])
+        u_all = ca.horzcat(inputs, last)
+        for i in range(self.lower.size):
+            if math.isfinite(self.upper[i]):
+                opti.subject_to(u_all[i, :] <= self.upper[i])
+            if math.isfinite(self.lower[i]):
+                opti.subject_to(u_all[i, :] >= self.lower[i])
+        self._path_bounds(opti, X, A, N)
+        opti.subject_to(durations >= 1e-3 * uniform_duration / len(phases))
+        total = ca.sum1(durations)
+        opti.minimize(total)
+        _, guess_a = self._guess(factor, counts)
+        opti.set_initial(A, guess_a[None, :])
+        opti.set_initial(durations, [factor * T for _, _, T in phases])
+        opti.solver("ipopt", {"print_time": False},
+                    {"print_level": 5 if verbose else 0, "max_iter": max_iter, "tol": 1e-8, "sb": "yes",
+                     "constr_viol_tol": 1e-9, **ACCEPTABLE, **self.ipopt})
+        try:
+            value = opti.solve().value
+        except RuntimeError as err:
+            stats = opti.stats()
+            # out of iterations at a point that meets the constraints: a feasible timing (the certificate checks
+            # it), maybe not the fastest; anything else is no answer
+            if stats.get("return_status") == "Maximum_Iterations_Exceeded" and \
+                    stats["iterations"]["inf_pr"][-1] < 1e-7:
+                value = opti.debug.value
+            else:
+                raise PlanningError(f"the time-optimal problem was not solved ({stats.get('return_status', err)}) "
+                                    f"after {stats.get('iter_count', '?')} iterations; the best uniform slowdown "
+                                    f"({factor:.4g}x, {uniform_duration:.4g} s) is feasible: try more --intervals or "
+                                    "a larger margin") from None
+        stats = opti.stats()
+        duration = float(value(total))
+        if duration <= 1.001e-3 * uniform_duration:
+            raise PlanningError("the limits do not bound this motion (the fastest timing is as short as allowed): "
+                                "give max_speed / max_accel (--max-speed, --max-accel)")
+        h = np.asarray(value(steps)).ravel()
+        times = np.concatenate([[0.0], np.cumsum(h)])
+        starts = times[:-1, None] + np.arange(self.substeps)[None, :] * (h / self.substeps)[:, None]
+        input_times = np.concatenate([starts.ravel(), [times[-1]]])
+        return Solution(duration, times, np.asarray(value(X)).T, np.asarray(value(A)).ravel(), input_times,
+                        np.asarray(value(u_all)).T, stats.get("return_status", ""), int(stats["iter_count"]),
+                        time.perf_counter() - started, factor, uniform_duration)
+
+    def _guess(self, factor: float, counts: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        """The uniform slowdown on the problem's grid: states at the nodes and σ̈ per interval."""
+        own_steps = np.concatenate([np.full(c, T / c) for (_, _, T), c in zip(self.geo.phases, counts, strict=True)])
+        own_nodes = np.concatenate([[0.0], np.cumsum(own_steps)])
+        _, rate0, _ = self.geo.own_timing([0.0])
+        _, _, acc = self.geo.own_timing(0.5 * (own_nodes[:-1] + own_nodes[1:]))
+        acc = acc / factor**2
+        x = np.concatenate([self.x0, [0.0, rate0[0] / factor]])
+        rows = [x]
+        for a, h in zip(acc, own_steps * factor, strict=True):
+            x = np.asarray(self.step(x, a, h)[0]).ravel()
+            rows.append(x)
+        return np.array(rows), acc
+
+    def _path_bounds(self, opti, X, A, N):
+        if self.max_speed is None and self.max_accel is None:
+            return
+        n, rows = self.n, self.geo.point_rows
+        for k in range(N + 1):
+            tau, tau_d = X[2 * n, k], X[2 * n + 1, k]
+            a = A[min(k, N - 1)]
+            _, d1, d2 = self.geo.function(tau)
+            if self.max_speed is not None:
+                v = d1[rows] * tau_d
+                opti.subject_to(ca.sumsqr(v) <= self.max_speed**2)
+            if self.max_accel is not None:
+                acc = d2[rows] * tau_d**2 + d1[rows] * a
+                opti.subject_to(ca.sumsqr(acc) <= self.max_accel**2)
