@@ -68,7 +68,8 @@ robustness: build
 	$(PY) -m acroboter robustness
 
 # Differential fuzzing of the plant against MuJoCo: 2,000 generated open-loop experiments over every example
-# spec (Dask, two local workers; 53 min on the shared 2-core VM): results/plant_fuzz/report.md, docs/plant.md.
+# spec (Dask, two local workers; 53 min on the idle 2-core VM, 100 min under load): results/plant_fuzz/report.md,
+# the last one in docs/plant-fuzz.md.
 plant-fuzz: build
 	$(PY) -m acroboter.plant_fuzz
 
