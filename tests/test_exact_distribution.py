@@ -201,3 +201,21 @@ def test_solve_task_refuses_a_weighted_distribution():
     dist = BoundedInputs(np.zeros(3), np.ones(3), np.zeros(3), weight=1e-5)
     with pytest.raises(ValueError, match="lexicographic"):
         dist.solve_task(np.eye(3), np.zeros(3), np.ones((2, 3)))
+
+
+@pytest.mark.parametrize("bounded", [False, True])
+def test_the_task_fit_does_not_depend_on_the_fits_units(bounded):
+    """G and g scaled together (the fit in other units): the same u, bounded or not (the internal forces'
+    weight in the QP is relative to EᵀE, and the QP is solved in units where its mean eigenvalue is 1)."""
+    l, k = 6, 4
+    G, g, E, preferred, rng = random_problem(7, l, k, near_free=True)
+    free = BoundedInputs(np.full(l, -np.inf), np.full(l, np.inf), preferred).solve_task(G, g, E).copy()
+    lower = free - rng.uniform(-1.0, 0.5, l) if bounded else np.full(l, -np.inf)
+    upper = lower + 3.0 if bounded else np.full(l, np.inf)
+    ref = BoundedInputs(lower, upper, preferred).solve_task(G, g, E).copy()
+    for s in (1e-6, 1e-3, 1e3, 1e6):
+        for e_scale in (1e-3, 1.0, 1e3):  # E in other units too (servo accelerations per N or per kN)
+            dist = BoundedInputs(lower, upper, preferred)
+            u = dist.solve_task(s * G, s * g, e_scale * E)
+            np.testing.assert_allclose(u, ref, rtol=0, atol=1e-6 * np.abs(ref).max(), err_msg=f"{s}, {e_scale}")
+            assert dist.bounded_step == bounded

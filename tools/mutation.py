@@ -1,9 +1,9 @@
-"""`make mutation`: mutmut 3 over the core modules, in a scratch copy of the checkout (docs/mutation.md).
+"""`make mutation`: mutmut 3 over the core modules, in a scratch copy of the checkout per selection (docs/mutation.md).
 
-    python tools/mutation.py [MODULE ...] [--tests TEST_FILE ...] [--max-children N]
+    python tools/mutation.py [MODULE ...] [--tests TEST_FILE ...] [--max-children N] [--only GLOB] [--work DIR]
 
 MODULE is a path under acroboter/ (default: every module of CORE). The checkout's acroboter/, tests/,
-generated/ and model_spec/ are copied into build/mutation/ with a [tool.mutmut] section that mutates
+generated/ and model_spec/ are copied into build/mutation/<modules>/ with a [tool.mutmut] section that mutates
 only the chosen modules (every other file of the package is listed in do_not_mutate), and mutmut runs
 there with the test selection TESTS (default: the physics and control-law tests, not the freshness
 check and not the cross-implementation comparisons, which compare against a second implementation
@@ -30,7 +30,7 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
-WORK = REPO / "build" / "mutation"
+MUTATION_ROOT = REPO / "build" / "mutation"
 CORE = [
     "control/controllers.py", "control/recovery.py", "control/distribution.py",
     "sim/plant.py", "sim/cable_events.py", "sim/sensing.py",
@@ -53,9 +53,14 @@ def toml_list(items) -> str:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("modules", nargs="*", default=CORE)
-    parser.add_argument("--tests", nargs="+", default=TESTS)
-    parser.add_argument("--max-children", type=int, default=2)
+    parser.add_argument("modules", nargs="*", default=CORE,
+                        help="modules under acroboter/ to mutate (default: the runtime core, CORE)")
+    parser.add_argument("--tests", nargs="+", default=TESTS, help="the test files that judge the mutants "
+                        "(default: the physics and control-law tests, TESTS)")
+    parser.add_argument("--max-children", type=int, default=2, help="parallel test processes (default 2)")
+    parser.add_argument("--only", help="mutants whose name matches this glob, e.g. "
+                        "'acroboter.control.distribution.xǁBoundedInputsǁaccept*' (default: all)")
+    parser.add_argument("--work", type=Path, help="the scratch folder (default build/mutation/<modules>/)")
     args = parser.parse_args(argv)
     modules = [m.removeprefix("acroboter/") for m in args.modules]
     for m in modules:
@@ -67,6 +72,8 @@ def main(argv=None) -> int:
     bad = EXCLUDED.intersection(args.tests)
     if bad:
         parser.error(f"{', '.join(sorted(bad))}: not an oracle (freshness or a second implementation)")
+    # one scratch folder per selection, so the survivors of each module stay to be read (`mutmut show`)
+    WORK = args.work or MUTATION_ROOT / ("+".join(Path(m).stem for m in modules) if modules != CORE else "all")
     if WORK.exists():
         shutil.rmtree(WORK)
     WORK.mkdir(parents=True)
@@ -89,7 +96,8 @@ def main(argv=None) -> int:
     # the console script, not `python -m mutmut`: the mutants import mutmut.__main__, which must not be __main__
     mutmut = [str(Path(sys.executable).parent / "mutmut")]
     print(f"mutating {', '.join(sorted(keep))} with {len(args.tests)} test files in {WORK}", flush=True)
-    done = subprocess.run([*mutmut, "run", "--max-children", str(args.max_children)], cwd=WORK, env=env)
+    chosen = [args.only] if args.only else []
+    done = subprocess.run([*mutmut, "run", "--max-children", str(args.max_children), *chosen], cwd=WORK, env=env)
     subprocess.run([*mutmut, "results"], cwd=WORK, env=env)
     return done.returncode
 
