@@ -100,6 +100,7 @@ def full_spec() -> dict:
     data["actuators"][4]["point"] = [0.0, 0.0, 0.0]
     data["task"][0]["point"] = [0.0, 0.0, 0.0]
     data["controller"]["ki"] = 0.0
+    data["controller"]["underactuation"] = {"dwell": 0.1, "margin": 0.001}
     data["sensing"] = {"groups": [{"name": "positions", "coordinates": ["SU.r"], "noise": 0.0, "quantization": 1e-4}],
                        "delay_periods": 0, "seed": 0, "velocity_filter_s": 0.02, "projection_iterations": 3}
     return data

@@ -9,7 +9,8 @@
 
 Methods are "mlm", "penalty", "iterative" (with `iterations=N`, default the spec's first count) or
 "iterative-N". Keyword overrides replace the spec's controller settings for that call: kp, kd,
-alpha_geometric, alpha_servo, omega, mu, recovery, kappa, ki (integral action, docs/integral_action.md).
+alpha_geometric, alpha_servo, omega, mu, recovery, kappa, ki (integral action, docs/integral_action.md),
+saturation ("qp" or "underactuation": how a limit is met, docs/saturation.md).
 A `trajectory` (a SampledTrajectory, or a function t -> (position, velocity, acceleration) with
 `duration`) replaces the spec's waypoints.
 """
@@ -36,6 +37,7 @@ from ..model.spec import (
     MAX_CONTROL_STEPS,
     MAX_ITERATIONS,
     RECOVERIES,
+    SATURATIONS,
     Spec,
     SpecError,
     integral_gain_problem,
@@ -54,7 +56,7 @@ from .dynamics import evaluate
 
 # Untimed control steps at the start state before a timed run: the first calls page code and data in.
 WARM_UP_STEPS = 200
-GAIN_NAMES = ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu", "recovery", "kappa", "ki")
+GAIN_NAMES = ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu", "recovery", "kappa", "ki", "saturation")
 
 Trajectory = SampledTrajectory | Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
 
@@ -207,8 +209,8 @@ class Crane:
 
     def gains(self, **overrides) -> Gains:
         """The spec's controller settings with `overrides` (kp, kd, alpha_geometric, alpha_servo, omega,
-        mu, recovery, kappa, ki) checked and applied; ki ≥ 0 must keep the servo error dynamics stable,
-        ki < 2·kd·kp² (docs/integral_action.md)."""
+        mu, recovery, kappa, ki, saturation) checked and applied; ki ≥ 0 must keep the servo error dynamics stable,
+        ki < 2·kd·kp² (docs/integral_action.md); saturation is "qp" or "underactuation" (docs/saturation.md)."""
         unknown = sorted(set(overrides) - set(GAIN_NAMES))
         if unknown:
             raise TypeError(f"unknown controller setting(s) {', '.join(unknown)}: use {', '.join(GAIN_NAMES)}")
@@ -218,6 +220,10 @@ class Crane:
             if name == "recovery":
                 if value not in RECOVERIES:
                     raise ValueError(f"recovery: expected one of {', '.join(RECOVERIES)}, found {value!r}")
+                continue
+            if name == "saturation":
+                if value not in SATURATIONS:
+                    raise ValueError(f"saturation: expected one of {', '.join(SATURATIONS)}, found {value!r}")
                 continue
             GAIN_RANGES[name].check(value, name)  # RangeError (a ValueError): "kp: expected 0 < kp <= 1e4 (1/s), …"
         gains = Gains.from_spec(self.spec, **overrides)

@@ -73,7 +73,8 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
     from ..sim.statics import EquilibriumError
 
     overrides = {name: getattr(args, name) for name in
-                 ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu", "recovery", "kappa", "ki")}
+                 ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu", "recovery", "kappa", "ki",
+                  "saturation")}
     try:
         crane = Crane.from_toml(args.spec, cache_dir=args.cache_dir)
         spec = crane.spec

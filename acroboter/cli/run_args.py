@@ -46,6 +46,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="iteration counts for 'iterative', comma-separated, 1..1000 (default: from the spec)")
     p.add_argument("--recovery", choices=["projected", "eq12", "eq13", "eq15", "kappa"], default=None,
                    help="input recovery of the penalty methods (default: from the spec)")
+    p.add_argument("--saturation", choices=["qp", "underactuation"], default=None,
+                   help="how a controller meets an input limit: qp (the bounded least squares) or underactuation (the "
+                        "saturated input held at its limit, the task reduced by the spec's [controller.underactuation] "
+                        "priority; docs/saturation.md) (default: from the spec, normally qp)")
     p.add_argument("--kappa", type=ranged(KAPPA), default=None,
                    help="κ of the 'kappa' recovery, 0..1 (default: from the spec)")
     p.add_argument("--alpha-geometric", type=ranged(ALPHA_GEOMETRIC), default=None,

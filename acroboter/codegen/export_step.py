@@ -117,6 +117,12 @@ def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = N
     iterations = parse_method(method)
     if gains.recovery not in RECOVERIES:
         raise ExportError(f"unknown input recovery '{gains.recovery}': choose one of {', '.join(RECOVERIES)}")
+    if gains.saturation != "qp":
+        raise ExportError(
+            f"the spec asks saturation = '{gains.saturation}', and the exported step meets limits with the bounded "
+            "least squares only: its hysteresis is state between steps that the step does not carry, and its active "
+            "set a loop of SVDs the generated C has none of (docs/saturation.md). Set [controller] saturation = "
+            "\"qp\" for the export, or run the Python controller (acroboter run --saturation underactuation)")
     if penalty_system not in PENALTY_SYSTEMS:
         raise ExportError(f"unknown penalty system '{penalty_system}': choose one of {', '.join(PENALTY_SYSTEMS)}")
     if mlm_system not in MLM_SYSTEMS:

@@ -21,9 +21,11 @@ from scipy.linalg import lapack
 
 from ..model.settings import MLM_RCOND_LIMIT, PENALTY_SECONDARY_WEIGHT, SATURATION_TOLERANCE, Gains
 from ..model.spec import Spec
+from ..model.spec_checks import task_components
 from .distribution import BoundedInputs, DistributionError
 from .path import DesiredPath
 from .recovery import InputRecovery
+from .underactuation import Underactuation
 
 
 class SingularSystemError(RuntimeError):
@@ -84,11 +86,23 @@ class Controller:
         self._t_last: float | None = None
         self._hold = False  # the last step saturated: do not integrate over the period after it
         self._saturated: bool | None = None  # saturation() of the last compute(), once judged
+        # How a limit is met (docs/saturation.md): None, the bounded least squares ("qp"); else the saturated
+        # inputs held at their limits and the task reduced by the spec's priority (acroboter.control.underactuation).
+        self.underactuation: Underactuation | None = None
+        if gains.saturation == "underactuation":
+            self.underactuation = Underactuation(self.limits.lower, self.limits.upper, self.limits.preferred,
+                                                 task_components(model.spec), gains.priority, gains.dwell,
+                                                 gains.release_margin)
+        elif gains.saturation != "qp":
+            raise ValueError(f"saturation: expected 'qp' or 'underactuation', found {gains.saturation!r}")
+        self._t_now = 0.0
 
     def reset(self) -> None:
-        """Forget the integral action's state (z = 0): for a new run with the same controller."""
+        """Forget the integral action's state (z = 0) and the held inputs: for a new run with the same controller."""
         self.integral[:] = 0.0
         self._t_last, self._hold = None, False
+        if self.underactuation is not None:
+            self.underactuation.reset()
 
     def _integrate(self, t: float) -> None:
         """z += ½ (t − t_prev)(σ_prev + σ) with σ at the state in the buffers, unless the last step
@@ -111,6 +125,7 @@ class Controller:
         step's saturation is judged after it (for the anti-windup of the next period).
         """
         self._saturated = None
+        self._t_now = t
         u = self._compute(q, qd, t, signals)
         if self.ki != 0.0:
             self._hold = self.anti_windup and self.saturation()
@@ -118,15 +133,44 @@ class Controller:
 
     def _distribute(self, hessian: np.ndarray, gradient: np.ndarray, servo_map=None) -> np.ndarray:
         """The bounded input (acroboter.control.distribution) into self.u; with `servo_map` (E),
-        lexicographic in the servo accelerations E u (BoundedInputs.solve_task)."""
+        lexicographic in the servo accelerations E u (BoundedInputs.solve_task). With saturation as
+        underactuation: the distribution's unbounded input is the full task's u*, the limits are met by
+        holding inputs (_underactuate)."""
         try:
-            if servo_map is None:
+            if self.underactuation is not None:
+                if servo_map is None:
+                    u_star = self.limits.solve(hessian, gradient, unbounded_only=True)
+                else:
+                    u_star = self.limits.solve_task(hessian, gradient, servo_map, unbounded_only=True)
+                self._underactuate(u_star)
+            elif servo_map is None:
                 self.u[:] = self.limits.solve(hessian, gradient)
             else:
                 self.u[:] = self.limits.solve_task(hessian, gradient, servo_map)
         except DistributionError as err:
             raise SingularSystemError(f"{self.name}: {err}") from None
         return self.u
+
+    def _underactuate(self, u_star: np.ndarray) -> bool:
+        """Saturation as underactuation: True if the full task's input u* is the step's input (then, as with the
+        QP, self.limits.accept took it: bit for bit today's step); else the reduced task's input into self.u
+        (False), with limit_state marking the held inputs and u* kept as what the full task asked."""
+        limits, under = self.limits, self.underactuation
+        if under.full_task(u_star, self._t_now) and limits.accept(u_star):
+            self.u[:] = u_star
+            return True
+        limits.unbounded[:] = u_star  # before self.u changes: the penalty methods' u* is that buffer
+        self._servo_fn.call()  # E at the state and gains in the input buffers (again for MLM: the same values)
+        servo_map = self._servo_fn.outputs["servo_map"]
+        try:
+            u = under.solve(servo_map, servo_map @ limits.unbounded)
+        except FloatingPointError as err:
+            raise SingularSystemError(f"{self.name}: saturation as underactuation: {err}") from None
+        self.u[:] = u
+        limits.u[:] = u
+        limits.limit_state[:] = under.held
+        limits.bounded_step = True
+        return False
 
     def saturation(self) -> bool:
         """Did the limits keep the last compute() from what it asked of the task?
@@ -217,6 +261,9 @@ class MLM(Controller):
             )
         self._y = y
         self._y_current = True
+        if self.underactuation is not None:
+            self._y_current = self._underactuate(y[self.m :])
+            return self.u
         if self.limits.accept(y[self.m :]):
             self.u[:] = y[self.m :]
             return self.u
@@ -322,6 +369,9 @@ class Penalty(Controller):
         if not fast:  # another recovery, or the generated projected map was singular
             self._multipliers()
             self.recovery.recover(T, self.lam_hat, self._qdd_last, self.lam)
+        if self.underactuation is not None:
+            self._underactuate(self.u)
+            return self.u
         if self.limits.accept(self.u):
             return self.u
         # A limit is in the way: the same fit, bounded.

@@ -126,7 +126,8 @@ class BoundedInputs:
             return True
         return False
 
-    def solve_task(self, hessian: np.ndarray, gradient: np.ndarray, servo_map: np.ndarray) -> np.ndarray:
+    def solve_task(self, hessian: np.ndarray, gradient: np.ndarray, servo_map: np.ndarray,
+                   unbounded_only: bool = False) -> np.ndarray:
         """The fit ½uᵀGu + gᵀu with redundant inputs, lexicographic in the servo accelerations E u
         (E = servo_map, k × l, full row rank; see the module docstring): E u = e_F = E u_F exactly with
         u_F = −Eᵀ(E G Eᵀ)⁻¹E g, the internal forces (null(E)) at u_pref, then the limits.
@@ -150,6 +151,9 @@ class BoundedInputs:
             raise DistributionError("the input distribution's terms are not finite")
         y += w
         u = self.preferred - E.T @ y  # Π u_pref + u_F
+        if unbounded_only:  # saturation as underactuation: the full task's input, whatever the limits
+            self.unbounded[:] = u
+            return u
         if self._take_unbounded(u):
             return self.u
         # Step 3: ½|E u − e_F|² + ½μ|Π(u − u_pref)|², within the limits.
@@ -162,8 +166,9 @@ class BoundedInputs:
         self._gradient -= mu * (projector @ self.preferred)
         return self._bounded()
 
-    def solve(self, hessian: np.ndarray, gradient: np.ndarray) -> np.ndarray:
-        """The bounded, prioritised minimiser (steps 2 and 3); writes self.u and self.limit_state."""
+    def solve(self, hessian: np.ndarray, gradient: np.ndarray, unbounded_only: bool = False) -> np.ndarray:
+        """The bounded, prioritised minimiser (steps 2 and 3); writes self.u and self.limit_state.
+        `unbounded_only`: step 2's minimiser, returned whatever the limits (saturation as underactuation)."""
         # G's scale: its mean eigenvalue. Exact and cheap (also in the exported C, which needs no
         # eigenvalue solver for it); between 1/l of the largest eigenvalue and the largest.
         scale = float(hessian.trace()) / self.l
@@ -195,6 +200,9 @@ class BoundedInputs:
                 mu = SECONDARY_WEIGHT * scale if scale > 0 else 1.0
                 self._hessian += mu * (z @ z.T)
                 self._gradient -= mu * (z @ (z.T @ self.preferred))
+        if unbounded_only:
+            self.unbounded[:] = u
+            return u
         if self._take_unbounded(u):
             return self.u
         return self._bounded()

@@ -219,6 +219,12 @@ MU = Range("mu", 0.0, 1e3, "", low_open=True, why="μ of the constraint penalty,
 ITERATIONS = Range("iterations", 1, 1000, "", whole=True,
                    why="iterative penalty: far beyond where it stops improving (about 10)")
 KAPPA = Range("kappa", 0.0, 1.0, "", "the 'kappa' recovery's blend of two recoveries")
+DWELL = Range("dwell", 0.0, 60.0, "s",
+              "saturation as underactuation: how long the full task's input must stay within its limits before the "
+              "full task returns (0: at once; a minute is longer than any saturation worth waiting out)")
+RELEASE_MARGIN = Range("margin", 0.0, 0.5, "",
+                       "saturation as underactuation: the full task's input must be inside each limit by this fraction "
+                       "of the limit's magnitude before the full task returns (0.001 = 0.1 %)")
 STEP = Range("step", 1e-8, 10.0, "s",
              "the plant's RK4 step: it divides the control period, at most 10,000 times (1e-8 s: 10,000 steps in the "
              "shortest period, 100 µs)")

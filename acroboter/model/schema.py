@@ -32,6 +32,7 @@ from .ranges import (
     COORDINATE,
     DAMPING,
     DELAY,
+    DWELL,
     GAIN,
     GRAVITY,
     INERTIA,
@@ -54,6 +55,7 @@ from .ranges import (
     RADIUS,
     RATE,
     REFLECTED_INERTIA,
+    RELEASE_MARGIN,
     SEED,
     STEP,
     VELOCITY_FILTER,
@@ -75,6 +77,12 @@ MIN_PRINCIPAL_MOMENT = 1e-12  # kg·m²: a milligram 1 mm from the axis (the lig
 INERTIA_MARGIN = 1e-6
 PATH_SIGNALS = ("x", "y", "z", "yaw")
 RECOVERIES = ("projected", "eq12", "eq13", "eq15", "kappa")
+# How a controller meets an input limit (docs/saturation.md): the bounded least squares, or the saturated input
+# fixed at its limit and the task reduced by priority (Zelei, Bencsik, Stépán 2017).
+SATURATIONS = ("qp", "underactuation")
+# The task's components, as a saturation priority names them: a position task's x and y, its z, the level
+# task's two rows, the yaw task's row (acroboter.model.spec_checks.task_components).
+TASK_COMPONENTS = ("horizontal", "height", "level", "yaw")
 NAME_PATTERN = r"^[A-Za-z_][A-Za-z0-9_]*$"
 
 
@@ -323,6 +331,14 @@ class Penalty(_Strict):
     kappa: KAPPA.field() = 0.5
 
 
+class Underactuation(_Strict):
+    # The task's components, most important first: kept in this order while inputs are held at their limits
+    # (absent: horizontal, level, height, yaw, those the task has); each component of the task once.
+    priority: list[Literal[TASK_COMPONENTS]] | None = None
+    dwell: DWELL.field() = 0.1  # s the full task's input stays within its limits before the full task returns
+    margin: RELEASE_MARGIN.field() = 0.001  # ... inside each limit by this fraction of its magnitude
+
+
 class Controller(_Strict):
     rate_hz: RATE.field()
     kp: KP.field()
@@ -330,6 +346,8 @@ class Controller(_Strict):
     # Integral action on the servo-constraints (docs/integral_action.md): 0 is the plain PD law.
     ki: KI.field() = 0.0
     penalty: Penalty
+    saturation: Literal[SATURATIONS] = "qp"  # docs/saturation.md
+    underactuation: Underactuation = Field(default_factory=Underactuation)
 
 
 def integral_gain_problem(kp: float, kd: float, ki: float) -> str | None:

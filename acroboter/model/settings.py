@@ -11,6 +11,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .spec import Spec
+from .spec_checks import resolved_priority
 
 # MLM: a reciprocal condition number below this means a singular system (redundant constraints).
 MLM_RCOND_LIMIT = 1e-13
@@ -32,6 +33,11 @@ SECONDARY_WEIGHT = 1e-9
 # directions: on the four-cable crane's 55 s path, preferred = 152.5 N (the middle of [5, 300] N) gave
 # 0.0976 mm against 0.0617 mm with 20 N (Penalty); the lexicographic form gives 0.0617 mm for both.
 PENALTY_SECONDARY_WEIGHT = 1e-5
+# Saturation as underactuation (acroboter.control.underactuation): a task direction that the inputs still free
+# move at less than this fraction of the rate all inputs together move it is released, not forced (forcing it
+# would ask more than 100 times the inputs). On the default crane the thrusts alone tilt the SU at 0.0013 of the
+# winches' rate (E's level rows), so with every winch held the level is released, not flown on the fans.
+UNDERACTUATION_RANK_TOLERANCE = 1e-2
 
 
 @dataclass(frozen=True)
@@ -45,11 +51,18 @@ class Gains:
     recovery: str
     kappa: float
     ki: float = 0.0  # integral action on the servo-constraints (docs/integral_action.md); 0: the PD law
+    # How a limit is met (docs/saturation.md): "qp" (bounded least squares) or "underactuation"; for the latter
+    # the task components most important first, and the hysteresis that brings the full task back.
+    saturation: str = "qp"
+    priority: tuple[str, ...] = ()
+    dwell: float = 0.1
+    release_margin: float = 0.001
 
     @classmethod
     def from_spec(cls, spec: Spec, **overrides) -> Gains:
         c, p = spec.controller, spec.controller.penalty
-        gains = cls(c.kp, c.kd, p.alpha_geometric, p.alpha_servo, p.omega, p.mu, p.recovery, p.kappa, c.ki)
+        gains = cls(c.kp, c.kd, p.alpha_geometric, p.alpha_servo, p.omega, p.mu, p.recovery, p.kappa, c.ki,
+                    c.saturation, resolved_priority(spec), c.underactuation.dwell, c.underactuation.margin)
         return replace(gains, **{k: v for k, v in overrides.items() if v is not None})
 
     def parameter_vector(self, servo_rows: int) -> np.ndarray:

@@ -13,11 +13,14 @@ from .ranges import baumgarte_problem, damping_problem, delay_problem, sampled_g
 from .schema import (
     MAX_CONTROL_STEPS,
     MAX_PLANT_SUBSTEPS,
+    TASK_COMPONENTS,
     Body,
+    LevelTask,
     PositionTask,
     Sensing,
     Spec,
     WinchTension,
+    YawTask,
     integral_gain_problem,
     sensing_coordinates,
 )
@@ -200,6 +203,8 @@ def check_references(spec: Spec) -> list[tuple[str, str]]:
     problems += sampled_gain_problems(c.kp, c.kd, c.rate_hz)
     if (problem := integral_gain_problem(c.kp, c.kd, c.ki)) is not None:
         problems.append(("controller.ki", problem))
+    if (problem := priority_problem(spec, c.underactuation.priority)) is not None:
+        problems.append(("controller.underactuation.priority", problem))
     if spec.sensing is not None:
         problems += sensing_problems(spec, spec.sensing)
         duration = lengths.sum() / spec.path.mean_speed
@@ -207,6 +212,60 @@ def check_references(spec: Spec) -> list[tuple[str, str]]:
                                                            what="path")) is not None:
             problems.append(("sensing.delay_periods", problem))
     return problems
+
+
+DEFAULT_PRIORITY = ("horizontal", "level", "height", "yaw")  # keep the position, release yaw, then the height
+
+
+def task_components(spec: Spec) -> dict[str, list[int]]:
+    """The servo-constraint rows of each task component a saturation priority names (TASK_COMPONENTS), in the
+    layout's row order (acroboter.model.layout): a position task's x, y rows are 'horizontal', its z row
+    'height'; a level task's two rows 'level'; a yaw task's row 'yaw'. Only the components the task has."""
+    rows: dict[str, list[int]] = {}
+    row = 0
+    for task in spec.task:
+        if isinstance(task, PositionTask):
+            rows.setdefault("horizontal", []).extend([row, row + 1])
+            rows.setdefault("height", []).append(row + 2)
+            row += 3
+        elif isinstance(task, YawTask):
+            rows.setdefault("yaw", []).append(row)
+            row += 1
+        elif isinstance(task, LevelTask):
+            rows.setdefault("level", []).extend([row, row + 1])
+            row += 2
+    return {name: rows[name] for name in TASK_COMPONENTS if name in rows}
+
+
+def resolved_priority(spec: Spec, priority=None) -> tuple[str, ...]:
+    """The task components, most important first: `priority` (default the spec's, else DEFAULT_PRIORITY's order
+    restricted to the components the task has)."""
+    priority = spec.controller.underactuation.priority if priority is None else priority
+    present = task_components(spec)
+    if priority is None:
+        return tuple(name for name in DEFAULT_PRIORITY if name in present)
+    return tuple(priority)
+
+
+def priority_problem(spec: Spec, priority) -> str | None:
+    """Why a saturation priority does not fit the task (None if it does): each of the task's components once."""
+    if priority is None:
+        return None
+    present = list(task_components(spec))
+    repeated = sorted({p for p in priority if list(priority).count(p) > 1})
+    absent = [p for p in priority if p not in present]
+    missing = [p for p in present if p not in priority]
+    if not (repeated or absent or missing):
+        return None
+    found = []
+    if repeated:
+        found.append(f"{listing(repeated)} more than once")
+    if absent:
+        found.append(f"{listing(absent)}, which the task does not have")
+    if missing:
+        found.append(f"no {listing(missing)}")
+    return (f"expected each component of the task once, most important first ({listing(present)}; e.g. "
+            f"{list(DEFAULT_PRIORITY)}), found {'; '.join(found)}")
 
 
 def _stiffness_problems(spec: Spec) -> list[tuple[str, str]]:
