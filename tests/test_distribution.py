@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.optimize import lsq_linear, minimize
 
-from acroboter.control.distribution import SECONDARY_WEIGHT, BoundedInputs, DistributionError
+from acroboter.control.distribution import PRIMAL_TOLERANCE, SECONDARY_WEIGHT, BoundedInputs, DistributionError
 
 INF = np.inf
 
@@ -202,6 +202,9 @@ def test_a_fit_that_is_not_convex_is_an_error_not_an_input():
 def test_the_diagnostics_count_what_ran():
     """bounded_step says whether the last solve needed the QP, qp_solves how many did (bench reports it)."""
     dist = BoundedInputs(np.zeros(2), np.ones(2), np.zeros(2))
+    assert dist.bounded_step is False and dist.qp_solves == 0 and dist.limit_state.dtype == np.int8
+    # DAQP ignores a setting it does not know: the tolerance the snapping below relies on is the one in force
+    assert dist._qp.settings["primal_tol"] == PRIMAL_TOLERANCE
     assert dist.accept(np.array([0.5, 0.5])) and dist.bounded_step is False and dist.qp_solves == 0
     dist.solve(np.eye(2), -np.array([5.0, 0.5]))
     assert dist.bounded_step is True and dist.qp_solves == 1
