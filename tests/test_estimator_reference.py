@@ -17,10 +17,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import load_with_start
+from conftest import load_with_start, raw_spec
 
 from acroboter.control.controllers import Gains, make_controller
-from acroboter.sim.sensing import ESTIMATE_LIMIT, PROJECTION_TOLERANCE, Estimator, describe, resolve
+from acroboter.model.schema import Sensing, SpecError
+from acroboter.model.spec import parse_spec
+from acroboter.sim.sensing import (
+    ESTIMATE_LIMIT,
+    PROJECTION_TOLERANCE,
+    Estimator,
+    check_measurable,
+    describe,
+    resolve,
+)
 from acroboter.sim.simulation import setup_default, simulate
 
 REPO = Path(__file__).resolve().parent.parent
@@ -215,3 +224,61 @@ def test_describe_says_what_makes_an_estimate_differ(crane):
     assert describe(resolve(spec, {"noise": {"axes": 1e-4}, "delay_periods": 1})) == (
         "axes noise 0.0001, delay 1 control period(s)")
     assert describe(resolve(spec, {"quantization": {"positions": 1e-3}})) == "positions noise 0 quantisation 0.001"
+
+
+def test_reset_starts_the_estimate_at_rest_at_q0(crane, recorded):
+    spec, model, path, _ = crane
+    estimator = Estimator(model, path, resolve(spec, CASES["delay 1, predicted"]))
+    estimator.reset(recorded.q[0])
+    estimator.estimate(recorded.q[5], recorded.t[5])
+    estimator.reset(recorded.q[3])
+    np.testing.assert_array_equal(estimator.q, recorded.q[3])
+    assert not estimator.qd.any()
+    assert estimator.trouble(recorded.q[3]) is None
+
+
+def test_a_sensing_that_leaves_motions_free_is_refused_with_the_coordinates(crane):
+    """Positions and winch lengths only: the bodies' axes are left to the constraints, which cannot give them
+    all. The count of free motions is the nullity of φ_q's unmeasured columns (numpy's rank at the start)."""
+    spec, model, path, start = crane
+    loose = Sensing.model_validate({"groups": [{"name": "r", "coordinates": [
+        "SU.r", "CC.r", "L1.length", "L2.length", "L3.length"]}]})
+    with pytest.raises(SpecError) as err:
+        check_measurable(model, loose, source="probe")
+    coords = model.layout.coordinates
+    unmeasured = [i for i, c in enumerate(coords) if ".u_" in c or ".v_" in c or ".w_" in c]
+    phi_q = model.term("phi_q", start.q, np.zeros(len(coords)), *path.signal_arrays(0.0))
+    rows = np.array(model.manifest["layout"]["independent_constraint_rows"])
+    rank = np.linalg.matrix_rank(phi_q[rows][:, unmeasured])
+    free = len(unmeasured) - rank
+    axes = ", ".join(f"{b}.{a}_{x}" for b in ("CC", "SU") for a, xs in (("u", "yz"), ("v", "xz"), ("w", "xy"))
+                     for x in xs)
+    assert str(err.value) == (
+        "invalid model spec probe:\n  sensing: expected the measured coordinates to determine the others through the "
+        f"constraints, found {len(unmeasured)} unmeasured coordinates with only {rank} independent constraints on "
+        f"them ({free} free motion(s)); not determined: {axes}. Measure more: each body's r and two of its axes (the "
+        "third follows from the orthonormality rows) always suffice, a winch cable's length follows from its cable row")
+    assert free > 0
+
+
+def test_an_override_names_the_first_unknown_key_and_the_known_ones(crane):
+    spec = crane[0]
+    with pytest.raises(SpecError) as err:
+        resolve(spec, {"zeta": 1, "alpha": 2, "seed": 3})
+    assert str(err.value) == (
+        "invalid model spec sensing:\n  sensing.alpha: expected one of the known keys (noise, quantization, groups, "
+        "delay_periods, seed, velocity_filter_s, projection_iterations, predict_delay), found unknown key 'alpha'")
+
+
+def test_an_override_starts_from_the_specs_own_section():
+    """With a [sensing] section, an override changes only what it names: the section's groups stay (without one,
+    it starts from the default groups: every coordinate)."""
+    data = raw_spec("acroboter")
+    data["sensing"] = {"groups": [{"name": "tracker", "noise": 1e-4, "coordinates": ["CC.r", "CC.u", "CC.v", "SU"]}],
+                       "seed": 1}
+    spec = parse_spec(data)
+    chosen = resolve(spec, {"seed": 9, "delay_periods": 1})
+    assert [g.name for g in chosen.groups] == ["tracker"] and chosen.groups[0].noise == 1e-4
+    assert (chosen.seed, chosen.delay_periods) == (9, 1)
+    assert [g.name for g in resolve(parse_spec(raw_spec("acroboter")), {"seed": 9}).groups] == [
+        "positions", "axes", "lengths"]

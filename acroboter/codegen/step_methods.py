@@ -110,15 +110,15 @@ def mlm_step(graph: StepGraph, system: str) -> ca.MX:
 
 def _mlm_bounded_qdd(graph: StepGraph, P: dict, x: ca.MX, u: ca.MX, u0: ca.MX) -> ca.MX:
     """controllers.MLM.qdd where a limit may bind: q̈ = −M⁻¹(c + W y) with y the Schur solution if u0 is within
-    the limits, else y = [λ; u] with λ the least squares of the Schur rows, schur[:, :m] λ = rhs − schur[:, m:] u
-    (Python's lstsq; here its normal equations by LDLᵀ), evaluated only then (a Switch)."""
+    the limits, else y = [λ; u] with λ from the geometric rows, φ_q M⁻¹φ_qᵀ λ = rhs − schur[:m, m:] u (symmetric
+    positive definite: LDLᵀ), evaluated only then (a Switch)."""
     m = graph.m
 
     def reactions(a):
         schur, rhs = a[2], a[3]
-        lam_map = schur[:, :m]
-        residual = rhs - ca.mtimes(schur[:, m:], a[1])
-        lam = ca.solve(ca.mtimes(lam_map.T, lam_map), ca.mtimes(lam_map.T, residual), LINSOL_SPD)
+        lam_map = schur[:m, :m]
+        residual = rhs[:m] - ca.mtimes(schur[:m, m:], a[1])
+        lam = ca.solve(0.5 * (lam_map + lam_map.T), residual, LINSOL_SPD)
         return -(a[4] + ca.mtimes(a[5], ca.vertcat(lam, a[1])))
 
     return graph.bounds.switch("reactions", graph.bounds.within(u0),

@@ -274,14 +274,17 @@ class MLM(Controller):
         return self._distribute(B["hessian"], B["gradient"])
 
     def _reactions(self) -> None:
-        """y = [λ; u] for the applied u, when it is not the Schur solution: λ from the same system."""
+        """y = [λ; u] for the applied u, when it is not the Schur solution: λ from the geometric rows,
+        φ_q M⁻¹φ_qᵀ λ = rhs − φ_q M⁻¹(−H) u, the constrained dynamics under that u (φ_q q̈ + γ = 0). The servo
+        rows are left out: a bounded u cannot meet them, and a least squares over all rows (as before)
+        traded the constraints for them, φ_q q̈ + γ up to 3e-3 m/s² on the default crane."""
         if self._y_current:
             return
         self._fn.call()  # Schur terms at the state still in the buffers
         T, m = self.terms, self.m
         schur = T["schur"]
-        rhs = T["schur_rhs"] - schur[:, m:] @ self.u
-        self._y[:m] = np.linalg.lstsq(schur[:, :m], rhs, rcond=None)[0]
+        rhs = T["schur_rhs"][:m] - schur[:m, m:] @ self.u
+        self._y[:m] = np.linalg.solve(schur[:m, :m], rhs)
         self._y[m:] = self.u
         self._y_current = True
 

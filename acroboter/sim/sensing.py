@@ -186,7 +186,6 @@ class Estimator:
         n, nm = lay.n, self.index.size
         self._ring = np.zeros((self.delay + 1, nm))
         self._acc = np.zeros((self.delay + 1, n))  # commanded q̈ of the last delay + 1 instants (applied)
-        self._y = np.zeros(nm)
         self.q = np.zeros(n)  # the estimate handed to the controller (overwritten every call)
         self.qd = np.zeros(n)
         self._qm, self._qdm = np.zeros(n), np.zeros(n)  # the estimate at the measurement's time

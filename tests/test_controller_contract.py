@@ -1,0 +1,158 @@
+"""What each controller reports besides u, against the equations of motion computed with numpy (issue 19).
+
+The controllers' `qdd` and `multipliers` are what the plots, the C export comparison and the reaction
+forces read. Checked at moving states of a recorded run, with the symbolic model's terms (`model_terms`):
+- MLM: M q̈ + c + φ_qᵀλ − H u = 0 and φ_q q̈ + γ = 0, also when a limit holds u and λ is recomputed
+  for the bounded input;
+- the penalty methods (any number of iterations): M q̈_N + c + φ_qᵀλ_N + σ_qᵀλ̂_N = 0, eqs. 17–18 summed
+  over the iterations;
+- the bookkeeping around them: one compiled model shared by controllers with different gains, the
+  integral's reset and its restart when time goes back, and the factory's names and refusals.
+Mutation testing (docs/mutation.md) found these reached by no other test.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import load_with_start
+
+from acroboter.control.controllers import MLM, Gains, Penalty, SingularSystemError, make_controller
+from acroboter.sim.simulation import setup_default, simulate
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def crane():
+    return load_with_start(REPO / "model_spec" / "acroboter.toml")
+
+
+@pytest.fixture(scope="module")
+def states(crane):
+    spec, model, path, start = crane
+    controller = make_controller("penalty", model, path, Gains.from_spec(spec))
+    r = simulate(model, path, controller, setup_default(model, path), start.q, 3.0,
+                 spec.controller.rate_hz, spec.simulation.step)
+    return [(r.q[k].copy(), r.qd[k].copy(), float(r.t[k])) for k in (20, 60, 110, 149)]
+
+
+def terms(model, path, q, qd, t) -> dict:
+    return {k: np.array(v, copy=True) for k, v in model.evaluate("model_terms", q, qd, *path.signal_arrays(t)).items()}
+
+
+def scale_of(*arrays) -> float:
+    return max(1.0, *(float(np.abs(a).max()) for a in arrays))
+
+
+@pytest.mark.parametrize("bounded", [False, True])
+def test_mlm_reports_the_multipliers_and_acceleration_of_its_input(crane, states, bounded):
+    spec, model, path, _ = crane
+    gains = Gains.from_spec(spec)
+    lower, upper, preferred = spec.input_limits()
+    held = 0
+    for q, qd, t in states:
+        limits = None
+        if bounded:  # the first winch's max just below what it asks here: the QP runs, λ is recomputed
+            free = make_controller("mlm", model, path, gains).compute(q, qd, t).copy()
+            upper = np.array(spec.input_limits()[1], dtype=float)
+            upper[0] = free[0] - 0.05
+            limits = (lower, upper, preferred)
+        controller = make_controller("mlm", model, path, gains, limits=limits)
+        u = controller.compute(q, qd, t).copy()
+        lam, none = controller.multipliers
+        qdd = controller.qdd
+        T = terms(model, path, q, qd, t)
+        balance = T["mass_matrix"] @ qdd + T["bias_forces"] + T["phi_q"].T @ lam - T["input_matrix"] @ u
+        size = scale_of(T["bias_forces"], T["input_matrix"] @ u)
+        np.testing.assert_allclose(balance, 0.0, atol=1e-9 * size)
+        np.testing.assert_allclose(T["phi_q"] @ qdd + T["gamma"], 0.0, atol=1e-9 * scale_of(T["gamma"]))
+        assert none is None and np.abs(lam).max() > 1.0
+        if bounded:
+            assert u[0] == pytest.approx(upper[0], abs=1e-9) and controller.limit_state[0] == 1
+            held += 1
+    assert held == (len(states) if bounded else 0)
+
+
+@pytest.mark.parametrize("method", ["penalty", "iterative-2", "iterative-3", "iterative-4"])
+def test_penalty_multipliers_balance_the_commanded_acceleration(crane, states, method):
+    spec, model, path, _ = crane
+    controller = make_controller(method, model, path, Gains.from_spec(spec))
+    for q, qd, t in states:
+        controller.compute(q, qd, t)
+        lam, lam_hat = (np.array(a, copy=True) for a in controller.multipliers)
+        qdd = np.array(controller.qdd, copy=True)
+        T = terms(model, path, q, qd, t)
+        balance = T["mass_matrix"] @ qdd + T["bias_forces"] + T["phi_q"].T @ lam + T["sigma_q"].T @ lam_hat
+        np.testing.assert_allclose(balance, 0.0, atol=1e-8 * scale_of(T["bias_forces"], T["phi_q"].T @ lam))
+        assert np.abs(lam_hat).max() > 1e-3  # the servo multipliers carry the task's force
+
+
+def test_controllers_sharing_one_model_keep_their_own_gains(crane, states):
+    """Two controllers on one compiled model, called in turn: each gives what it gives alone (the shared
+    parameter buffer is reloaded when the other one wrote it last)."""
+    spec, model, path, _ = crane
+    gains = Gains.from_spec(spec)
+    other = replace(gains, kp=2 * gains.kp, kd=2 * gains.kd)
+    for method in ("mlm", "penalty"):
+        alone = [make_controller(method, model, path, g) for g in (gains, other)]
+        expected = [[c.compute(q, qd, t).copy() for q, qd, t in states] for c in alone]
+        a, b = make_controller(method, model, path, gains), make_controller(method, model, path, other)
+        for i, (q, qd, t) in enumerate(states):
+            np.testing.assert_array_equal(a.compute(q, qd, t), expected[0][i])
+            np.testing.assert_array_equal(b.compute(q, qd, t), expected[1][i])
+        assert np.abs(expected[0][1] - expected[1][1]).max() > 1e-3  # the gains matter at these states
+
+
+def test_the_integral_restarts_with_a_new_run(crane, states):
+    """z after reset() and after time goes back equals a fresh controller's; at an instant already seen it
+    does not grow."""
+    spec, model, path, _ = crane
+    gains = replace(Gains.from_spec(spec), ki=18.375)
+    fresh = make_controller("penalty", model, path, gains)
+    used = make_controller("penalty", model, path, gains)
+    for q, qd, t in states:
+        used.compute(q, qd, t)
+    assert np.abs(used.integral).max() > 0
+    z = used.integral.copy()
+    q, qd, t = states[-1]
+    used.compute(q, qd, t)  # the same instant again: nothing to integrate
+    np.testing.assert_array_equal(used.integral, z)
+    first = [fresh.compute(q, qd, t).copy() for q, qd, t in states[:2]]
+    again = [used.compute(q, qd, t).copy() for q, qd, t in states[:2]]  # time went back: a new run
+    np.testing.assert_array_equal(again[0], first[0])
+    np.testing.assert_array_equal(used.integral, fresh.integral)
+    used.reset()
+    assert not used.integral.any() and used._t_last is None and used._hold is False
+
+
+def test_the_factory_names_and_refuses():
+    assert make_controller.__name__ == "make_controller"
+    spec, model, path, _ = load_with_start(REPO / "model_spec" / "acroboter.toml")
+    gains = Gains.from_spec(spec)
+    assert isinstance(make_controller("mlm", model, path, gains), MLM)
+    for method, iterations in (("penalty", 1), ("iterative-1", 1), ("iterative-7", 7)):
+        c = make_controller(method, model, path, gains)
+        assert isinstance(c, Penalty) and c.iterations == iterations
+        assert c.name == ("penalty" if iterations == 1 else f"iterative-{iterations}")
+    for bad in ("newton", "iterative-", "iterative-x", "Penalty"):
+        with pytest.raises(ValueError) as err:
+            make_controller(bad, model, path, gains)
+        assert str(err.value) == f"unknown method '{bad}': use mlm, penalty or iterative-N (N >= 1)"
+    with pytest.raises(ValueError, match="^iterations must be at least 1$"):
+        make_controller("iterative-0", model, path, gains)
+
+
+def test_a_penalty_matrix_that_is_not_positive_definite_is_named(crane, states):
+    spec, model, path, _ = crane
+    gains = replace(Gains.from_spec(spec), alpha_geometric=-1e9)
+    controller = make_controller("penalty", model, path, gains)
+    q, qd, t = states[0]
+    with pytest.raises(SingularSystemError) as err:
+        controller.compute(q, qd, t)
+    assert str(err.value).startswith("the penalty matrix A = M + α̃ φ_qᵀφ_q + α̂ σ_qᵀσ_q is not positive definite "
+                                     "(LAPACK potrf info ")
+    assert str(err.value).endswith("): check the penalty numbers")
