@@ -108,12 +108,16 @@ def step_name(spec: Spec, method: str, recovery: str) -> str:
 
 
 def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = None, name: str | None = None,
-               mlm_system: str = "reduced", penalty_system: str = "auto", stateful: bool = False) -> StepExport:
+               mlm_system: str = "reduced", penalty_system: str = "auto", stateful: bool = False,
+               parametric: bool = False) -> StepExport:
     """Build the MX function u = step(q, qd, s, sd, sdd) of one method with the given (baked-in) gains.
 
     stateful (the core of acroboter.codegen.controller_c): (u, q̈) = step(q, qd, s, sd, sdd, z), the
     integral z = ∫σ dt an input (k_I z in ρ_s) and the commanded acceleration q̈ an output (the estimator's
-    prediction); integral action is then allowed."""
+    prediction); integral action is then allowed.
+
+    parametric (the Python controllers' fast path, acroboter.codegen.fast_step): (u, q̈, within, rcond) =
+    step(q, qd, s, sd, sdd, p, limits) with the gains and z in p, no QP (see fast_step)."""
     iterations = parse_method(method)
     if gains.recovery not in RECOVERIES:
         raise ExportError(f"unknown input recovery '{gains.recovery}': choose one of {', '.join(RECOVERIES)}")
@@ -121,7 +125,7 @@ def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = N
         raise ExportError(f"unknown penalty system '{penalty_system}': choose one of {', '.join(PENALTY_SYSTEMS)}")
     if mlm_system not in MLM_SYSTEMS:
         raise ExportError(f"unknown MLM system '{mlm_system}': choose one of {', '.join(MLM_SYSTEMS)}")
-    if gains.ki != 0 and not stateful:
+    if gains.ki != 0 and not (stateful or parametric):
         raise ExportError(
             f"integral action (ki = {gains.ki:g}) cannot be exported: the exported step is stateless "
             "(u from q, qd, s, sd, sdd) and the integral z = ∫σ dt with its anti-windup is state the Python "
@@ -137,7 +141,7 @@ def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = N
         penalty_system = "matrix" if redundant else "multipliers"
     system = mlm_system if iterations is None else penalty_system
     export = StepExport(name, None, spec, spec_path, method, iterations, gains, model.layout, system,  # type: ignore[arg-type]
-                        integral=stateful)
+                        integral=stateful, parametric=parametric)
     graph = StepGraph(export, model)
     if stateful:
         stateful_problem(graph, iterations)
@@ -156,7 +160,11 @@ def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = N
         u = mlm_step(graph, mlm_system)
     else:
         u = penalty_step(graph, iterations, penalty_system)
-    if stateful:
+    if parametric:
+        from .fast_step import parametric_function
+
+        export.function = parametric_function(graph, u)
+    elif stateful:
         saturated = ca.MX(0.0)
         if graph.bounds.report:  # [u; QP ran; step 2's minimiser] -> u and the saturation judgement
             l = graph.l

@@ -1,0 +1,126 @@
+"""The fast path of the Python controllers (issue 23 item 2): one compiled function per control step.
+
+FastController wraps a reference controller (acroboter.control.controllers: the per-term path, kept as it is and
+what the tests compare against) and shares its buffers and state. A step:
+
+1. q, q̇ and the path's signals into the model's input buffers, the reference's gains (and z) into p, exactly as
+   Controller._load; with integral action the reference's own Controller._integrate advances z (one generated
+   call more: σ at the state), so z, its reset and the anti-windup are the reference's;
+2. one ctypes call of the fast step (acroboter.codegen.fast_step, compiled on first use by
+   acroboter.runtime.fast_library): u, the commanded q̈, whether u is within the limits, MLM's reciprocal
+   condition number;
+3. u is taken when it is within the limits and, for MLM, the Schur system's reciprocal 1-norm condition number is
+   at least MLM_RCOND_LIMIT; otherwise (a limit is in the way, a NaN, a near-singular MLM system) the step is the
+   reference's _compute at the same buffers: the bounded distribution (DAQP, limit_state, saturation) and the
+   SingularSystemError are then exactly the reference's. The exact condition number is never above gecon's
+   estimate of it, so the fast path hands every step to the reference that the reference would have refused.
+
+Identical by construction: integral action (the reference's z and anti-windup), limits (the reference's
+distribution wherever one binds; within them both take the unbounded u, limit_state 0, not saturated). What
+differs is the operation order of the unbounded u: MLM agrees to ~1e-13 relative; the penalty methods solve for
+the multipliers directly (the exported step's 'multipliers' formulation, more accurate: u to ~1e-14 of a 40-digit
+reference where the reference's A form reaches ~1e-10; acroboter.codegen.export_step, tests/test_export_step.py).
+"""
+
+from __future__ import annotations
+
+from ..model.settings import MLM_RCOND_LIMIT
+from ..runtime.fast_library import FastPathUnavailable, load_fast_step
+from .controllers import Controller
+
+__all__ = ["FastController", "make_fast"]
+
+
+def make_fast(reference: Controller, method: str):
+    """The fast path around `reference`, or `reference` itself with its `fast_refusal` set where it cannot have one."""
+    try:
+        binding = load_fast_step(reference.model, method, reference.gains)
+    except FastPathUnavailable as err:
+        reference.fast_refusal = f"{reference.name}: the fast path is not available ({err}); the reference path runs"
+        return reference
+    return FastController(reference, binding)
+
+
+class FastController:
+    """A reference controller's step through one compiled function (see the module docstring).
+
+    Everything not defined here (integral, ki, gains, limits, n, ...) is the reference's."""
+
+    fast_refusal = None
+
+    def __init__(self, reference: Controller, binding):
+        self.reference, self.binding = reference, binding
+        self.name = reference.name
+        limits, l = reference.limits, reference.l
+        binding.limits[:l], binding.limits[l : 2 * l], binding.limits[2 * l :] = (limits.lower, limits.upper,
+                                                                                  limits.preferred)
+        reference._integrate_in_load = False  # z advances here, before the fast call (and the reference's fallback)
+        self._call, self._u, self._within, self._rcond = binding.call, binding.u, binding.within, binding.rcond
+        self._fast = False  # whether the last step was the compiled one
+        self._t = 0.0
+        self.fast_steps = self.reference_steps = 0
+
+    def __getattr__(self, name: str):
+        return getattr(self.reference, name)
+
+    def reset(self) -> None:
+        self.reference.reset()
+
+    @property
+    def limit_state(self):
+        return self.reference.limit_state
+
+    def saturation(self) -> bool:
+        return self.reference.saturation()
+
+    def compute(self, q, qd, t: float, signals=None):
+        """u at (q, q̇, t), as Controller.compute (a view of an internal buffer)."""
+        ref = self.reference
+        ref._saturated = None
+        ref._q[:] = q
+        ref._qd[:] = qd
+        ref._signals[:] = ref.path.flat(t) if signals is None else signals
+        model = ref.model
+        if model.parameters_owner is not ref:
+            ref._p[:] = ref._params
+            model.parameters_owner = ref
+        ki = ref.ki != 0.0
+        if ki:
+            ref._integrate(t)
+        self._t = t
+        self._call()
+        if self._within[0] == 1.0 and self._rcond[0] >= MLM_RCOND_LIMIT:
+            limits = ref.limits
+            if limits.bounded_step:  # the last step was bounded: nothing is on a limit now
+                limits.limit_state[:] = 0
+                limits.bounded_step = False
+            self._fast = True
+            self.fast_steps += 1
+            u = self._u
+        else:  # a limit in the way, a NaN or a near-singular MLM system: the reference's step at these buffers
+            self._fast = False
+            self.reference_steps += 1
+            u = ref._compute(ref._q, ref._qd, t, ref._signals)
+        if ki:
+            ref._hold = ref.anti_windup and ref.saturation()
+        return u
+
+    def _reference_step(self) -> None:
+        """The reference's step at the state still in the buffers (z is not advanced again), for its internals."""
+        ref = self.reference
+        if self._fast:
+            ref._compute(ref._q, ref._qd, self._t, ref._signals)
+            self._fast = False
+
+    @property
+    def qdd(self):
+        """The last step's commanded acceleration q̈."""
+        if self._fast and self.binding.has_qdd:
+            return self.binding.qdd
+        self._reference_step()
+        return self.reference.qdd
+
+    @property
+    def multipliers(self):
+        self._reference_step()
+        return self.reference.multipliers

@@ -1,0 +1,112 @@
+"""The fast path's compiled step (acroboter.codegen.fast_step), found or made on first use: `load_fast_step`.
+
+Its C is generated into ``<cache>/generated/fast-<name>/<name>/`` (a staging folder renamed into place under a
+lock, as acroboter.runtime.cache does for a spec's model) and compiled by acroboter.runtime.build into
+``<cache>/lib/<name>-<sources hash>/lib<name>.so`` (-O2 -fPIC, never fast-math; the library carries its build key
+and checksum like the model's). The name carries the key of everything the C depends on (fast_step.fast_key):
+the gains, z and the limits are run-time inputs, so one library serves every gain set of a method.
+
+The function is bound once with ctypes (acroboter.runtime.compiled.BoundFunction): its inputs are the model's own
+q, qd, s, sd, sdd and p buffers plus the caller's limits buffer, its outputs preallocated: one foreign call a step,
+no allocation. This is, with acroboter.runtime.cache and acroboter.runtime.casadi_backend, a runtime module that may
+call the code generator.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from ..model.interrupts import remembered_interrupt
+from ..model.settings import Gains
+from .build import BuildError, cache_lock, cache_write_error, ensure_built, remove_stale_staging
+from .compiled import BoundFunction, CompiledModel, DamagedLibraryError
+
+log = logging.getLogger(__name__)
+
+__all__ = ["FastPathUnavailable", "FastStepBinding", "load_fast_step"]
+
+
+class FastPathUnavailable(RuntimeError):
+    """This controller cannot have the fast path (the reason says why); the reference path is used."""
+
+
+class FastStepBinding:
+    """The bound fast step: `call()` evaluates at the model's buffers and `limits`; outputs in `u`, `qdd`, ..."""
+
+    def __init__(self, function: BoundFunction, limits: np.ndarray, has_qdd: bool, name: str, library: Path):
+        self.function, self.limits, self.has_qdd, self.name, self.library = function, limits, has_qdd, name, library
+        out = function.outputs
+        self.u, self.qdd, self.within, self.rcond = out["u"], out["qdd"], out["within"], out["rcond"]
+        self.call = function.call
+
+
+def load_fast_step(model, method: str, gains: Gains, penalty_system: str = "auto") -> FastStepBinding:
+    """The fast step of `method` for `model` (a CompiledModel), generated and compiled on first use.
+
+    FastPathUnavailable where it cannot be built (another backend, a formulation the export refuses: the message
+    names the cause); BuildError where the compiler fails (exit 3, as for the model's library)."""
+    if not isinstance(model, CompiledModel):
+        raise FastPathUnavailable(f"the model backend {type(model).__name__} has no compiled library to extend")
+    from ..codegen.fast_step import FAST_OUTPUTS, fast_key, fast_name
+
+    spec, lay = model.spec, model.layout
+    key = fast_key(spec, method, gains, penalty_system)
+    name = fast_name(spec, method, gains.recovery, key)
+    root = model.cache_root
+    folder = root / "generated" / f"fast-{name}"
+    source = folder / name
+    has_qdd = _generate(spec, method, gains, penalty_system, name, root, folder, source)
+    lib_path = ensure_built(name, source, root)
+    try:
+        lib = ctypes.CDLL(str(lib_path))
+    except OSError as err:
+        raise DamagedLibraryError(f"the fast step's library {lib_path} cannot be loaded ({err}): remove "
+                                  f"{lib_path.parent} and run again") from None
+    limits = np.zeros(3 * lay.l)
+    inputs = [model.q, model.qd, model.s, model.sd, model.sdd, model.p, limits]
+    sizes = {"u": [lay.l, 1], "qdd": [lay.n, 1], "within": [1, 1], "rcond": [1, 1]}
+    function = BoundFunction(lib, name, inputs, [(o, sizes[o]) for o in FAST_OUTPUTS])
+    return FastStepBinding(function, limits, has_qdd, name, lib_path)
+
+
+def _generate(spec, method: str, gains: Gains, penalty_system: str, name: str, root: Path, folder: Path,
+              source: Path) -> bool:
+    """<name>.c into `source` unless it is there (under the cache's lock); whether the step reports q̈."""
+    marker = source / "has_qdd"
+    if (source / f"{name}.c").is_file() and marker.is_file():
+        return marker.read_text().strip() == "1"
+    from ..codegen.fast_step import build_fast_step, write_fast_step
+    from ..codegen.step_graph import ExportError
+
+    try:
+        with cache_lock(root, f"generate-{folder.name}"):
+            if (source / f"{name}.c").is_file() and marker.is_file():  # another process made it while we waited
+                return marker.read_text().strip() == "1"
+            try:
+                fast = build_fast_step(spec, method, gains, name, penalty_system)
+            except ExportError as err:
+                raise FastPathUnavailable(str(err)) from None
+            log.info("generating the fast control step %s into %s (once per version) ...", name, folder)
+            folder.parent.mkdir(parents=True, exist_ok=True)
+            remove_stale_staging(folder.parent, f".{folder.name}.new-")
+            staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.new-", dir=folder.parent))
+            try:
+                with remembered_interrupt() as interrupt:
+                    write_fast_step(fast, staging / name)
+                    (staging / name / "has_qdd").write_text("1\n" if fast.has_qdd else "0\n")
+                    interrupt.check()
+                staging.chmod(0o755)
+                if folder.exists():
+                    shutil.rmtree(folder)
+                staging.rename(folder)
+            finally:
+                shutil.rmtree(staging, ignore_errors=True)
+            return fast.has_qdd
+    except OSError as err:
+        raise BuildError(cache_write_error(root, err)) from None
