@@ -120,7 +120,7 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
                 try:
                     r = crane.simulate(method, duration=duration, trajectory=trajectory, progress=bar.update,
                                        plant_params=args.plant_params, sensing=sensing or False, plant=args.plant,
-                                       mujoco_timestep=args.mujoco_timestep, **overrides)
+                                       mujoco_timestep=args.mujoco_timestep, fast=args.fast, **overrides)
                 except (SingularSystemError, RecoveryError, SimulationError) as err:
                     # This method cannot handle this system (e.g. MLM and redundant constraints), or
                     # failed at its first step: say why, and go on with the others.

@@ -9,11 +9,14 @@ what the tests compare against) and shares its buffers and state. A step:
 2. one ctypes call of the fast step (acroboter.codegen.fast_step, compiled on first use by
    acroboter.runtime.fast_library): u, the commanded q̈, whether u is within the limits, MLM's reciprocal
    condition number;
-3. u is taken when it is within the limits and, for MLM, the Schur system's reciprocal 1-norm condition number is
-   at least MLM_RCOND_LIMIT; otherwise (a limit is in the way, a NaN, a near-singular MLM system) the step is the
-   reference's _compute at the same buffers: the bounded distribution (DAQP, limit_state, saturation) and the
-   SingularSystemError are then exactly the reference's. The exact condition number is never above gecon's
-   estimate of it, so the fast path hands every step to the reference that the reference would have refused.
+3. u is taken when it is within the limits and, for MLM, the estimate of the Schur system's reciprocal 1-norm
+   condition number is at least FAST_RCOND_MARGIN × MLM_RCOND_LIMIT (1e-10); otherwise (a limit is in the way, a
+   NaN, a nearly singular MLM system) the step is the reference's _compute at the same buffers: the bounded
+   distribution (DAQP, limit_state, saturation) and the SingularSystemError are then exactly the reference's.
+   The estimate (acroboter.codegen.step_methods.mlm_step: A⁻¹ applied to two fixed probe vectors with the same
+   QR as y, two back-substitutions more) is never below the true reciprocal condition number, like gecon's, and
+   within about the system's size above it; the margin of 1000 covers that, so a step that gecon would refuse
+   reaches gecon. (The exact number, from the whole inverse, cost more than the rest of the step.)
 
 Identical by construction: integral action (the reference's z and anti-windup), limits (the reference's
 distribution wherever one binds; within them both take the unbounded u, limit_state 0, not saturated). What
@@ -24,7 +27,7 @@ reference where the reference's A form reaches ~1e-10; acroboter.codegen.export_
 
 from __future__ import annotations
 
-from ..model.settings import MLM_RCOND_LIMIT
+from ..model.settings import FAST_RCOND_MARGIN, MLM_RCOND_LIMIT
 from ..runtime.fast_library import FastPathUnavailable, load_fast_step
 from .controllers import Controller
 
@@ -57,6 +60,7 @@ class FastController:
         reference._integrate_in_load = False  # z advances here, before the fast call (and the reference's fallback)
         self._call, self._u, self._within, self._rcond = binding.call, binding.u, binding.within, binding.rcond
         self._fast = False  # whether the last step was the compiled one
+        self._rcond_limit = FAST_RCOND_MARGIN * MLM_RCOND_LIMIT
         self._t = 0.0
         self.fast_steps = self.reference_steps = 0
 
@@ -89,7 +93,7 @@ class FastController:
             ref._integrate(t)
         self._t = t
         self._call()
-        if self._within[0] == 1.0 and self._rcond[0] >= MLM_RCOND_LIMIT:
+        if self._within[0] == 1.0 and self._rcond[0] >= self._rcond_limit:
             limits = ref.limits
             if limits.bounded_step:  # the last step was bounded: nothing is on a limit now
                 limits.limit_state[:] = 0
