@@ -63,6 +63,10 @@ class FastController:
         self._rcond_limit = FAST_RCOND_MARGIN * MLM_RCOND_LIMIT
         self._t = 0.0
         self.fast_steps = self.reference_steps = 0
+        # the reference's buffers and settings, looked up once (the step is a few microseconds)
+        self._q, self._qd, self._signals, self._p = reference._q, reference._qd, reference._signals, reference._p
+        self._model, self._flat, self._limits = reference.model, reference.path.flat, reference.limits
+        self._ki = reference.ki != 0.0
 
     def __getattr__(self, name: str):
         return getattr(self.reference, name)
@@ -81,31 +85,29 @@ class FastController:
         """u at (q, q̇, t), as Controller.compute (a view of an internal buffer)."""
         ref = self.reference
         ref._saturated = None
-        ref._q[:] = q
-        ref._qd[:] = qd
-        ref._signals[:] = ref.path.flat(t) if signals is None else signals
-        model = ref.model
-        if model.parameters_owner is not ref:
-            ref._p[:] = ref._params
-            model.parameters_owner = ref
-        ki = ref.ki != 0.0
-        if ki:
+        self._q[:] = q
+        self._qd[:] = qd
+        self._signals[:] = self._flat(t) if signals is None else signals
+        if self._model.parameters_owner is not ref:
+            self._p[:] = ref._params
+            self._model.parameters_owner = ref
+        if self._ki:
             ref._integrate(t)
         self._t = t
         self._call()
         if self._within[0] == 1.0 and self._rcond[0] >= self._rcond_limit:
-            limits = ref.limits
+            limits = self._limits
             if limits.bounded_step:  # the last step was bounded: nothing is on a limit now
                 limits.limit_state[:] = 0
                 limits.bounded_step = False
             self._fast = True
             self.fast_steps += 1
             u = self._u
-        else:  # a limit in the way, a NaN or a near-singular MLM system: the reference's step at these buffers
+        else:  # a limit in the way, a NaN or a nearly singular MLM system: the reference's step at these buffers
             self._fast = False
             self.reference_steps += 1
-            u = ref._compute(ref._q, ref._qd, t, ref._signals)
-        if ki:
+            u = ref._compute(self._q, self._qd, t, self._signals)
+        if self._ki:
             ref._hold = ref.anti_windup and ref.saturation()
         return u
 
