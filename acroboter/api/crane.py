@@ -264,11 +264,14 @@ class Crane:
                          f"(1 <= N <= {MAX_ITERATIONS})")
 
     def controller(self, method: str = "penalty", trajectory: Trajectory | None = None,
-                   duration: float | None = None, iterations: int | None = None, **overrides) -> Controller:
-        """A controller for a plant of your own: `u = controller.step(q, qd, t)`."""
+                   duration: float | None = None, iterations: int | None = None, fast: bool = False,
+                   **overrides) -> Controller:
+        """A controller for a plant of your own: `u = controller.step(q, qd, t)` (`fast`: as in `simulate`)."""
+        if not isinstance(fast, bool):
+            raise ValueError(f"fast: expected True or False, found {fast!r}")
         name = self.method_name(method, iterations)
         path = self.desired(trajectory, duration)
-        return Controller(make_controller(name, self.model, path, self.gains(**overrides)), self.inputs)
+        return Controller(make_controller(name, self.model, path, self.gains(**overrides), fast=fast), self.inputs)
 
     def check_path(self, duration: float | None = None, trajectory: Trajectory | None = None,
                    **overrides) -> Feasibility:
