@@ -351,7 +351,7 @@ class Crane:
         controller.reset()  # the run starts with the integral action's z = 0
         run = simulate(self.model, path, controller, engine, start.q, duration,
                        self.spec.controller.rate_hz, self.spec.simulation.step, progress=progress,
-                       allow_divergence=True, sensor=make_estimator(self.model, path, chosen))
+                       allow_divergence=True, sensor=make_estimator(self.model, path, chosen, fast=fast))
         return Result(run, self.layout, self.scenario, self.name)
 
     def simulate_open_loop(self, inputs, duration: float, trajectory: Trajectory | None = None,

@@ -80,6 +80,7 @@ __all__ = ["ExportError", "StepExport", "build_step", "export_step", "parse_meth
 
 GAIN_OPTIONS = ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu", "kappa")
 MLM_SYSTEMS = ("reduced", "full")
+FAST_OUTPUTS = ("u", "qdd", "within", "rcond")  # the parametric step's (acroboter.codegen.fast_step)
 PENALTY_SYSTEMS = ("auto", "multipliers", "matrix")
 
 
@@ -161,8 +162,6 @@ def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = N
     else:
         u = penalty_step(graph, iterations, penalty_system)
     if parametric:
-        from .fast_step import parametric_function
-
         export.function = parametric_function(graph, u)
     elif stateful:
         saturated = ca.MX(0.0)
@@ -177,6 +176,21 @@ def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = N
         export.function = ca.Function(name, graph.inputs, [ca.densify(u)], list(INPUT_NAMES), ["u"])
     export.qp_used = graph.bounds.used_qp
     return export
+
+
+def parametric_function(graph: StepGraph, u: ca.MX) -> ca.Function:
+    """The step's graph as the fast path's function (called by export_step.build_step with parametric=True)."""
+    export = graph.export
+    l, n = graph.l, graph.n
+    if u.shape[0] != l:
+        raise ExportError(f"internal: the parametric step of {export.method} returned {u.shape[0]} numbers for {l} "
+                          "inputs")
+    qdd = graph.qdd if graph.qdd is not None else ca.MX.zeros(n)
+    within = graph.bounds.runtime_within(u, graph.limits_input)
+    rcond = graph.outputs.get("rcond", ca.MX(1.0))
+    return ca.Function(export.name, [*graph.inputs, graph.limits_input],
+                       [ca.densify(u), ca.densify(qdd), within, rcond],
+                       [*graph.input_names, "limits"], list(FAST_OUTPUTS))
 
 
 def stateful_problem(graph: StepGraph, iterations: int | None) -> None:

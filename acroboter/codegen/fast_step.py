@@ -36,11 +36,10 @@ import casadi as ca
 from ..model.fingerprint import codegen_hash
 from ..model.settings import Gains
 from ..model.spec import Spec
-from .step_graph import ExportError, StepGraph
+from .export_step import FAST_OUTPUTS, build_step
 
 __all__ = ["FAST_OUTPUTS", "FastStep", "build_fast_step", "fast_key", "fast_name", "write_fast_step"]
 
-FAST_OUTPUTS = ("u", "qdd", "within", "rcond")
 # Version of the fast step's interface (inputs, outputs): part of the key.
 FAST_INTERFACE = 1
 # The code generator's files that shape the step's C (beside codegen_hash's).
@@ -71,26 +70,9 @@ def fast_key(spec: Spec, method: str, gains: Gains, penalty_system: str = "auto"
     return h.hexdigest()
 
 
-def parametric_function(graph: StepGraph, u: ca.MX) -> ca.Function:
-    """The step's graph as the fast path's function (called by export_step.build_step with parametric=True)."""
-    export = graph.export
-    l, n = graph.l, graph.n
-    if u.shape[0] != l:
-        raise ExportError(f"internal: the parametric step of {export.method} returned {u.shape[0]} numbers for {l} "
-                          "inputs")
-    qdd = graph.qdd if graph.qdd is not None else ca.MX.zeros(n)
-    within = graph.bounds.runtime_within(u, graph.limits_input)
-    rcond = graph.outputs.get("rcond", ca.MX(1.0))
-    return ca.Function(export.name, [*graph.inputs, graph.limits_input],
-                       [ca.densify(u), ca.densify(qdd), within, rcond],
-                       [*graph.input_names, "limits"], list(FAST_OUTPUTS))
-
-
 def build_fast_step(spec: Spec, method: str, gains: Gains, name: str, penalty_system: str = "auto") -> FastStep:
     """The fast path's function of `method` (ExportError where the export cannot build it: the caller keeps the
     reference path and says why)."""
-    from .export_step import build_step
-
     export = build_step(spec, method, gains, name=name, penalty_system=penalty_system, parametric=True)
     # MLM with internal forces: the graph has no q̈ (the reference takes λ from a least squares on demand).
     has_qdd = not (export.iterations is None and export.system == "servo_least_squares")

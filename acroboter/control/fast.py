@@ -29,12 +29,11 @@ from __future__ import annotations
 
 from ..model.settings import FAST_RCOND_MARGIN, MLM_RCOND_LIMIT
 from ..runtime.fast_library import FastPathUnavailable, load_fast_step
-from .controllers import Controller
 
 __all__ = ["FastController", "make_fast"]
 
 
-def make_fast(reference: Controller, method: str):
+def make_fast(reference, method: str):
     """The fast path around `reference`, or `reference` itself with its `fast_refusal` set where it cannot have one."""
     try:
         binding = load_fast_step(reference.model, method, reference.gains)
@@ -51,7 +50,7 @@ class FastController:
 
     fast_refusal = None
 
-    def __init__(self, reference: Controller, binding):
+    def __init__(self, reference, binding):  # reference: an acroboter.control.controllers.Controller
         self.reference, self.binding = reference, binding
         self.name = reference.name
         limits, l = reference.limits, reference.l

@@ -29,7 +29,7 @@ from .compiled import BoundFunction, CompiledModel, DamagedLibraryError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["FastPathUnavailable", "FastStepBinding", "load_fast_step"]
+__all__ = ["FastEstimatorBinding", "FastPathUnavailable", "FastStepBinding", "load_fast_estimator", "load_fast_step"]
 
 
 class FastPathUnavailable(RuntimeError):
@@ -78,28 +78,39 @@ def load_fast_step(model, method: str, gains: Gains, penalty_system: str = "auto
 def _generate(spec, method: str, gains: Gains, penalty_system: str, name: str, root: Path, folder: Path,
               source: Path) -> bool:
     """<name>.c into `source` unless it is there (under the cache's lock); whether the step reports q̈."""
-    marker = source / "has_qdd"
-    if (source / f"{name}.c").is_file() and marker.is_file():
-        return marker.read_text().strip() == "1"
-    from ..codegen.fast_step import build_fast_step, write_fast_step
-    from ..codegen.step_graph import ExportError
 
+    def make(target: Path) -> str:
+        from ..codegen.fast_step import build_fast_step, write_fast_step
+        from ..codegen.step_graph import ExportError
+
+        try:
+            fast = build_fast_step(spec, method, gains, name, penalty_system)
+        except ExportError as err:
+            raise FastPathUnavailable(str(err)) from None
+        write_fast_step(fast, target)
+        return "1" if fast.has_qdd else "0"
+
+    return _generated(name, root, folder, source, make, "the fast control step") == "1"
+
+
+def _generated(name: str, root: Path, folder: Path, source: Path, make, what: str) -> str:
+    """The folder `source` made by make(target) -> its note (kept in the file `note`) unless it is there, under the
+    cache's lock, staged and renamed into place; the note."""
+    note = source / "note"
+    if note.is_file():
+        return note.read_text().strip()
     try:
         with cache_lock(root, f"generate-{folder.name}"):
-            if (source / f"{name}.c").is_file() and marker.is_file():  # another process made it while we waited
-                return marker.read_text().strip() == "1"
-            try:
-                fast = build_fast_step(spec, method, gains, name, penalty_system)
-            except ExportError as err:
-                raise FastPathUnavailable(str(err)) from None
-            log.info("generating the fast control step %s into %s (once per version) ...", name, folder)
+            if note.is_file():  # another process made it while we waited
+                return note.read_text().strip()
+            log.info("generating %s %s into %s (once per version) ...", what, name, folder)
             folder.parent.mkdir(parents=True, exist_ok=True)
             remove_stale_staging(folder.parent, f".{folder.name}.new-")
             staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.new-", dir=folder.parent))
             try:
                 with remembered_interrupt() as interrupt:
-                    write_fast_step(fast, staging / name)
-                    (staging / name / "has_qdd").write_text("1\n" if fast.has_qdd else "0\n")
+                    text = make(staging / name)
+                    (staging / name / "note").write_text(text + "\n")
                     interrupt.check()
                 staging.chmod(0o755)
                 if folder.exists():
@@ -107,6 +118,63 @@ def _generate(spec, method: str, gains: Gains, penalty_system: str, name: str, r
                 staging.rename(folder)
             finally:
                 shutil.rmtree(staging, ignore_errors=True)
-            return fast.has_qdd
+            return text
     except OSError as err:
         raise BuildError(cache_write_error(root, err)) from None
+
+
+class FastEstimatorBinding:
+    """The compiled estimator (acroboter.codegen.estimator_c) with its state block and work arrays, bound once."""
+
+    def __init__(self, lib: ctypes.CDLL, name: str, layout: dict, work: list[int], library: Path):
+        self.name, self.library, self.layout = name, library, layout
+        self.state = np.zeros(layout["size"][0])
+        n_arg, n_res, n_iw, n_w = work
+        self._iw = np.zeros(max(n_iw, 1), dtype=np.int64)
+        self._w = np.zeros(max(n_w, 1))
+        self._arg = (ctypes.c_void_p * max(n_arg, 1))()
+        self._res = (ctypes.c_void_p * max(n_res, 1))()
+        fn = getattr(lib, f"{name}_estimate")
+        fn.restype = ctypes.c_int
+        fn.argtypes = [ctypes.c_void_p] * 8 + [ctypes.c_longlong, ctypes.c_int]
+        self._fn = fn
+        self._fixed = (self.state.ctypes.data, self._iw.ctypes.data, self._w.ctypes.data,
+                       ctypes.addressof(self._arg), ctypes.addressof(self._res))
+
+    def view(self, part: str) -> np.ndarray:
+        offset, size = self.layout[part]
+        return self.state[offset : offset + size]
+
+    def call(self, y: int, sig_m: int, sig_t: int, slot: int, started: int) -> int:
+        return self._fn(*self._fixed, y, sig_m, sig_t, slot, started)
+
+
+def load_fast_estimator(model, sensing) -> FastEstimatorBinding:
+    """The compiled estimator of `sensing` for `model` (a CompiledModel), generated and compiled on first use."""
+    if not isinstance(model, CompiledModel):
+        raise FastPathUnavailable(f"the model backend {type(model).__name__} has no compiled library to extend")
+    from ..codegen.estimator_c import estimator_key, state_layout
+
+    spec = model.spec
+    key = estimator_key(spec, sensing)
+    name = f"{spec.name}_estimator_{key[:12]}"
+    root = model.cache_root
+    folder = root / "generated" / f"fast-{name}"
+    source = folder / name
+
+    def make(target: Path) -> str:
+        from ..codegen.estimator_c import build_estimator, write_estimator
+
+        export = build_estimator(spec, sensing, name)
+        write_estimator(export, target)
+        return " ".join(str(v) for v in (*export.work, export.unmeasured.size, len(export.rows)))
+
+    numbers = [int(v) for v in _generated(name, root, folder, source, make, "the fast estimator").split()]
+    lib_path = ensure_built(name, source, root)
+    try:
+        lib = ctypes.CDLL(str(lib_path))
+    except OSError as err:
+        raise DamagedLibraryError(f"the fast estimator's library {lib_path} cannot be loaded ({err}): remove "
+                                  f"{lib_path.parent} and run again") from None
+    layout = state_layout(model.layout.n, sensing.delay_periods, numbers[4], numbers[5])
+    return FastEstimatorBinding(lib, name, layout, numbers[:4], lib_path)
