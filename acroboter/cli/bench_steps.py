@@ -67,11 +67,12 @@ def bench_steps(crane, methods: list[str], states, repeats: int) -> dict:
     reference = {m: make_controller(m, model, path, gains) for m in methods}
     fast = {m: make_controller(m, model, path, gains, fast=True) for m in methods}
     sensing = crane.sensing(None) or crane.sensing(DEFAULT_SENSING)
-    estimator = make_estimator(model, path, sensing)
+    estimators = {"estimator": make_estimator(model, path, sensing),
+                  "estimator_fast": make_estimator(model, path, sensing, fast=True)}
     signals = [path.flat(t).copy() for _, _, t in states]
     clock = time.perf_counter
     times = {(m, kind): [] for m in methods for kind in ("reference", "fast", "c")}
-    times[("estimator", "estimator")] = []
+    times[("estimator", "estimator")], times[("estimator", "estimator_fast")] = [], []
     times[("path", "path")] = []  # the path's signals at t: part of both Python steps, not of the C step's timing
     with tempfile.TemporaryDirectory(prefix="acroboter-bench-") as tmp:
         exported = {m: exported_step(crane, m, gains, Path(tmp) / m) for m in methods}
@@ -98,15 +99,17 @@ def bench_steps(crane, methods: list[str], states, repeats: int) -> dict:
                 flat(t)
                 row[i] = clock() - t0
             times[("path", "path")].append(row)
-            row = np.empty(len(states))
-            if estimator is not None:
+            for kind, estimator in estimators.items():
+                if estimator is None:
+                    continue
+                row, rest = np.empty(len(states)), np.zeros(states[0][0].size)
                 estimator.reset(states[0][0])
                 for i, (q, _, t) in enumerate(states):
                     t0 = clock()
                     estimator.estimate(q, t)
                     row[i] = clock() - t0
-                    estimator.applied(np.zeros(q.size))
-                times[("estimator", "estimator")].append(row)
+                    estimator.applied(rest)
+                times[("estimator", kind)].append(row)
     out = {"methods": {}, "fast_path": {}}
     for m in methods:
         r = {kind: percentiles(times[(m, kind)]) for kind in ("reference", "fast", "c")}
@@ -115,8 +118,15 @@ def bench_steps(crane, methods: list[str], states, repeats: int) -> dict:
         r["ratio_reference_to_fast"] = r["reference"]["p50"] / r["fast"]["p50"]
         out["methods"][m] = r
         out["fast_path"][m] = getattr(fast[m], "fast_refusal", None) or "compiled step"
-    est = times[("estimator", "estimator")]
+    est, est_fast = times[("estimator", "estimator")], times[("estimator", "estimator_fast")]
     out["estimator"] = percentiles(est) if est else None
+    out["estimator_fast"] = percentiles(est_fast) if est_fast else None
+    if est and est_fast:
+        out["estimator_ratio_reference_to_fast"] = out["estimator"]["p50"] / out["estimator_fast"]["p50"]
+    for m in methods:  # the target: the fast step with the estimator against the C step
+        r = out["methods"][m]
+        if est_fast:
+            r["ratio_fast_with_estimator_to_c"] = (r["fast"]["p50"] + out["estimator_fast"]["p50"]) / r["c"]["p50"]
     out["path_evaluation"] = percentiles(times[("path", "path")])
     out["sensing"] = "the spec's [sensing]" if crane.sensing(None) is not None else f"{DEFAULT_SENSING}"
     return out
@@ -180,8 +190,12 @@ def format_steps(steps: dict, loops: dict, mc: dict | None) -> str:
     lines.append(f"path evaluation (in both Python steps, not in the C step's timing): p50 {flat['p50']:.2f} us, "
                  f"p99 {flat['p99']:.1f} us")
     if est is not None:
-        lines.append(f"estimator (measurement, projection, alpha-beta filter): p50 {est['p50']:.2f} us, p99 "
+        lines.append(f"estimator (measurement, projection, alpha-beta filter), Python: p50 {est['p50']:.2f} us, p99 "
                      f"{est['p99']:.1f} us, max {est['max']:.0f} us")
+    if (fast := steps.get("estimator_fast")) is not None:
+        lines.append(f"estimator, compiled (the fast path's): p50 {fast['p50']:.2f} us, p99 {fast['p99']:.1f} us, "
+                     f"max {fast['max']:.0f} us; fast step + estimator / C step: "
+                     + ", ".join(f"{m} {r['ratio_fast_with_estimator_to_c']:.2f}" for m, r in steps["methods"].items()))
     if mc is not None:
         lines.append(
             f"Monte Carlo ({mc['samples']} plants x {len(mc['methods'])} methods x k_I {{0, "
