@@ -220,3 +220,19 @@ def test_compiled_estimator_matches_the_python_one(crane, overrides):
         runs[fast] = simulate(model, path, controller, setup_default(model, path), start.q, 2.0,
                               spec.controller.rate_hz, spec.simulation.step, sensor=estimator)
     assert rel(runs[False].u, runs[True].u) <= 1e-12 and rel(runs[False].q, runs[True].q) <= 1e-12
+
+
+def test_run_fast_option_records_the_path(tmp_path):
+    """`acroboter run --fast` runs the fast path and says so in the provenance; the default says reference."""
+    import json
+    import subprocess
+    import sys
+
+    for extra, expected in ((["--fast"], "fast"), ([], "reference")):
+        out = tmp_path / expected
+        proc = subprocess.run([sys.executable, "-m", "acroboter.run", "--duration", "1.0", "--method", "mlm",
+                               "--no-plots", "--quiet", "--out", str(out), *extra], capture_output=True, text=True,
+                              cwd=REPO, timeout=600)
+        assert proc.returncode == 0, proc.stderr
+        doc = json.loads((out / "summary.json").read_text())
+        assert doc["provenance"]["controller_path"] == expected

@@ -238,6 +238,8 @@ def provenance(args: argparse.Namespace, spec, gains, methods: list[str], durati
         # what the controller measured instead of the plant's state (docs/sensing.md), None for the state
         "sensing": sensing.model_dump(mode="json") if (sensing := getattr(args, "sensing_used", None)) else None,
         "methods": methods,
+        # the controllers' path: the reference per-term step, or the fast path (--fast, docs/fast-path.md)
+        "controller_path": "fast" if getattr(args, "fast", False) else "reference",
         "duration_s": duration,
         # the trajectory file flown instead of the spec's waypoints (None: the waypoints)
         "trajectory_file": None if getattr(args, "trajectory", None) is None else str(args.trajectory),
