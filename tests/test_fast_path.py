@@ -236,3 +236,17 @@ def test_run_fast_option_records_the_path(tmp_path):
         assert proc.returncode == 0, proc.stderr
         doc = json.loads((out / "summary.json").read_text())
         assert doc["provenance"]["controller_path"] == expected
+
+
+def test_the_path_in_c_is_the_python_path_to_the_bit(crane):
+    """The fast step evaluates the spec's path in C (codegen.fast_step.path_source): the same bits as
+    DesiredPath.flat at every control instant, at the edges' start times, before the start and after the end."""
+    fast = make_controller("penalty", crane.model, crane.path, crane.gains(), fast=True)
+    assert fast._c_flat is not None  # the spec's path: in the C
+    path = crane.path
+    times = [*np.arange(0.0, path.duration + 1.0, 1.0 / crane.spec.controller.rate_hz), *path._t0,
+             -1.0, path.duration, path.duration + 5.0, 1e-300]
+    signals = crane.model.signals
+    for t in times:
+        fast._c_flat(float(t))
+        assert np.array_equal(signals, np.array(path.flat(t))), t

@@ -27,8 +27,11 @@ reference where the reference's A form reaches ~1e-10; acroboter.codegen.export_
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..model.settings import FAST_RCOND_MARGIN, MLM_RCOND_LIMIT
 from ..runtime.fast_library import FastPathUnavailable, load_fast_step
+from .path import DesiredPath
 
 __all__ = ["FastController", "make_fast"]
 
@@ -66,6 +69,13 @@ class FastController:
         self._q, self._qd, self._signals, self._p = reference._q, reference._qd, reference._signals, reference._p
         self._model, self._flat, self._limits = reference.model, reference.path.flat, reference.limits
         self._ki = reference.ki != 0.0
+        # The spec's path (not a user trajectory): its signals are evaluated in the C, in the same call as the step
+        table = path_table(reference.path)
+        self._path_table = table  # kept alive: the C reads it
+        self._run = self._c_flat = None
+        if table is not None:
+            self._run = binding.path_call(table, self._signals)
+            self._c_flat = binding.path_flat(table, self._signals)
 
     def __getattr__(self, name: str):
         return getattr(self.reference, name)
@@ -86,14 +96,22 @@ class FastController:
         ref._saturated = None
         self._q[:] = q
         self._qd[:] = qd
-        self._signals[:] = self._flat(t) if signals is None else signals
         if self._model.parameters_owner is not ref:
             self._p[:] = ref._params
             self._model.parameters_owner = ref
-        if self._ki:
-            ref._integrate(t)
         self._t = t
-        self._call()
+        if signals is None and self._run is not None:  # the path's signals in the C
+            if self._ki:
+                self._c_flat(t)
+                ref._integrate(t)
+                self._call()
+            else:
+                self._run(t)  # one foreign call: the signals at t, then the step
+        else:
+            self._signals[:] = self._flat(t) if signals is None else signals
+            if self._ki:
+                ref._integrate(t)
+            self._call()
         if self._within[0] == 1.0 and self._rcond[0] >= self._rcond_limit:
             limits = self._limits
             if limits.bounded_step:  # the last step was bounded: nothing is on a limit now
@@ -129,3 +147,15 @@ class FastController:
     def multipliers(self):
         self._reference_step()
         return self.reference.multipliers
+
+
+def path_table(path) -> np.ndarray | None:
+    """The numbers of the spec's path (acroboter.control.path.DesiredPath) for the C's flat (codegen.fast_step
+    path_source); None for any other path (a user trajectory: its signals stay Python's)."""
+    if type(path) is not DesiredPath:
+        return None
+    follow = [v for entry in path._follow for v in entry]
+    head = [len(path._t0), path.n_signals, path.layout.path_signal, len(path._follow), path.duration,
+            path.start_yaw, path.yaw_turn]
+    return np.array([*head, *path._t0, *path._dur, *(v for o in path._origin for v in o),
+                     *(v for d in path._delta for v in d), *path._template, *follow], dtype=float)

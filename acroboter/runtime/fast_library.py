@@ -37,13 +37,37 @@ class FastPathUnavailable(RuntimeError):
 
 
 class FastStepBinding:
-    """The bound fast step: `call()` evaluates at the model's buffers and `limits`; outputs in `u`, `qdd`, ..."""
+    """The bound fast step: `call()` evaluates at the model's buffers and `limits`; outputs in `u`, `qdd`, ...
 
-    def __init__(self, function: BoundFunction, limits: np.ndarray, has_qdd: bool, name: str, library: Path):
+    `path_call(table, signals)` -> call(t): the path's signals at t (codegen.fast_step.path_source, from the path's
+    numbers in `table`) into `signals` and the step, one foreign call; `path_flat(table, signals)` -> flat(t): the
+    signals alone (for integral action, whose σ needs them before the step)."""
+
+    def __init__(self, function: BoundFunction, limits: np.ndarray, has_qdd: bool, name: str, library: Path,
+                 lib: ctypes.CDLL):
         self.function, self.limits, self.has_qdd, self.name, self.library = function, limits, has_qdd, name, library
         out = function.outputs
         self.u, self.qdd, self.within, self.rcond = out["u"], out["qdd"], out["within"], out["rcond"]
         self.call = function.call
+        self._run, self._flat = getattr(lib, f"{name}_run"), getattr(lib, f"{name}_flat")
+        self._run.restype = ctypes.c_int
+        self._run.argtypes = [ctypes.c_void_p, ctypes.c_double, *[ctypes.c_void_p] * 5]
+        self._flat.restype = None
+        self._flat.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_void_p]
+
+    def path_call(self, table: np.ndarray, signals: np.ndarray):
+        run, fixed = self._run, self.function._call_args[:4]
+        at, into = table.ctypes.data, signals.ctypes.data
+
+        def call(t: float) -> None:
+            if run(at, t, into, *fixed) != 0:
+                raise RuntimeError(f"{self.name} failed")
+
+        return call
+
+    def path_flat(self, table: np.ndarray, signals: np.ndarray):
+        flat, at, into = self._flat, table.ctypes.data, signals.ctypes.data
+        return lambda t: flat(at, t, into)
 
 
 def load_fast_step(model, method: str, gains: Gains, penalty_system: str = "auto") -> FastStepBinding:
@@ -72,7 +96,7 @@ def load_fast_step(model, method: str, gains: Gains, penalty_system: str = "auto
     inputs = [model.q, model.qd, model.s, model.sd, model.sdd, model.p, limits]
     sizes = {"u": [lay.l, 1], "qdd": [lay.n, 1], "within": [1, 1], "rcond": [1, 1]}
     function = BoundFunction(lib, name, inputs, [(o, sizes[o]) for o in FAST_OUTPUTS])
-    return FastStepBinding(function, limits, has_qdd, name, lib_path)
+    return FastStepBinding(function, limits, has_qdd, name, lib_path, lib)
 
 
 def _generate(spec, method: str, gains: Gains, penalty_system: str, name: str, root: Path, folder: Path,
