@@ -3,7 +3,8 @@
 Per method, in the same interleaved passes over the states of the scenario (one pass = every state, each call
 timed on its own with time.perf_counter):
   - the Python step on its reference path (per-term generated call, LAPACK through scipy) and on its fast path
-    (acroboter.control.fast: one compiled function), both `controller.compute(q, q̇, t)` with the path evaluated;
+    (acroboter.control.fast: one compiled function, the spec's path evaluated in it), both
+    `controller.compute(q, q̇, t)` with the path's signals evaluated at t;
   - the exported C step (acroboter.codegen.export_step, as `acroboter export-step` writes it: gains baked in),
     compiled here (-O2 -fPIC, no fast-math) and called in-process through ctypes, the signals already loaded;
   - the estimator of the sensing (acroboter.sim.sensing: measurement, projection, α-β filter), on the same states;
@@ -187,7 +188,8 @@ def format_steps(steps: dict, loops: dict, mc: dict | None) -> str:
             f"{rtf.get('rtf_reference', float('nan')):7.0f} {rtf.get('rtf_fast', float('nan')):6.0f} "
             f"{rtf.get('rtf_reference_sensing', float('nan')):9.0f} {rtf.get('rtf_fast_sensing', float('nan')):6.0f}")
     est, flat = steps["estimator"], steps["path_evaluation"]
-    lines.append(f"path evaluation (in both Python steps, not in the C step's timing): p50 {flat['p50']:.2f} us, "
+    lines.append(f"path evaluation in Python (the reference step's; the fast step evaluates the spec's path in its "
+                 f"C; neither is in the exported C step's timing): p50 {flat['p50']:.2f} us, "
                  f"p99 {flat['p99']:.1f} us")
     if est is not None:
         lines.append(f"estimator (measurement, projection, alpha-beta filter), Python: p50 {est['p50']:.2f} us, p99 "
