@@ -282,3 +282,24 @@ def test_an_override_starts_from_the_specs_own_section():
     assert (chosen.seed, chosen.delay_periods) == (9, 1)
     assert [g.name for g in resolve(parse_spec(raw_spec("acroboter")), {"seed": 9}).groups] == [
         "positions", "axes", "lengths"]
+
+
+@pytest.mark.parametrize("override, message", [
+    ({"noise": 5}, "sensing.noise: expected a table {group: value}, found 5"),
+    ({"quantization": {"nothing": 1e-3}},
+     "sensing.quantization.nothing: expected one of the groups positions, axes, lengths, found 'nothing'"),
+    ({"delay_periods": -1}, "sensing.delay_periods: expected"),
+])
+def test_a_bad_override_is_a_spec_error_in_process(crane, override, message):
+    """In-process (the CLI's tests run a subprocess, which a mutation run's trampolines do not reach)."""
+    with pytest.raises(SpecError) as err:
+        resolve(crane[0], override, source="--sensing-*")
+    assert str(err.value).startswith("invalid model spec --sensing-*:\n  " + message)
+
+
+def test_groups_given_as_read_only_mappings_take_overrides(crane):
+    from types import MappingProxyType
+
+    groups = [MappingProxyType({"name": "all", "coordinates": ["CC", "SU", "L1.length", "L2.length", "L3.length"]})]
+    chosen = resolve(crane[0], {"groups": groups, "noise": {"all": 2e-4}})
+    assert [(g.name, g.noise) for g in chosen.groups] == [("all", 2e-4)]

@@ -28,7 +28,7 @@ TOP_MODULES = {"__init__", "__main__", "run", "bench", "study", "sweep", "robust
 ORDER = [*LAYERS, TOP]
 # Besides the order (which leaves the code generator only the model below it): of the runtime only these
 # two modules may call the code generator; the rest of it, control and sim never import it.
-MAY_GENERATE = {"acroboter.runtime.cache", "acroboter.runtime.casadi_backend"}
+MAY_GENERATE = {"acroboter.runtime.cache", "acroboter.runtime.casadi_backend", "acroboter.runtime.fast_library"}
 NO_CODEGEN = {"runtime", "control", "sim"}
 # A module is read in one sitting: at most this many lines, unless listed here with the reason.
 MAX_LINES = 500

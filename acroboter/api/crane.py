@@ -270,11 +270,14 @@ class Crane:
                          f"(1 <= N <= {MAX_ITERATIONS})")
 
     def controller(self, method: str = "penalty", trajectory: Trajectory | None = None,
-                   duration: float | None = None, iterations: int | None = None, **overrides) -> Controller:
-        """A controller for a plant of your own: `u = controller.step(q, qd, t)`."""
+                   duration: float | None = None, iterations: int | None = None, fast: bool = False,
+                   **overrides) -> Controller:
+        """A controller for a plant of your own: `u = controller.step(q, qd, t)` (`fast`: as in `simulate`)."""
+        if not isinstance(fast, bool):
+            raise ValueError(f"fast: expected True or False, found {fast!r}")
         name = self.method_name(method, iterations)
         path = self.desired(trajectory, duration)
-        return Controller(make_controller(name, self.model, path, self.gains(**overrides)), self.inputs)
+        return Controller(make_controller(name, self.model, path, self.gains(**overrides), fast=fast), self.inputs)
 
     def check_path(self, duration: float | None = None, trajectory: Trajectory | None = None,
                    **overrides) -> Feasibility:
@@ -310,7 +313,7 @@ class Crane:
                  trajectory: Trajectory | None = None, iterations: int | None = None,
                  warm_up: int = WARM_UP_STEPS, progress: Callable[[int], object] | None = None,
                  plant_params: Mapping[str, float] | None = None, sensing=None, plant: str = "own",
-                 mujoco_timestep: float | None = None, **overrides) -> Result:
+                 mujoco_timestep: float | None = None, fast: bool = False, **overrides) -> Result:
         """Closed loop from the static start: the controller at the spec's rate, the plant's RK4 between.
 
         `plant`: "own" (the project's Baumgarte RK4 plant) or "mujoco" (MuJoCo on the spec's MJCF
@@ -331,7 +334,14 @@ class Crane:
         `sensing`: what the controller measures instead of reading the plant's state (docs/sensing.md):
         None, the spec's [sensing] section (none without one); False, none; a mapping of overrides
         ({"noise": {"positions": 2e-4}, "delay_periods": 1, "seed": 3, ...}, see `sensing()`); its delay must be
-        shorter than the run (a SpecError naming sensing.delay_periods)."""
+        shorter than the run (a SpecError naming sensing.delay_periods).
+
+        `fast`: the controller's fast path (docs/controller.md, "The fast path"): one compiled function per control
+        step, generated and compiled into the cache on first use of a method; the same results (MLM to round-off,
+        the penalty methods to ~1e-9, their more accurate operation order), integral action and limits exactly as
+        the reference per-term path (the default), which takes every step with a limit in the way."""
+        if not isinstance(fast, bool):
+            raise ValueError(f"fast: expected True or False, found {fast!r}")
         name = self.method_name(method, iterations)
         gains = self.gains(**overrides)
         chosen = self.sensing(sensing)
@@ -340,14 +350,14 @@ class Crane:
         self.check_delay(chosen, duration)
         engine = setup_default(self.model, path, plant_params, plant, mujoco_timestep)
         start = self.equilibrium(trajectory, duration)
-        controller = make_controller(name, self.model, path, gains)
+        controller = make_controller(name, self.model, path, gains, fast=fast)
         rest = np.zeros(self.layout.n)
         for _ in range(warm_up):  # steady-state step times: the first calls page code in
             controller.compute(start.q, rest, 0.0)
         controller.reset()  # the run starts with the integral action's z = 0
         run = simulate(self.model, path, controller, engine, start.q, duration,
                        self.spec.controller.rate_hz, self.spec.simulation.step, progress=progress,
-                       allow_divergence=True, sensor=make_estimator(self.model, path, chosen))
+                       allow_divergence=True, sensor=make_estimator(self.model, path, chosen, fast=fast))
         return Result(run, self.layout, self.scenario, self.name)
 
     def simulate_open_loop(self, inputs, duration: float, trajectory: Trajectory | None = None,

@@ -12,6 +12,10 @@ It also times what input limits cost (--limits-spec, default the four-cable cran
 control step on that crane's states (a) with its limits (5..300 N, never reached on the path: the
 distribution of the internal force and the bound check), (b) without limits, and (c) with every
 winch's max at 99 % of its static tension, so the bounded QP (DAQP) runs at every step.
+
+And, per method in the same interleaved passes, the Python step on its reference and its fast path, the
+exported C step compiled and called in-process, their ratios and the estimator's cost (p50, p99, max); the
+closed loop's real-time factor with and without sensing; the Monte Carlo throughput (acroboter.cli.bench_steps).
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ..model.locations import example_spec
-from ..model.ranges import CASADI_STATES, REPEATS
+from ..model.ranges import CASADI_STATES, MC_SAMPLES, REPEATS
 from ..model.spec import MAX_ITERATIONS
 from ..report.paper import PAPER_MATLAB_US
 from .entry import guarded, ranged, spec_file
@@ -88,6 +92,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=ranged(REPEATS), default=5, help="passes over the scenario's states (1..100)")
     parser.add_argument("--casadi-states", type=ranged(CASADI_STATES), default=500,
                         help="states timed on the casadi.Function path (b) (it is slow)")
+    parser.add_argument("--mc-samples", type=ranged(MC_SAMPLES), default=2,
+                        help="plants of the default robustness study whose 20 s runs (every method, with and without "
+                             "integral action, reference and fast path) give the Monte Carlo throughput (0..200, 0: "
+                             "skip; default: %(default)s)")
     parser.add_argument("--limits-spec", type=Path, default=example_spec("acroboter_4cable"),
                         help="crane on which the cost of input limits is timed (default: %(default)s)")
     parser.add_argument("--out", type=out_path, default=Path("results"), help="folder for bench.json")
@@ -215,6 +223,12 @@ def _bench(args: argparse.Namespace, methods: list[str], folder: ResultsFolder) 
         print(f"error: cannot time the input limits on {args.limits_spec}: {err}", file=sys.stderr)
         return 3
     print(format_limits_table(limits))
+    from .bench_steps import bench_loops, bench_monte_carlo, bench_steps, format_steps
+
+    steps = bench_steps(crane, methods, states, args.repeats)
+    loops = bench_loops(crane, methods)
+    mc = bench_monte_carlo(crane, methods, args.mc_samples) if args.mc_samples else None
+    print(format_steps(steps, loops, mc))
     plant_step = bench_plant_step(crane, start.q, start.inputs)
     print(f"plant RK4 step (one ctypes call): spec's numbers folded in {plant_step['folded_us']:.2f} us, physical "
           f"parameters as an input {plant_step['parametric_us']:.2f} us (x{plant_step['ratio']:.2f}, quietest of "
@@ -228,6 +242,9 @@ def _bench(args: argparse.Namespace, methods: list[str], folder: ResultsFolder) 
         "methods": results,
         "limits": limits,
         "plant_step": plant_step,
+        "steps": steps,
+        "closed_loop": loops,
+        "monte_carlo": mc,
     }
     (folder.staging / "bench.json").write_text(json.dumps(doc, indent=2) + "\n")
     folder.publish()

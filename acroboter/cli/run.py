@@ -121,7 +121,7 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
                 try:
                     r = crane.simulate(method, duration=duration, trajectory=trajectory, progress=bar.update,
                                        plant_params=args.plant_params, sensing=sensing or False, plant=args.plant,
-                                       mujoco_timestep=args.mujoco_timestep, **overrides)
+                                       mujoco_timestep=args.mujoco_timestep, fast=args.fast, **overrides)
                 except (SingularSystemError, RecoveryError, SimulationError) as err:
                     # This method cannot handle this system (e.g. MLM and redundant constraints), or
                     # failed at its first step: say why, and go on with the others.
@@ -239,6 +239,8 @@ def provenance(args: argparse.Namespace, spec, gains, methods: list[str], durati
         # what the controller measured instead of the plant's state (docs/sensing.md), None for the state
         "sensing": sensing.model_dump(mode="json") if (sensing := getattr(args, "sensing_used", None)) else None,
         "methods": methods,
+        # the controllers' path: the reference per-term step, or the fast path (--fast, docs/fast-path.md)
+        "controller_path": "fast" if getattr(args, "fast", False) else "reference",
         "duration_s": duration,
         # the trajectory file flown instead of the spec's waypoints (None: the waypoints)
         "trajectory_file": None if getattr(args, "trajectory", None) is None else str(args.trajectory),

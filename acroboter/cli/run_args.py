@@ -107,6 +107,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--cache-dir", type=Path, default=None,
                    help="where compiled models are cached (default: $ACROBOTER_CACHE_DIR, else the per-user cache)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    p.add_argument("--fast", action="store_true",
+                   help="the controllers' fast path: one compiled function per control step, compiled into the cache "
+                        "on first use of a method (docs/controller.md); default: the reference per-term path")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar (the same as `acroboter -q run`)")
     args = p.parse_args(argv)
     if args.mujoco_timestep is not None and args.plant != "mujoco":

@@ -80,6 +80,7 @@ __all__ = ["ExportError", "StepExport", "build_step", "export_step", "parse_meth
 
 GAIN_OPTIONS = ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu", "kappa")
 MLM_SYSTEMS = ("reduced", "full")
+FAST_OUTPUTS = ("u", "qdd", "within", "rcond")  # the parametric step's (acroboter.codegen.fast_step)
 PENALTY_SYSTEMS = ("auto", "multipliers", "matrix")
 
 
@@ -108,12 +109,16 @@ def step_name(spec: Spec, method: str, recovery: str) -> str:
 
 
 def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = None, name: str | None = None,
-               mlm_system: str = "reduced", penalty_system: str = "auto", stateful: bool = False) -> StepExport:
+               mlm_system: str = "reduced", penalty_system: str = "auto", stateful: bool = False,
+               parametric: bool = False) -> StepExport:
     """Build the MX function u = step(q, qd, s, sd, sdd) of one method with the given (baked-in) gains.
 
     stateful (the core of acroboter.codegen.controller_c): (u, q̈) = step(q, qd, s, sd, sdd, z), the
     integral z = ∫σ dt an input (k_I z in ρ_s) and the commanded acceleration q̈ an output (the estimator's
-    prediction); integral action is then allowed."""
+    prediction); integral action is then allowed.
+
+    parametric (the Python controllers' fast path, acroboter.codegen.fast_step): (u, q̈, within, rcond) =
+    step(q, qd, s, sd, sdd, p, limits) with the gains and z in p, no QP (see fast_step)."""
     iterations = parse_method(method)
     if gains.recovery not in RECOVERIES:
         raise ExportError(f"unknown input recovery '{gains.recovery}': choose one of {', '.join(RECOVERIES)}")
@@ -127,7 +132,7 @@ def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = N
         raise ExportError(f"unknown penalty system '{penalty_system}': choose one of {', '.join(PENALTY_SYSTEMS)}")
     if mlm_system not in MLM_SYSTEMS:
         raise ExportError(f"unknown MLM system '{mlm_system}': choose one of {', '.join(MLM_SYSTEMS)}")
-    if gains.ki != 0 and not stateful:
+    if gains.ki != 0 and not (stateful or parametric):
         raise ExportError(
             f"integral action (ki = {gains.ki:g}) cannot be exported: the exported step is stateless "
             "(u from q, qd, s, sd, sdd) and the integral z = ∫σ dt with its anti-windup is state the Python "
@@ -143,7 +148,7 @@ def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = N
         penalty_system = "matrix" if redundant else "multipliers"
     system = mlm_system if iterations is None else penalty_system
     export = StepExport(name, None, spec, spec_path, method, iterations, gains, model.layout, system,  # type: ignore[arg-type]
-                        integral=stateful)
+                        integral=stateful, parametric=parametric)
     graph = StepGraph(export, model)
     if stateful:
         stateful_problem(graph, iterations)
@@ -162,7 +167,9 @@ def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = N
         u = mlm_step(graph, mlm_system)
     else:
         u = penalty_step(graph, iterations, penalty_system)
-    if stateful:
+    if parametric:
+        export.function = parametric_function(graph, u)
+    elif stateful:
         saturated = ca.MX(0.0)
         if graph.bounds.report:  # [u; QP ran; step 2's minimiser] -> u and the saturation judgement
             l = graph.l
@@ -175,6 +182,21 @@ def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = N
         export.function = ca.Function(name, graph.inputs, [ca.densify(u)], list(INPUT_NAMES), ["u"])
     export.qp_used = graph.bounds.used_qp
     return export
+
+
+def parametric_function(graph: StepGraph, u: ca.MX) -> ca.Function:
+    """The step's graph as the fast path's function (called by export_step.build_step with parametric=True)."""
+    export = graph.export
+    l, n = graph.l, graph.n
+    if u.shape[0] != l:
+        raise ExportError(f"internal: the parametric step of {export.method} returned {u.shape[0]} numbers for {l} "
+                          "inputs")
+    qdd = graph.qdd if graph.qdd is not None else ca.MX.zeros(n)
+    within = graph.bounds.runtime_within(u, graph.limits_input)
+    rcond = graph.outputs.get("rcond", ca.MX(1.0))
+    return ca.Function(export.name, [*graph.inputs, graph.limits_input],
+                       [ca.densify(u), ca.densify(qdd), within, rcond],
+                       [*graph.input_names, "limits"], list(FAST_OUTPUTS))
 
 
 def stateful_problem(graph: StepGraph, iterations: int | None) -> None:

@@ -50,10 +50,28 @@ class StepExport:
     layout: Layout
     system: str  # MLM: reduced | full; penalty methods: multipliers | matrix
     integral: bool = False  # stateful export: z = ∫σ dt is a sixth input and the step also returns q̈
+    # The Python controllers' fast path (acroboter.codegen.fast_step): the gains and z are a run-time input p
+    # (codegen.structured's parameter vector) and the limits and preferred values another; no QP in the C.
+    parametric: bool = False
     linear_solvers: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     distribution: list[str] = field(default_factory=list)  # how the input limits are honoured (header)
     qp_used: bool = False
+
+
+@dataclass(frozen=True)
+class SymbolicGains:
+    """Gains as SX entries of the parametric step's p (the fields of acroboter.model.settings.Gains)."""
+
+    kp: ca.SX
+    kd: ca.SX
+    alpha_geometric: ca.SX
+    alpha_servo: ca.SX
+    omega: ca.SX
+    mu: ca.SX
+    recovery: str
+    kappa: float  # baked: not in p (only the kappa recovery reads it)
+    ki: ca.SX
 
 
 def sx_terms(model: SymbolicModel) -> dict[str, ca.SX]:
@@ -111,6 +129,10 @@ class StepGraph:
         self.rho_s = T["gamma_s"] + 2.0 * g.kd * T["sigma_dot"] + g.kp**2 * T["sigma"]
         self.params = ca.DM(g.parameter_vector(self.k))  # codegen.structured's p, as constants (z = 0)
         self.qdd: ca.MX | None = None  # the commanded acceleration, set by the method (stateful export)
+        self.limits_input: ca.MX | None = None  # parametric: [lower; upper; preferred], a run-time input
+        self.outputs: dict[str, ca.MX] = {}  # parametric: further outputs a method adds (MLM's rcond)
+        if export.parametric:
+            self._parametric(export)
         if export.integral:
             z = ca.SX.sym("z", self.k)
             self.sx_inputs.append(z)
@@ -120,6 +142,45 @@ class StepGraph:
             scalars = g.parameter_vector(self.k)[: -self.k] if self.k else g.parameter_vector(0)
             self.params = ca.vertcat(ca.SX(ca.DM(scalars)), z)  # p with the symbolic z
         self.bounds = Bounds(self)
+        if export.parametric:  # no QP in the C: u of step 1 or 2; the caller checks it against the limits
+            self.bounds.bounded = False
+            self.bounds.preferred_input = self.limits_input[2 * self.l :]
+
+    @property
+    def wants_qdd(self) -> bool:
+        """Does the step report q̈ (the stateful controller's estimator, the fast path's controller.qdd)?"""
+        return self.export.integral or self.export.parametric
+
+    def _parametric(self, export: StepExport) -> None:
+        """Gains and z from a run-time input p = [k_P, k_D, α̃, α̂, Ω, μ, k_I, z] (codegen.structured.PARAMS), in
+        the graph as SX (self.gains) and as MX (mx_gain); ρ and ρ_s as the baked export writes them, plus k_I z."""
+        if export.integral:
+            raise ExportError("internal: the parametric step carries z in p; it is not the stateful export")
+        from .structured import PARAMS, parameter_size
+
+        size = parameter_size(self.k)
+        p = ca.SX.sym("p", size)
+        concrete = self.gains
+        self.gains = SymbolicGains(*(p[i] for i in range(len(PARAMS) - 1)), concrete.recovery, concrete.kappa,
+                                   p[len(PARAMS) - 1])
+        self.concrete_gains = concrete
+        self.sx_inputs.append(p)
+        self.input_names.append("p")
+        self.inputs.append(ca.MX.sym("p", size))
+        self.limits_input = ca.MX.sym("limits", 3 * self.l)
+        g, T = self.gains, self.sx
+        z = p[len(PARAMS) :]
+        self.rho = T["gamma"] + 2.0 * g.omega * g.mu * T["phi_dot"] + g.omega**2 * T["phi"]
+        self.rho_s = T["gamma_s"] + 2.0 * g.kd * T["sigma_dot"] + g.kp**2 * T["sigma"] + g.ki * z
+        self.params = p
+
+    def mx_gain(self, name: str):
+        """A gain where the graph is MX (between the solves): its number, or the parametric input's entry."""
+        if not self.export.parametric:
+            return getattr(self.gains, name)
+        from .structured import PARAMS
+
+        return self.inputs[-1][PARAMS.index(name)]
 
     def prelude(self, outputs: dict[str, ca.SX]) -> dict[str, ca.MX]:
         names = list(outputs)
@@ -141,5 +202,7 @@ class StepGraph:
         zeros_q, zeros_s = np.zeros(lay.n), np.zeros(lay.n_signals)
         fn = ca.Function("nominal", self.sx_inputs, [ca.densify(expr)])
         extra = [np.zeros(self.k)] if self.export.integral else []
+        if self.export.parametric:
+            extra = [self.concrete_gains.parameter_vector(self.k)]
         return np.array(fn(q0, zeros_q, s0, zeros_s, zeros_s, *extra).full())
 

@@ -69,11 +69,24 @@ def mlm_step(graph: StepGraph, system: str) -> ca.MX:
             "Export the penalty or iterative penalty method, which handle redundancy."
         )
     pre = {"matrix": matrix, "rhs": rhs}
-    if export.integral and system == "reduced":  # q̈ = −M⁻¹(c + W y), as controllers.MLM.qdd
+    if graph.wants_qdd and system == "reduced":  # q̈ = −M⁻¹(c + W y), as controllers.MLM.qdd
         pre.update({"minv_bias": ca.mtimes(minv, c), "minv_w": ca.mtimes(minv, w)})
     P = graph.prelude(pre)
-    x = ca.solve(P["matrix"], P["rhs"], LINSOL_GENERAL)
-    if export.integral:  # where a limit binds: _mlm_bounded_qdd (the reduced system only)
+    if export.parametric:
+        # The fast path's singular-system check (controllers.MLM: LAPACK's gecon every step): with the same
+        # factorization as y, A⁻¹ applied to two fixed vectors, 1/n·ones (gecon's start) and Higham's alternating
+        # (−1)^i (1 + i/(n−1)) (LAPACK dlacn2's extra test), gives lower bounds on ‖A⁻¹‖₁, so an estimate of the
+        # reciprocal 1-norm condition number that is never below the true one (as gecon's); the caller hands
+        # every step whose estimate is within FAST_RCOND_MARGIN of MLM_RCOND_LIMIT to the reference and gecon.
+        probes = np.stack([np.full(size, 1.0 / size), [(-1.0) ** i * (1.0 + i / (size - 1)) for i in range(size)]], 1)
+        both = ca.solve(P["matrix"], ca.horzcat(P["rhs"], ca.DM(probes)), LINSOL_GENERAL)
+        x, images = both[:, 0], both[:, 1:]
+        norm1 = ca.mmax(ca.sum1(ca.fabs(P["matrix"])))
+        lower = ca.mmax(ca.sum1(ca.fabs(images)) / ca.DM(np.abs(probes).sum(axis=0)).T)  # ≤ ‖A⁻¹‖₁
+        graph.outputs["rcond"] = 1.0 / (norm1 * lower)
+    else:
+        x = ca.solve(P["matrix"], P["rhs"], LINSOL_GENERAL)
+    if graph.wants_qdd:  # where a limit binds: _mlm_bounded_qdd (the reduced system only)
         graph.qdd = x[:n] if system == "full" else -(P["minv_bias"] + ca.mtimes(P["minv_w"], x))
     what = "reduced by the constant M (Schur complement in [lambda; u])" if system == "reduced" else "as written"
     export.linear_solvers.append(
@@ -103,7 +116,7 @@ def mlm_step(graph: StepGraph, system: str) -> ca.MX:
         return graph.bounds.full_rank(hessian, gradient)
 
     out = bounds.after_unbounded(u0, [], branch)
-    if export.integral:
+    if graph.wants_qdd:
         graph.qdd = _mlm_bounded_qdd(graph, P, x, out[:l], u0)
     return out
 
@@ -198,9 +211,9 @@ def penalty_step(graph: StepGraph, iterations: int, system: str) -> ca.MX:
         export.linear_solvers.append(
             f"'{LINSOL_SPD}' (sparse LDL^T) on the {n}x{n} penalty matrix A, {iterations} solve(s)"
         )
-        lam_hat = g.alpha_servo * (ca.mtimes(P["sigma_q"], total) + iterations * P["rho_s"])
+        lam_hat = graph.mx_gain("alpha_servo") * (ca.mtimes(P["sigma_q"], total) + iterations * P["rho_s"])
         if kind == "eq13":
-            lam = g.alpha_geometric * (ca.mtimes(P["phi_q"], total) + iterations * P["rho"])
+            lam = graph.mx_gain("alpha_geometric") * (ca.mtimes(P["phi_q"], total) + iterations * P["rho"])
     else:
         # Multiplier form. With J = [φ_q; σ_q], D = diag(α̃ I, α̂ I), ρ_J = [ρ; ρ_s]: A = M + JᵀDJ, and
         # A q̈_{i+1} = M q̈_i − JᵀDρ_J is M q̈_{i+1} = M q̈_i − JᵀΔΛ_{i+1} with ΔΛ_{i+1} = D(J q̈_{i+1} + ρ_J)
@@ -212,21 +225,27 @@ def penalty_step(graph: StepGraph, iterations: int, system: str) -> ca.MX:
         jac = ca.vertcat(phi_q, sigma_q)
         minv = ca.SX(graph.inv_mass_dm)
         minv_jt = ca.mtimes(minv, jac.T)
-        inv_penalty = np.array([1.0 / g.alpha_geometric] * m + [1.0 / g.alpha_servo] * k)
-        matrix = ca.SX(constant(np.diag(inv_penalty))) + ca.mtimes(jac, minv_jt)
+        if export.parametric:  # D⁻¹ from the run-time gains
+            inv_sx = ca.vertcat(*([1.0 / g.alpha_geometric] * m + [1.0 / g.alpha_servo] * k))
+            matrix = ca.diag(inv_sx) + ca.mtimes(jac, minv_jt)
+        else:
+            inv_penalty = np.array([1.0 / g.alpha_geometric] * m + [1.0 / g.alpha_servo] * k)
+            matrix = ca.SX(constant(np.diag(inv_penalty))) + ca.mtimes(jac, minv_jt)
         qdd0 = -ca.mtimes(minv, c)
         pre = {"k": matrix, "rhs": ca.vertcat(graph.rho, graph.rho_s) + ca.mtimes(jac, qdd0)}
+        if export.parametric:
+            pre["inv_penalty"] = inv_sx
         if kind == "eq13":
             pre.update({"minv_jt": minv_jt, "qdd0": qdd0, "bias_forces": c, "phi_q": phi_q})
-        elif export.integral:
+        elif graph.wants_qdd:
             pre.update({"minv_jt": minv_jt, "qdd0": qdd0})
         P = graph.prelude(pre | recovery)
         step = ca.solve(P["k"], P["rhs"], LINSOL_SPD)
         multipliers = step
         for _ in range(iterations - 1):
-            step = ca.solve(P["k"], ca.DM(inv_penalty) * step, LINSOL_SPD)
+            step = ca.solve(P["k"], (P["inv_penalty"] if export.parametric else ca.DM(inv_penalty)) * step, LINSOL_SPD)
             multipliers = multipliers + step
-        if kind == "eq13" or export.integral:
+        if kind == "eq13" or graph.wants_qdd:
             x = P["qdd0"] - ca.mtimes(P["minv_jt"], multipliers)  # q̈_N
         size = m + k
         export.linear_solvers.append(
@@ -234,7 +253,7 @@ def penalty_step(graph: StepGraph, iterations: int, system: str) -> ca.MX:
             f"{iterations} solve(s)"
         )
         lam, lam_hat = multipliers[:m], multipliers[m:]
-    if export.integral:
+    if graph.wants_qdd:
         graph.qdd = x  # q̈_N, the acceleration the method commands (controllers.Penalty.qdd)
     bounds = graph.bounds
     if kind == "projected" and l > k:

@@ -62,6 +62,8 @@ class Bounds:
         # [u; QP ran (0/1); step 2's minimiser] (what BoundedInputs records as bounded_step and unbounded), for
         # the anti-windup's saturation judgement (saturation below).
         self.report = False
+        # The parametric step (acroboter.codegen.fast_step): the preferred values as a run-time MX input (None: baked).
+        self.preferred_input: ca.MX | None = None
 
     def name(self, what: str) -> str:
         self._count += 1
@@ -91,6 +93,17 @@ class Bounds:
         for check in checks[1:]:
             cond = ca.logic_and(cond, check)
         return self.sx_call("within", [x], [cond], [u])[0]
+
+    def runtime_within(self, u, limits: ca.MX):
+        """The parametric step's step-1 check, limits = [lower; upper; preferred] a run-time input: 1 if
+        lower <= u <= upper entry by entry (±inf for no limit), 0 otherwise and for a NaN (the caller then takes
+        the reference path)."""
+        l = self.l
+        x, lim = ca.SX.sym("u", l), ca.SX.sym("limits", 3 * l)
+        cond = ca.SX(1)
+        for i in range(l):
+            cond = ca.logic_and(cond, ca.logic_and(x[i] >= lim[i], x[i] <= lim[l + i]))
+        return self.sx_call("within", [x, lim], [cond], [u, limits])[0]
 
     def clip(self, u):
         x = ca.SX.sym("u", self.l)
@@ -205,6 +218,10 @@ class Bounds:
         l, k = self.l, self.graph.k
         e_map, e = ca.SX.sym("E", k, l), ca.SX.sym("e", k)
         gram = ca.mtimes(e_map, e_map.T)
+        if self.preferred_input is not None:  # the parametric step: u_pref a run-time input (no QP follows)
+            pref = ca.SX.sym("preferred", l)
+            u2 = pref + ca.mtimes(e_map.T, cholesky_solve(gram, e - ca.mtimes(e_map, pref)))
+            return self.sx_call("internal", [e_map, e, pref], [u2], [servo_map, target, self.preferred_input])[0]
         pref = ca.DM(self.preferred)
         u2 = pref + ca.mtimes(e_map.T, cholesky_solve(gram, e - ca.mtimes(e_map, pref)))
         u2 = self.sx_call("internal", [e_map, e], [u2], [servo_map, target])[0]

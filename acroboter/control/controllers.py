@@ -50,6 +50,7 @@ class Controller:
     terms_function = ""
     bounded_function = ""
     secondary_weight = 0.0  # acroboter.control.distribution: 0 lexicographic, > 0 weighted
+    fast_refusal: str | None = None  # make_controller(fast=True) fell back to this reference: why
 
     def __init__(self, model, path: DesiredPath, gains: Gains, limits=None):
         """`model`: a CompiledModel, or any backend with the same buffers and functions.
@@ -96,6 +97,8 @@ class Controller:
         elif gains.saturation != "qp":
             raise ValueError(f"saturation: expected 'qp' or 'underactuation', found {gains.saturation!r}")
         self._t_now = 0.0
+        # False when a wrapper advances z itself before _compute (acroboter.control.fast.FastController)
+        self._integrate_in_load = True
 
     def reset(self) -> None:
         """Forget the integral action's state (z = 0) and the held inputs: for a new run with the same controller."""
@@ -208,7 +211,7 @@ class Controller:
         if self.model.parameters_owner is not self:  # another controller may have set other gains
             self._p[:] = self._params
             self.model.parameters_owner = self
-        if self.ki != 0.0:
+        if self.ki != 0.0 and self._integrate_in_load:
             self._integrate(t)
         (function or self._fn).call()
 
@@ -420,8 +423,16 @@ class Penalty(Controller):
         return self.lam, self.lam_hat
 
 
-def make_controller(method: str, model, path: DesiredPath, gains: Gains, limits=None) -> Controller:
-    """'mlm', 'penalty' or 'iterative-N'; `limits` (min, max, preferred) default to the spec's."""
+def make_controller(method: str, model, path: DesiredPath, gains: Gains, limits=None, fast: bool = False):
+    """'mlm', 'penalty' or 'iterative-N'; `limits` (min, max, preferred) default to the spec's.
+
+    fast=True: the fast path (acroboter.control.fast: one compiled function per step, generated and compiled on
+    first use) around this reference controller; where it cannot be built, the reference itself, its
+    `fast_refusal` saying why."""
+    if fast:
+        from .fast import make_fast
+
+        return make_fast(make_controller(method, model, path, gains, limits), method)
     if method == "mlm":
         return MLM(model, path, gains, limits)
     if method == "penalty":

@@ -288,6 +288,8 @@ OFFSET_RANGE = Range("range", -1000.0, 1000.0, "mm",
 INTEGRAL_GAIN = dataclasses.replace(KI, low_open=True, why="the ki of the integral-action rows: positive, as ki")
 REPEATS = Range("repeats", 1, 100, "", whole=True, why="passes over the scenario's states")
 CASADI_STATES = Range("casadi_states", 1, 100_000, "", whole=True, why="states timed through casadi.Function")
+MC_SAMPLES = Range("mc_samples", 0, 200, "", whole=True,
+                   why="plants of the default robustness study whose runs the benchmark times (0: none)")
 FUZZ_CASES = Range("cases", 1, 100_000, "", whole=True, why="open-loop experiments")
 FUZZ_SEED = Range("seed", 0, 2**31, "", whole=True, why="seed of the first case (case i: seed + i)")
 FPS = Range("fps", 0.01, 240.0, "frames/s", "the MP4's frame rate: from a frame per 100 s (a slide show)")

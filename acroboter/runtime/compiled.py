@@ -151,6 +151,7 @@ class CompiledModel:
                                 "build allowed)")
         lib_path = ensure_built(spec.name, source_dir, cache_root, key)  # BuildError: cannot run (exit 3)
         self.library_path = lib_path
+        self.cache_root = cache_root  # also where acroboter.runtime.fast_library puts the fast steps
         remedy = library_remedy(spec.name, source_dir, cache_root, lib_path)
         try:
             self.lib = ctypes.CDLL(str(lib_path))

@@ -39,8 +39,8 @@ from ..model.spec_checks import sensing_problems
 from ..model.spec_errors import format_pydantic
 from .cable_events import SimulationError
 
-__all__ = ["PROJECTION_TOLERANCE", "Estimator", "SensingError", "check_measurable", "describe", "is_ideal",
-           "make_estimator", "measured_indices", "resolve"]
+__all__ = ["PROJECTION_TOLERANCE", "Estimator", "FastEstimator", "SensingError", "check_measurable", "describe",
+           "is_ideal", "make_estimator", "measured_indices", "resolve"]
 
 # A column-rank deficit of φ_q on the unmeasured coordinates: singular values below this × the largest.
 RANK_TOLERANCE = 1e-9
@@ -357,9 +357,53 @@ class Estimator:
         qd -= self._min_norm(self._phi_dot_out)
 
 
-def make_estimator(model, path: DesiredPath, sensing: Sensing | None) -> Estimator | None:
+class FastEstimator(Estimator):
+    """The fast path's estimator (docs/fast-path.md): the sensor (noise, quantisation, the delay line) as Estimator,
+    the estimate from its measurement in one compiled call (acroboter.codegen.estimator_c: the same statements, its
+    state block holding the estimate, the filter and the commanded accelerations that `reset` and `applied` write)."""
+
+    def __init__(self, model, path: DesiredPath, sensing: Sensing, binding):
+        super().__init__(model, path, sensing)
+        b, n, d = binding, model.layout.n, self.delay
+        self.binding = b
+        self._qm, self._qdm, self._xf, self._vf = b.view("qm"), b.view("qdm"), b.view("xf"), b.view("vf")
+        self.q, self.qd = b.view("q"), b.view("qd")
+        self._acc = b.view("acc").reshape(d + 1, n)
+        self._violation = b.view("violation")
+        ns = model.layout.n_signals
+        self._sig_m, self._sig_t = np.zeros(3 * ns), np.zeros(3 * ns)
+        self._rows_at = [row.ctypes.data for row in self._ring]
+        self._sig_at = (self._sig_m.ctypes.data, self._sig_t.ctypes.data)
+        self._flat, self._carry = path.flat, bool(d and self.predict)
+
+    def estimate(self, q_plant: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+        d, T = self.delay, self.period
+        slot = self._k % (d + 1)
+        self._sample(q_plant, self._ring[slot])
+        self._k += 1
+        self._sig_m[:] = self._flat(max(t - d * T, 0.0))
+        if self._carry:
+            self._sig_t[:] = self._flat(t)
+        code = self.binding.call(self._rows_at[self._k % (d + 1) if d else slot], *self._sig_at, slot,
+                                 1 if self._started else 0)
+        self._started = True
+        if code != 0:  # a generated function failed: a non-finite estimate stops the run with a message
+            self.q[:] = np.nan
+        self.last_violation = float(self._violation[0])
+        return self.q, self.qd
+
+
+def make_estimator(model, path: DesiredPath, sensing: Sensing | None, fast: bool = False) -> Estimator | None:
     """The estimator of a run, or None where the controller reads the plant's state (no sensing, or an
-    ideal one: every coordinate, no noise, no quantisation, no delay)."""
+    ideal one: every coordinate, no noise, no quantisation, no delay). fast=True: the compiled estimator
+    (FastEstimator), generated and compiled on first use; the Python one where it cannot be built."""
     if sensing is None or is_ideal(model.spec, model.layout, sensing):
         return None
+    if fast:
+        from ..runtime.fast_library import FastPathUnavailable, load_fast_estimator
+
+        try:
+            return FastEstimator(model, path, sensing, load_fast_estimator(model, sensing))
+        except FastPathUnavailable:
+            pass
     return Estimator(model, path, sensing)

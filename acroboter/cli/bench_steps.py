@@ -1,0 +1,208 @@
+"""`acroboter bench`'s comparison of the control step's three forms, and the loop's throughput (issue 23 item 3).
+
+Per method, in the same interleaved passes over the states of the scenario (one pass = every state, each call
+timed on its own with time.perf_counter):
+  - the Python step on its reference path (per-term generated call, LAPACK through scipy) and on its fast path
+    (acroboter.control.fast: one compiled function, the spec's path evaluated in it), both
+    `controller.compute(q, q̇, t)` with the path's signals evaluated at t;
+  - the exported C step (acroboter.codegen.export_step, as `acroboter export-step` writes it: gains baked in),
+    compiled here (-O2 -fPIC, no fast-math) and called in-process through ctypes, the signals already loaded;
+  - the estimator of the sensing (acroboter.sim.sensing: measurement, projection, α-β filter), on the same states;
+their p50, p99 and maximum (µs; the pass with the lowest median, the quietest of a shared machine), and the
+ratios of the medians. Then the whole closed loop's real-time factor (simulated ÷ wall seconds), reference and
+fast, without and with sensing, and the Monte Carlo throughput (runs per second in one process) on a small sample
+of the default robustness study (its plants, 20 s runs, every method with and without integral action).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+# Sensing for the estimator's cost and the loop with sensing, where the spec has no [sensing] section: trackers
+# with 0.2 mm noise and one period of delay (the Monte Carlo's sensing case, docs/sensing.md).
+DEFAULT_SENSING = {"noise": {"positions": 2e-4}, "delay_periods": 1, "seed": 1}
+MC_DURATION_S = 20.0
+
+
+def percentiles(seconds: list[np.ndarray]) -> dict:
+    """p50, p99, max (µs) of the quietest pass (lowest median), and the median over every pass."""
+    us = 1e6 * np.array(seconds)
+    best = us[int(np.argmin(np.median(us, axis=1)))]
+    return {"p50": float(np.median(best)), "p99": float(np.percentile(best, 99)), "max": float(best.max()),
+            "passes": int(us.shape[0]), "p50_all_passes": float(np.median(us))}
+
+
+def exported_step(crane, method: str, gains, folder: Path):
+    """The exported C step of `method` compiled into `folder` and bound to the model's input buffers."""
+    from ..codegen.export_step import build_step, write_step
+    from ..runtime.build import CFLAGS
+    from ..runtime.compiled import BoundFunction
+
+    export = build_step(crane.spec, method, gains)
+    (source, _) = write_step(export, folder)
+    lib_path = folder / f"lib{export.name}.so"
+    compiler = os.environ.get("CC", "cc")
+    done = subprocess.run([compiler, *CFLAGS, "-shared", str(source), "-o", str(lib_path), "-lm"],
+                          capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"compiling the exported step {source.name} failed:\n{done.stderr}")
+    model = crane.model
+    lib = ctypes.CDLL(str(lib_path))
+    return BoundFunction(lib, export.name, [model.q, model.qd, model.s, model.sd, model.sdd],
+                         [("u", [crane.layout.l, 1])])
+
+
+def bench_steps(crane, methods: list[str], states, repeats: int) -> dict:
+    """Interleaved passes: per method the reference, fast and exported C steps, and the estimator, timed."""
+    from ..control.controllers import make_controller
+    from ..sim.sensing import make_estimator
+
+    model, path, gains = crane.model, crane.path, crane.gains()
+    reference = {m: make_controller(m, model, path, gains) for m in methods}
+    fast = {m: make_controller(m, model, path, gains, fast=True) for m in methods}
+    sensing = crane.sensing(None) or crane.sensing(DEFAULT_SENSING)
+    estimators = {"estimator": make_estimator(model, path, sensing),
+                  "estimator_fast": make_estimator(model, path, sensing, fast=True)}
+    signals = [path.flat(t).copy() for _, _, t in states]
+    clock = time.perf_counter
+    times = {(m, kind): [] for m in methods for kind in ("reference", "fast", "c")}
+    times[("estimator", "estimator")], times[("estimator", "estimator_fast")] = [], []
+    times[("path", "path")] = []  # the path's signals at t: part of both Python steps, not of the C step's timing
+    with tempfile.TemporaryDirectory(prefix="acroboter-bench-") as tmp:
+        exported = {m: exported_step(crane, m, gains, Path(tmp) / m) for m in methods}
+        for _ in range(repeats):
+            for m in methods:
+                for kind, controller in (("reference", reference[m]), ("fast", fast[m])):
+                    row, compute = np.empty(len(states)), controller.compute
+                    for i, (q, qd, t) in enumerate(states):
+                        t0 = clock()
+                        compute(q, qd, t)
+                        row[i] = clock() - t0
+                    times[(m, kind)].append(row)
+                row, call, q_buf, qd_buf, sig_buf = np.empty(len(states)), exported[m].call, model.q, model.qd, \
+                    model.signals
+                for i, (q, qd, _) in enumerate(states):
+                    q_buf[:], qd_buf[:], sig_buf[:] = q, qd, signals[i]
+                    t0 = clock()
+                    call()
+                    row[i] = clock() - t0
+                times[(m, "c")].append(row)
+            row, flat = np.empty(len(states)), path.flat
+            for i, (_, _, t) in enumerate(states):
+                t0 = clock()
+                flat(t)
+                row[i] = clock() - t0
+            times[("path", "path")].append(row)
+            for kind, estimator in estimators.items():
+                if estimator is None:
+                    continue
+                row, rest = np.empty(len(states)), np.zeros(states[0][0].size)
+                estimator.reset(states[0][0])
+                for i, (q, _, t) in enumerate(states):
+                    t0 = clock()
+                    estimator.estimate(q, t)
+                    row[i] = clock() - t0
+                    estimator.applied(rest)
+                times[("estimator", kind)].append(row)
+    out = {"methods": {}, "fast_path": {}}
+    for m in methods:
+        r = {kind: percentiles(times[(m, kind)]) for kind in ("reference", "fast", "c")}
+        r["ratio_fast_to_c"] = r["fast"]["p50"] / r["c"]["p50"]
+        r["ratio_reference_to_c"] = r["reference"]["p50"] / r["c"]["p50"]
+        r["ratio_reference_to_fast"] = r["reference"]["p50"] / r["fast"]["p50"]
+        out["methods"][m] = r
+        out["fast_path"][m] = getattr(fast[m], "fast_refusal", None) or "compiled step"
+    est, est_fast = times[("estimator", "estimator")], times[("estimator", "estimator_fast")]
+    out["estimator"] = percentiles(est) if est else None
+    out["estimator_fast"] = percentiles(est_fast) if est_fast else None
+    if est and est_fast:
+        out["estimator_ratio_reference_to_fast"] = out["estimator"]["p50"] / out["estimator_fast"]["p50"]
+    for m in methods:  # the issue's target: the fast step with the estimator against the C step
+        r = out["methods"][m]
+        if est_fast:
+            r["ratio_fast_with_estimator_to_c"] = (r["fast"]["p50"] + out["estimator_fast"]["p50"]) / r["c"]["p50"]
+    out["path_evaluation"] = percentiles(times[("path", "path")])
+    out["sensing"] = "the spec's [sensing]" if crane.sensing(None) is not None else f"{DEFAULT_SENSING}"
+    return out
+
+
+def bench_loops(crane, methods: list[str], passes: int = 2) -> dict:
+    """The whole scenario's closed loop per method: real-time factor, reference and fast, without and with sensing
+    (the best of `passes` interleaved runs)."""
+    sensing = crane.sensing(None) or crane.sensing(DEFAULT_SENSING)
+    out = {m: {} for m in methods}
+    for _ in range(passes):
+        for m in methods:
+            row = out[m]
+            for fast in (False, True):
+                for label, chosen in (("", False), ("_sensing", sensing)):
+                    result = crane.simulate(m, fast=fast, sensing=chosen)
+                    key = f"rtf_{'fast' if fast else 'reference'}{label}"
+                    row[key] = max(row.get(key, 0.0), float(result.run.t[-1] / result.run.sim_wall_s))
+    return out
+
+
+def bench_monte_carlo(crane, methods: list[str], samples: int) -> dict:
+    """Runs per second in one process on `samples` plants of the default robustness study (20 s, every method,
+    k_I 0 and the study's recommended one), reference and fast; and what that makes of the default study."""
+    from ..studies.robustness_grid import default_ranges, draw_sample, recommended_ki
+
+    draws = [draw_sample(crane.spec, 0, i, default_ranges()) for i in range(samples)]
+    kis = (0.0, recommended_ki(crane.spec.controller.kp, crane.spec.controller.kd))
+    out = {"samples": samples, "duration_s": MC_DURATION_S, "methods": list(methods), "kis": list(kis)}
+    for fast in (False, True):
+        runs, t0 = 0, time.perf_counter()
+        for sample in draws:
+            for m in methods:
+                for ki in kis:
+                    crane.simulate(m, duration=MC_DURATION_S, plant_params=sample.params, ki=ki, fast=fast)
+                    runs += 1
+        wall = time.perf_counter() - t0
+        out[f"runs_per_s_{'fast' if fast else 'reference'}"] = runs / wall
+    # The default study: 200 samples x 5 methods x 2 (k_I) runs of 20 s, on two worker processes.
+    out["default_study_runs"] = 200 * 5 * 2
+    for kind in ("reference", "fast"):
+        out[f"default_study_estimate_s_{kind}_2_cores"] = out["default_study_runs"] / out[f"runs_per_s_{kind}"] / 2
+    return out
+
+
+def format_steps(steps: dict, loops: dict, mc: dict | None) -> str:
+    head = (f"{'method':<12} {'ref p50':>7} {'p99':>6} {'max':>6} {'fast p50':>8} {'p99':>6} {'max':>6} "
+            f"{'C p50':>6} {'p99':>6} {'max':>6} {'fast/C':>6} {'ref/C':>6} {'ref/fast':>8} {'RTF ref':>7} "
+            f"{'fast':>6} {'+sens ref':>9} {'fast':>6}")
+    lines = ["control step (us; the quietest of the interleaved passes) and the 55 s closed loop's real-time factor:",
+             head, "-" * len(head)]
+    for m, r in steps["methods"].items():
+        a, b, c, rtf = r["reference"], r["fast"], r["c"], loops.get(m, {})
+        lines.append(
+            f"{m:<12} {a['p50']:7.2f} {a['p99']:6.1f} {a['max']:6.0f} {b['p50']:8.2f} {b['p99']:6.1f} {b['max']:6.0f} "
+            f"{c['p50']:6.2f} {c['p99']:6.1f} {c['max']:6.0f} {r['ratio_fast_to_c']:6.2f} "
+            f"{r['ratio_reference_to_c']:6.2f} {r['ratio_reference_to_fast']:8.2f} "
+            f"{rtf.get('rtf_reference', float('nan')):7.0f} {rtf.get('rtf_fast', float('nan')):6.0f} "
+            f"{rtf.get('rtf_reference_sensing', float('nan')):9.0f} {rtf.get('rtf_fast_sensing', float('nan')):6.0f}")
+    est, flat = steps["estimator"], steps["path_evaluation"]
+    lines.append(f"path evaluation in Python (the reference step's; the fast step evaluates the spec's path in its "
+                 f"C; neither is in the exported C step's timing): p50 {flat['p50']:.2f} us, "
+                 f"p99 {flat['p99']:.1f} us")
+    if est is not None:
+        lines.append(f"estimator (measurement, projection, alpha-beta filter), Python: p50 {est['p50']:.2f} us, p99 "
+                     f"{est['p99']:.1f} us, max {est['max']:.0f} us")
+    if (fast := steps.get("estimator_fast")) is not None:
+        lines.append(f"estimator, compiled (the fast path's): p50 {fast['p50']:.2f} us, p99 {fast['p99']:.1f} us, "
+                     f"max {fast['max']:.0f} us; fast step + estimator / C step: "
+                     + ", ".join(f"{m} {r['ratio_fast_with_estimator_to_c']:.2f}" for m, r in steps["methods"].items()))
+    if mc is not None:
+        lines.append(
+            f"Monte Carlo ({mc['samples']} plants x {len(mc['methods'])} methods x k_I {{0, "
+            f"{mc['kis'][1]:g}}}, {mc['duration_s']:g} s, one process): reference {mc['runs_per_s_reference']:.2f} "
+            f"runs/s, fast {mc['runs_per_s_fast']:.2f} runs/s; the default study ({mc['default_study_runs']} runs) on "
+            f"2 cores: ~{mc['default_study_estimate_s_reference_2_cores']:.0f} s reference, "
+            f"~{mc['default_study_estimate_s_fast_2_cores']:.0f} s fast")
+    return "\n".join(lines)

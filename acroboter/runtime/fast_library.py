@@ -1,0 +1,204 @@
+"""The fast path's compiled step (acroboter.codegen.fast_step), found or made on first use: `load_fast_step`.
+
+Its C is generated into ``<cache>/generated/fast-<name>/<name>/`` (a staging folder renamed into place under a
+lock, as acroboter.runtime.cache does for a spec's model) and compiled by acroboter.runtime.build into
+``<cache>/lib/<name>-<sources hash>/lib<name>.so`` (-O2 -fPIC, never fast-math; the library carries its build key
+and checksum like the model's). The name carries the key of everything the C depends on (fast_step.fast_key):
+the gains, z and the limits are run-time inputs, so one library serves every gain set of a method.
+
+The function is bound once with ctypes (acroboter.runtime.compiled.BoundFunction): its inputs are the model's own
+q, qd, s, sd, sdd and p buffers plus the caller's limits buffer, its outputs preallocated: one foreign call a step,
+no allocation. This is, with acroboter.runtime.cache and acroboter.runtime.casadi_backend, a runtime module that may
+call the code generator.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from ..model.interrupts import remembered_interrupt
+from ..model.settings import Gains
+from .build import BuildError, cache_lock, cache_write_error, ensure_built, remove_stale_staging
+from .compiled import BoundFunction, CompiledModel, DamagedLibraryError
+
+log = logging.getLogger(__name__)
+
+__all__ = ["FastEstimatorBinding", "FastPathUnavailable", "FastStepBinding", "load_fast_estimator", "load_fast_step"]
+
+
+class FastPathUnavailable(RuntimeError):
+    """This controller cannot have the fast path (the reason says why); the reference path is used."""
+
+
+class FastStepBinding:
+    """The bound fast step: `call()` evaluates at the model's buffers and `limits`; outputs in `u`, `qdd`, ...
+
+    `path_call(table, signals)` -> call(t): the path's signals at t (codegen.fast_step.path_source, from the path's
+    numbers in `table`) into `signals` and the step, one foreign call; `path_flat(table, signals)` -> flat(t): the
+    signals alone (for integral action, whose σ needs them before the step)."""
+
+    def __init__(self, function: BoundFunction, limits: np.ndarray, has_qdd: bool, name: str, library: Path,
+                 lib: ctypes.CDLL):
+        self.function, self.limits, self.has_qdd, self.name, self.library = function, limits, has_qdd, name, library
+        out = function.outputs
+        self.u, self.qdd, self.within, self.rcond = out["u"], out["qdd"], out["within"], out["rcond"]
+        self.call = function.call
+        self._run, self._flat = getattr(lib, f"{name}_run"), getattr(lib, f"{name}_flat")
+        self._run.restype = ctypes.c_int
+        self._run.argtypes = [ctypes.c_void_p, ctypes.c_double, *[ctypes.c_void_p] * 5]
+        self._flat.restype = None
+        self._flat.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_void_p]
+
+    def path_call(self, table: np.ndarray, signals: np.ndarray):
+        run, fixed = self._run, self.function._call_args[:4]
+        at, into = table.ctypes.data, signals.ctypes.data
+
+        def call(t: float) -> None:
+            if run(at, t, into, *fixed) != 0:
+                raise RuntimeError(f"{self.name} failed")
+
+        return call
+
+    def path_flat(self, table: np.ndarray, signals: np.ndarray):
+        flat, at, into = self._flat, table.ctypes.data, signals.ctypes.data
+        return lambda t: flat(at, t, into)
+
+
+def load_fast_step(model, method: str, gains: Gains, penalty_system: str = "auto") -> FastStepBinding:
+    """The fast step of `method` for `model` (a CompiledModel), generated and compiled on first use.
+
+    FastPathUnavailable where it cannot be built (another backend, a formulation the export refuses: the message
+    names the cause); BuildError where the compiler fails (exit 3, as for the model's library)."""
+    if not isinstance(model, CompiledModel):
+        raise FastPathUnavailable(f"the model backend {type(model).__name__} has no compiled library to extend")
+    from ..codegen.fast_step import FAST_OUTPUTS, fast_key, fast_name
+
+    spec, lay = model.spec, model.layout
+    key = fast_key(spec, method, gains, penalty_system)
+    name = fast_name(spec, method, gains.recovery, key)
+    root = model.cache_root
+    folder = root / "generated" / f"fast-{name}"
+    source = folder / name
+    has_qdd = _generate(spec, method, gains, penalty_system, name, root, folder, source)
+    lib_path = ensure_built(name, source, root)
+    try:
+        lib = ctypes.CDLL(str(lib_path))
+    except OSError as err:
+        raise DamagedLibraryError(f"the fast step's library {lib_path} cannot be loaded ({err}): remove "
+                                  f"{lib_path.parent} and run again") from None
+    limits = np.zeros(3 * lay.l)
+    inputs = [model.q, model.qd, model.s, model.sd, model.sdd, model.p, limits]
+    sizes = {"u": [lay.l, 1], "qdd": [lay.n, 1], "within": [1, 1], "rcond": [1, 1]}
+    function = BoundFunction(lib, name, inputs, [(o, sizes[o]) for o in FAST_OUTPUTS])
+    return FastStepBinding(function, limits, has_qdd, name, lib_path, lib)
+
+
+def _generate(spec, method: str, gains: Gains, penalty_system: str, name: str, root: Path, folder: Path,
+              source: Path) -> bool:
+    """<name>.c into `source` unless it is there (under the cache's lock); whether the step reports q̈."""
+
+    def make(target: Path) -> str:
+        from ..codegen.fast_step import build_fast_step, write_fast_step
+        from ..codegen.step_graph import ExportError
+
+        try:
+            fast = build_fast_step(spec, method, gains, name, penalty_system)
+        except ExportError as err:
+            raise FastPathUnavailable(str(err)) from None
+        write_fast_step(fast, target)
+        return "1" if fast.has_qdd else "0"
+
+    return _generated(name, root, folder, source, make, "the fast control step") == "1"
+
+
+def _generated(name: str, root: Path, folder: Path, source: Path, make, what: str) -> str:
+    """The folder `source` made by make(target) -> its note (kept in the file `note`) unless it is there, under the
+    cache's lock, staged and renamed into place; the note."""
+    note = source / "note"
+    if note.is_file():
+        return note.read_text().strip()
+    try:
+        with cache_lock(root, f"generate-{folder.name}"):
+            if note.is_file():  # another process made it while we waited
+                return note.read_text().strip()
+            log.info("generating %s %s into %s (once per version) ...", what, name, folder)
+            folder.parent.mkdir(parents=True, exist_ok=True)
+            remove_stale_staging(folder.parent, f".{folder.name}.new-")
+            staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.new-", dir=folder.parent))
+            try:
+                with remembered_interrupt() as interrupt:
+                    text = make(staging / name)
+                    (staging / name / "note").write_text(text + "\n")
+                    interrupt.check()
+                staging.chmod(0o755)
+                if folder.exists():
+                    shutil.rmtree(folder)
+                staging.rename(folder)
+            finally:
+                shutil.rmtree(staging, ignore_errors=True)
+            return text
+    except OSError as err:
+        raise BuildError(cache_write_error(root, err)) from None
+
+
+class FastEstimatorBinding:
+    """The compiled estimator (acroboter.codegen.estimator_c) with its state block and work arrays, bound once."""
+
+    def __init__(self, lib: ctypes.CDLL, name: str, layout: dict, work: list[int], library: Path):
+        self.name, self.library, self.layout = name, library, layout
+        self.state = np.zeros(layout["size"][0])
+        n_arg, n_res, n_iw, n_w = work
+        self._iw = np.zeros(max(n_iw, 1), dtype=np.int64)
+        self._w = np.zeros(max(n_w, 1))
+        self._arg = (ctypes.c_void_p * max(n_arg, 1))()
+        self._res = (ctypes.c_void_p * max(n_res, 1))()
+        fn = getattr(lib, f"{name}_estimate")
+        fn.restype = ctypes.c_int
+        fn.argtypes = [ctypes.c_void_p] * 8 + [ctypes.c_longlong, ctypes.c_int]
+        self._fn = fn
+        self._fixed = (self.state.ctypes.data, self._iw.ctypes.data, self._w.ctypes.data,
+                       ctypes.addressof(self._arg), ctypes.addressof(self._res))
+
+    def view(self, part: str) -> np.ndarray:
+        offset, size = self.layout[part]
+        return self.state[offset : offset + size]
+
+    def call(self, y: int, sig_m: int, sig_t: int, slot: int, started: int) -> int:
+        return self._fn(*self._fixed, y, sig_m, sig_t, slot, started)
+
+
+def load_fast_estimator(model, sensing) -> FastEstimatorBinding:
+    """The compiled estimator of `sensing` for `model` (a CompiledModel), generated and compiled on first use."""
+    if not isinstance(model, CompiledModel):
+        raise FastPathUnavailable(f"the model backend {type(model).__name__} has no compiled library to extend")
+    from ..codegen.estimator_c import estimator_key, state_layout
+
+    spec = model.spec
+    key = estimator_key(spec, sensing)
+    name = f"{spec.name}_estimator_{key[:12]}"
+    root = model.cache_root
+    folder = root / "generated" / f"fast-{name}"
+    source = folder / name
+
+    def make(target: Path) -> str:
+        from ..codegen.estimator_c import build_estimator, write_estimator
+
+        export = build_estimator(spec, sensing, name)
+        write_estimator(export, target)
+        return " ".join(str(v) for v in (*export.work, export.unmeasured.size, len(export.rows)))
+
+    numbers = [int(v) for v in _generated(name, root, folder, source, make, "the fast estimator").split()]
+    lib_path = ensure_built(name, source, root)
+    try:
+        lib = ctypes.CDLL(str(lib_path))
+    except OSError as err:
+        raise DamagedLibraryError(f"the fast estimator's library {lib_path} cannot be loaded ({err}): remove "
+                                  f"{lib_path.parent} and run again") from None
+    layout = state_layout(model.layout.n, sensing.delay_periods, numbers[4], numbers[5])
+    return FastEstimatorBinding(lib, name, layout, numbers[:4], lib_path)
