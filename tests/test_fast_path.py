@@ -14,9 +14,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import mpmath
 import numpy as np
 import pytest
+from reference_laws import penalty_inputs_40_digits
 from scipy.linalg import lapack
 
 from acroboter.api.crane import Crane
@@ -71,41 +71,6 @@ def test_closed_loop_matches_reference(crane, method):
     assert (a.limit_state == b.limit_state).all() and (a.saturated == b.saturated).all()
 
 
-def _law_40_digits(model, path, gains, method, states):
-    """The penalty methods with the projected recovery in 40-digit arithmetic (as tests/test_export_step.py), for
-    a crane with as many inputs as servo-constraints."""
-    iterations = 1 if method == "penalty" else int(method.removeprefix("iterative-"))
-    lay = model.layout
-    rows = [i for i in range(lay.m) if i not in lay.redundant_rows]
-    out = []
-    with mpmath.workdps(40):
-        for t, q, qd in states:
-            s, sd, sdd = path.signal_arrays(t)
-            T = {name: mpmath.matrix(np.atleast_1d(model.term(name, q, qd, s, sd, sdd)).tolist()) for name in (
-                "mass_matrix", "bias_forces", "phi", "phi_q", "phi_dot", "gamma",
-                "sigma", "sigma_q", "sigma_dot", "gamma_s", "input_matrix")}
-            M, phi_q, sigma_q, H = T["mass_matrix"], T["phi_q"], T["sigma_q"], T["input_matrix"]
-            rho = T["gamma"] + 2 * gains.omega * gains.mu * T["phi_dot"] + gains.omega**2 * T["phi"]
-            rho_s = T["gamma_s"] + 2 * gains.kd * T["sigma_dot"] + gains.kp**2 * T["sigma"]
-            A = M + gains.alpha_geometric * phi_q.T * phi_q + gains.alpha_servo * sigma_q.T * sigma_q
-            force = -gains.alpha_geometric * phi_q.T * rho - gains.alpha_servo * sigma_q.T * rho_s
-            qdd = total = mpmath.lu_solve(A, force - T["bias_forces"])
-            for _ in range(iterations - 1):
-                qdd = mpmath.lu_solve(A, M * qdd + force)
-                total += qdd
-            lam_hat = gains.alpha_servo * (sigma_q * total + iterations * rho_s)
-            B = mpmath.matrix(lay.n, lay.l + len(rows))
-            for r in range(lay.n):
-                for j in range(lay.l):
-                    B[r, j] = H[r, j]
-                for j, row in enumerate(rows):
-                    B[r, lay.l + j] = -phi_q[row, r]
-            minv = M**-1
-            x = mpmath.lu_solve(B.T * minv * B, -(B.T * minv * sigma_q.T) * lam_hat)
-            out.append([float(x[j]) for j in range(lay.l)])
-    return np.array(out)
-
-
 @pytest.mark.parametrize("method", ["penalty", "iterative-3"])
 def test_penalty_difference_is_the_reference_round_off(crane, method):
     """Why the penalty methods differ beyond 1e-9 in some summaries: the fast step solves for the multipliers
@@ -115,7 +80,7 @@ def test_penalty_difference_is_the_reference_round_off(crane, method):
     q0 = crane.equilibrium().q
     rng = np.random.default_rng(5)
     states = [(t, q0 + 1e-4 * rng.standard_normal(q0.size), 1e-2 * rng.standard_normal(q0.size)) for t in (1.0, 4.0)]
-    exact = _law_40_digits(model, path, gains, method, states)
+    exact = penalty_inputs_40_digits(model, path, gains, method, states)
     ref, fast = (make_controller(method, model, path, gains, fast=f) for f in (False, True))
     scale = np.maximum(np.abs(exact), 1.0)
     err = {}

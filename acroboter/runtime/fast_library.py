@@ -87,11 +87,7 @@ def load_fast_step(model, method: str, gains: Gains, penalty_system: str = "auto
     source = folder / name
     has_qdd = _generate(spec, method, gains, penalty_system, name, root, folder, source)
     lib_path = ensure_built(name, source, root)
-    try:
-        lib = ctypes.CDLL(str(lib_path))
-    except OSError as err:
-        raise DamagedLibraryError(f"the fast step's library {lib_path} cannot be loaded ({err}): remove "
-                                  f"{lib_path.parent} and run again") from None
+    lib = _open(lib_path, "the fast step's library")
     limits = np.zeros(3 * lay.l)
     inputs = [model.q, model.qd, model.s, model.sd, model.sdd, model.p, limits]
     sizes = {"u": [lay.l, 1], "qdd": [lay.n, 1], "within": [1, 1], "rcond": [1, 1]}
@@ -195,10 +191,15 @@ def load_fast_estimator(model, sensing) -> FastEstimatorBinding:
 
     numbers = [int(v) for v in _generated(name, root, folder, source, make, "the fast estimator").split()]
     lib_path = ensure_built(name, source, root)
-    try:
-        lib = ctypes.CDLL(str(lib_path))
-    except OSError as err:
-        raise DamagedLibraryError(f"the fast estimator's library {lib_path} cannot be loaded ({err}): remove "
-                                  f"{lib_path.parent} and run again") from None
+    lib = _open(lib_path, "the fast estimator's library")
     layout = state_layout(model.layout.n, sensing.delay_periods, numbers[4], numbers[5])
     return FastEstimatorBinding(lib, name, layout, numbers[:4], lib_path)
+
+
+def _open(lib_path, what: str) -> ctypes.CDLL:
+    """A built library, loaded; a damaged one is named with its remedy (remove its folder: rebuilt on next use)."""
+    try:
+        return ctypes.CDLL(str(lib_path))
+    except OSError as err:
+        raise DamagedLibraryError(f"{what} {lib_path} cannot be loaded ({err}): remove {lib_path.parent} and run "
+                                  "again") from None
