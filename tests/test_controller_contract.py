@@ -196,6 +196,16 @@ def test_underactuation_holds_the_input_and_keeps_the_reduced_task_through_the_d
         balance = T["mass_matrix"] @ under.qdd + T["bias_forces"] + T["phi_q"].T @ lam - T["input_matrix"] @ u_a
         np.testing.assert_allclose(balance, 0.0, atol=1e-9 * scale_of(T["bias_forces"], T["input_matrix"] @ u_a))
     assert np.abs(u_a - qp.compute(r.q[a], r.qd[a], t0, sig_a)).max() > 1e-6  # not the QP's answer
+    # a state gone non-finite while a winch is held: an error naming the step, never a NaN input
+    broken = r.qd[a].copy()
+    broken[3] = np.nan
+    held = make_controller(method, model, path, replace(gains, saturation="underactuation"), limits=limits)
+    held.compute(r.q[a], r.qd[a], t0, sig_a)
+    with pytest.raises(SingularSystemError) as err:
+        held.compute(r.q[a], broken, t0 + 0.02, sig_a)
+    assert str(err.value) == f"{under.name}: " + (
+        "saturation as underactuation: the servo-constraint terms are not finite" if name == "acroboter"
+        else "the input distribution's terms are not finite")  # (the distribution of redundant inputs sees it first)
     if name != "acroboter":
         return  # the four-cable crane's B asks within 0.015 N of the caps: no clear return to test there
     for dt, full in ((0.02, False), (0.14, True)):

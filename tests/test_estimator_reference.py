@@ -303,3 +303,15 @@ def test_groups_given_as_read_only_mappings_take_overrides(crane):
     groups = [MappingProxyType({"name": "all", "coordinates": ["CC", "SU", "L1.length", "L2.length", "L3.length"]})]
     chosen = resolve(crane[0], {"groups": groups, "noise": {"all": 2e-4}})
     assert [(g.name, g.noise) for g in chosen.groups] == [("all", 2e-4)]
+
+
+def test_the_estimator_is_the_python_one_unless_asked(crane):
+    """make_estimator's default is the reference estimator (the compiled one only with fast=True); none for an
+    ideal sensing."""
+    from acroboter.sim.sensing import FastEstimator, make_estimator
+
+    spec, model, path, _ = crane
+    sensing = resolve(spec, CASES["delay 1, predicted"])
+    chosen = make_estimator(model, path, sensing)
+    assert type(chosen) is Estimator and not isinstance(chosen, FastEstimator)
+    assert make_estimator(model, path, resolve(spec, {"noise": {}})) is None
