@@ -164,6 +164,9 @@ def test_a_fit_that_sees_nothing_gives_the_preferred_inputs(weight):
     preferred = np.array([3.0, -1.0, 7.0])
     dist = BoundedInputs(np.full(3, -INF), np.full(3, INF), preferred, weight=weight)
     np.testing.assert_allclose(dist.solve(np.zeros((3, 3)), np.zeros(3)), preferred, rtol=0, atol=1e-12)
+    # limits that cut u_pref: the inputs within them closest to it (the secondary objective alone)
+    cut = BoundedInputs(np.array([0.0, 0.0, 0.0]), np.array([2.0, 1.0, 9.0]), preferred, weight=weight)
+    np.testing.assert_allclose(cut.solve(np.zeros((3, 3)), np.zeros(3)), [2.0, 0.0, 7.0], rtol=0, atol=1e-9)
 
 
 @pytest.mark.parametrize("weight", [0.0, 1e-3])
