@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import REPO, load_with_start
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import lsq_linear
 
@@ -163,6 +163,7 @@ def test_unbounded_task_fit_is_exact_and_internal_forces_at_preferred(seed, l, e
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**32 - 1), l=st.integers(3, 8), near_free=st.booleans(), inside=st.booleans())
+@example(seed=754, l=6, near_free=False, inside=False)  # the oracle's BVLS ran out of iterations (fixed above)
 def test_limits_cost_no_tracking_while_an_exact_fit_is_within_them(seed, l, near_free, inside):
     """One internal direction. Limits around an exact fit: the result is exact (E u = e_F), within the
     limits, and the exact fit within them closest to preferred (closed form); `inside`: limits that hold the
@@ -179,7 +180,9 @@ def test_limits_cost_no_tracking_while_an_exact_fit_is_within_them(seed, l, near
     dist = BoundedInputs(lower, upper, preferred)
     u = dist.solve_task(G, g, E)
     # oracle 1: an exact fit within the limits exists (scipy's bounded least squares reaches E u = e_F)
-    exists = lsq_linear(E, target, bounds=(lower, upper), method="bvls", tol=1e-14)
+    # (BVLS's default max_iter, the number of inputs, stopped it short on seed 754: kept as an example below)
+    exists = lsq_linear(E, target, bounds=(lower, upper), method="bvls", tol=1e-14, max_iter=1000)
+    assert exists.success, exists.message
     size = max(1.0, np.abs(target).max())
     assert np.abs(E @ exists.x - target).max() < 1e-8 * size
     assert np.all(u >= lower) and np.all(u <= upper)

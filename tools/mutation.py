@@ -1,6 +1,6 @@
 """`make mutation`: mutmut 3 over the core modules, in a scratch copy of the checkout per selection (docs/mutation.md).
 
-    python tools/mutation.py [MODULE ...] [--tests TEST_FILE ...] [--max-children N] [--only GLOB] [--work DIR]
+    python tools/mutation.py [MODULE ...] [--tests TEST_FILE ...] [--max-children N] [--only GLOB ...] [--work DIR]
 
 MODULE is a path under acroboter/ (default: every module of CORE). The checkout's acroboter/, tests/,
 generated/ and model_spec/ are copied into build/mutation/<modules>/ with a [tool.mutmut] section that mutates
@@ -58,7 +58,7 @@ def main(argv=None) -> int:
     parser.add_argument("--tests", nargs="+", default=TESTS, help="the test files that judge the mutants "
                         "(default: the physics and control-law tests, TESTS)")
     parser.add_argument("--max-children", type=int, default=2, help="parallel test processes (default 2)")
-    parser.add_argument("--only", help="mutants whose name matches this glob, e.g. "
+    parser.add_argument("--only", nargs="+", help="mutants whose names match these globs, e.g. "
                         "'acroboter.control.distribution.xǁBoundedInputsǁaccept*' (default: all)")
     parser.add_argument("--work", type=Path, help="the scratch folder (default build/mutation/<modules>/)")
     args = parser.parse_args(argv)
@@ -96,7 +96,7 @@ def main(argv=None) -> int:
     # the console script, not `python -m mutmut`: the mutants import mutmut.__main__, which must not be __main__
     mutmut = [str(Path(sys.executable).parent / "mutmut")]
     print(f"mutating {', '.join(sorted(keep))} with {len(args.tests)} test files in {WORK}", flush=True)
-    chosen = [args.only] if args.only else []
+    chosen = list(args.only or [])
     done = subprocess.run([*mutmut, "run", "--max-children", str(args.max_children), *chosen], cwd=WORK, env=env)
     subprocess.run([*mutmut, "results"], cwd=WORK, env=env)
     return done.returncode
