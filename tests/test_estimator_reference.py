@@ -315,3 +315,21 @@ def test_the_estimator_is_the_python_one_unless_asked(crane):
     chosen = make_estimator(model, path, sensing)
     assert type(chosen) is Estimator and not isinstance(chosen, FastEstimator)
     assert make_estimator(model, path, resolve(spec, {"noise": {}})) is None
+
+
+def test_an_override_with_names_the_crane_lacks_is_refused_in_process(crane):
+    spec = crane[0]
+    with pytest.raises(SpecError) as err:
+        resolve(spec, {"groups": [{"name": "a", "coordinates": ["SU.r"]}, {"name": "b", "coordinates": ["SU"]}]})
+    assert str(err.value) == ("invalid model spec sensing:\n  sensing.groups[1] (b).coordinates[0]: expected each "
+                              "coordinate in one group, found SU.r_x also in group 'a'")
+    with pytest.raises(TypeError) as wrong:
+        resolve(spec, 5)
+    assert str(wrong.value) == "sensing: expected None, False, a mapping or a Sensing, found int"
+
+
+def test_a_refused_sensing_names_the_spec_by_default(crane):
+    spec, model, _, _ = crane
+    loose = Sensing.model_validate({"groups": [{"name": "r", "coordinates": ["SU.r", "CC.r"]}]})
+    with pytest.raises(SpecError, match=r"^invalid model spec sensing:\n  sensing: expected the measured"):
+        check_measurable(model, loose)
