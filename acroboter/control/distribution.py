@@ -235,9 +235,8 @@ class BoundedInputs:
         if exitflag < 1 or not math.isfinite(float(x @ x)):
             # (DAQP reports success with a non-finite x for a Hessian that is not positive definite)
             raise DistributionError(
-                f"the bounded input distribution failed (DAQP exit flag {exitflag}, "
-                f"{'a non-finite input' if exitflag >= 1 else 'no input'}): the controller's fit is not convex "
-                "or its terms are inconsistent with the limits"
+                f"the bounded input distribution failed (DAQP exit flag {exitflag}, input {x.tolist()}): the "
+                "controller's fit is not convex or its terms are inconsistent with the limits"
             )
         # The active set is DAQP's: a bound with a nonzero multiplier holds its input (exactly on it;
         # negative multipliers are lower bounds). Inactive bounds hold to PRIMAL_TOLERANCE: snap those too.
