@@ -288,7 +288,8 @@ def test_an_override_starts_from_the_specs_own_section():
     ({"noise": 5}, "sensing.noise: expected a table {group: value}, found 5"),
     ({"quantization": {"nothing": 1e-3}},
      "sensing.quantization.nothing: expected one of the groups positions, axes, lengths, found 'nothing'"),
-    ({"delay_periods": -1}, "sensing.delay_periods: expected"),
+    ({"delay_periods": -1}, "sensing.delay_periods: expected a whole number 0 <= delay_periods <= 1000 (control "
+                            "periods), found -1"),
 ])
 def test_a_bad_override_is_a_spec_error_in_process(crane, override, message):
     """In-process (the CLI's tests run a subprocess, which a mutation run's trampolines do not reach)."""
