@@ -213,6 +213,7 @@ def test_the_diagnostics_count_what_ran():
     assert dist.accept(np.array([0.5, 0.5])) and dist.bounded_step is False and dist.qp_solves == 0
     dist.solve(np.eye(2), -np.array([5.0, 0.5]))
     assert dist.bounded_step is True and dist.qp_solves == 1
+    np.testing.assert_array_equal(dist.unbounded, [5.0, 0.5])  # what the controller asked (the judge reads it)
     dist.solve(np.eye(2), -np.array([0.5, 0.5]))  # within the limits: no QP
     assert dist.bounded_step is False and dist.qp_solves == 1
     dist.solve(np.eye(2), -np.array([0.5, -3.0]))
@@ -227,3 +228,10 @@ def test_limits_given_as_integers_are_limits():
     G, g = np.diag([1.0, 2.0, 3.0]), -np.array([30.0, 4.0, -6.0])
     np.testing.assert_array_equal(ints.solve(G, g), floats.solve(G, g))
     assert ints.lower.dtype == ints.upper.dtype == ints.preferred.dtype == np.float64
+
+
+def test_an_input_fixed_by_equal_limits_is_held_there():
+    """min = max: the input is fixed (a winch run at a set tension); the others are free to fit."""
+    dist = BoundedInputs(np.array([3.0, -INF]), np.array([3.0, INF]), np.zeros(2))
+    u = dist.solve(np.eye(2), -np.array([5.0, 0.5]))
+    assert u.tolist() == [3.0, 0.5] and dist.limit_state.tolist() == [1, 0]
