@@ -13,6 +13,7 @@ Mutation testing (docs/mutation.md) found these reached by no other test.
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -216,3 +217,35 @@ def test_underactuation_holds_the_input_and_keeps_the_reduced_task_through_the_d
             assert not under.limit_state.any()
         else:
             assert np.abs(u_b - u_free).max() > 1e-6 and under.limit_state.any()
+
+
+def test_mlm_refuses_redundant_systems_by_name():
+    """In-process (tests/test_redundancy.py runs them too, through the API): a redundant task has more servo-
+    constraints than inputs; a duplicated cable makes the (n+m+l) system singular."""
+    spec, model, path, start = load_with_start(REPO / "model_spec" / "acroboter_redundant_task.toml")
+    with pytest.raises(SingularSystemError) as task:
+        make_controller("mlm", model, path, Gains.from_spec(spec))
+    lay = model.layout
+    assert str(task.value) == (
+        f"MLM needs at least as many inputs as servo-constraints, found {lay.k} servo-constraints for {lay.l} inputs "
+        "(redundant task): its matrix is not square. Use the penalty or iterative penalty method.")
+    spec, model, path, start = load_with_start(REPO / "model_spec" / "acroboter_redundant.toml")
+    controller = make_controller("mlm", model, path, Gains.from_spec(spec))
+    with pytest.raises(SingularSystemError) as system:
+        controller.compute(start.q, np.zeros(model.layout.n), 0.0)
+    size = model.layout.n + model.layout.m + model.layout.l
+    assert re.fullmatch(
+        rf"MLM's {size}x{size} system is singular \(reciprocal condition number \d\.\de[-+]\d\d\): the geometric "
+        r"constraints are redundant or the task is not reachable by the inputs\. MLM needs independent constraints; "
+        r"use the penalty or iterative penalty method, which handle redundancy\.", str(system.value))
+    assert controller.rcond < 1e-12
+
+
+@pytest.mark.parametrize("method", ["mlm", "penalty", "iterative-3"])
+def test_the_signals_given_are_the_ones_used(crane, states, method):
+    """compute(q, q̇, t, signals): the path's signals as given (a table's row), whatever t is."""
+    spec, model, path, _ = crane
+    q, qd, t = states[2]
+    given = make_controller(method, model, path, Gains.from_spec(spec)).compute(q, qd, 0.0, path.flat(t)).copy()
+    own = make_controller(method, model, path, Gains.from_spec(spec)).compute(q, qd, t)
+    np.testing.assert_array_equal(given, own)

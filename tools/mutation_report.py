@@ -69,14 +69,14 @@ LAPACK_FLAGS = {
 
 
 def lapack_flag_equivalent(old: str, new: str) -> str | None:
-    """The reason a mutant that only changes one LAPACK flag of a potrf/potrs/syevd call is equivalent, or None."""
+    """The reason a mutant that only changes one LAPACK flag of a potrf/potrs/syevd/gesv call is equivalent, or None."""
     def call(line):
         try:
             tree = ast.parse(line.split("#")[0].strip())
         except SyntaxError:
             return None
         found = [n for n in ast.walk(tree) if isinstance(n, ast.Call)
-                 and ast.unparse(n.func).split(".")[-1].lstrip("_").lstrip("d") in ("potrf", "potrs", "syevd")]
+                 and ast.unparse(n.func).split(".")[-1].lstrip("_").lstrip("d") in ("potrf", "potrs", "syevd", "gesv")]
         return found[0] if len(found) == 1 else None
     a, b = call(old), call(new)
     if a is None or b is None or ast.unparse(a.func) != ast.unparse(b.func) or \
