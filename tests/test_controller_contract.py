@@ -135,6 +135,7 @@ def test_the_factory_names_and_refuses():
     spec, model, path, _ = load_with_start(REPO / "model_spec" / "acroboter.toml")
     gains = Gains.from_spec(spec)
     assert isinstance(make_controller("mlm", model, path, gains), MLM)
+    assert Penalty(model, path, gains).iterations == 1  # the class alone is the plain penalty method
     for method, iterations in (("penalty", 1), ("iterative-1", 1), ("iterative-7", 7)):
         c = make_controller(method, model, path, gains)
         assert isinstance(c, Penalty) and c.iterations == iterations

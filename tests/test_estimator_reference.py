@@ -290,6 +290,8 @@ def test_an_override_starts_from_the_specs_own_section():
      "sensing.quantization.nothing: expected one of the groups positions, axes, lengths, found 'nothing'"),
     ({"delay_periods": -1}, "sensing.delay_periods: expected a whole number 0 <= delay_periods <= 1000 (control "
                             "periods), found -1"),
+    ({"groups": [{"name": "tracker", "coordinates": ["SU"], "noise": -1}]},
+     "sensing.groups[0].noise: expected 0 <= noise <= 1 (m or unitless), found -1"),
 ])
 def test_a_bad_override_is_a_spec_error_in_process(crane, override, message):
     """In-process (the CLI's tests run a subprocess, which a mutation run's trampolines do not reach)."""
