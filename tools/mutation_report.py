@@ -8,8 +8,9 @@ survivor as equivalent only when tools/mutation_equivalent.toml lists its change
 the original and the mutated line) with the reason it cannot change what the module computes. The
 entries match by content, not by mutmut's mutant number, so they outlive edits elsewhere in the file.
 
-Kill rate = (killed + timeout) / (mutants the tests reach − equivalent − numerically equivalent). Mutants that no test of the
-selection reaches are reported apart (`no tests`): they are not killed and not excused.
+Kill rate = (killed + timeout) / (mutants the tests reach − equivalent − numerically equivalent); a reached
+mutant that ended otherwise (suspicious, segfault, interrupted) is column `other` and counts as not killed.
+Mutants that no test of the selection reaches are reported apart (`no tests`): not killed and not excused.
 """
 
 from __future__ import annotations
@@ -23,23 +24,30 @@ import tomllib
 from collections import Counter
 from pathlib import Path
 
+from mutmut.stats import status_by_exit_code  # mutmut's own reading of a mutant's exit code
+
 REPO = Path(__file__).resolve().parent.parent
 ROOT = REPO / "build" / "mutation"
 EQUIVALENT = REPO / "tools" / "mutation_equivalent.toml"
-STATUS = {1: "killed", 3: "killed", 0: "survived", 5: "no tests", 33: "no tests", 34: "skipped",
-          36: "timeout", -24: "timeout", 24: "timeout", 152: "timeout", 255: "timeout", None: "not checked"}
 
 
 def function_sources(mutated: Path) -> dict[str, str]:
     """Every (method) definition of mutmut's mutated copy by its mangled name, e.g. xǁClassǁf__mutmut_3."""
-    tree = ast.parse(mutated.read_text())
-    text = mutated.read_text().splitlines()
+    source = mutated.read_text()
+    tree, text = ast.parse(source), source.splitlines()
     found = {}
     for node in ast.walk(tree):
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and "__mutmut_" in node.name:
             # the whole definition (a mutated default argument is on the def line), under one name
             found[node.name] = "\n".join(text[node.lineno - 1:node.end_lineno]).replace(node.name, "f", 1)
     return found
+
+
+def function_name(mangled: str) -> str:
+    """mutmut's mangled name as the source spells it: xǁClassǁmethod -> Class.method, x_function -> function."""
+    if mangled.startswith("xǁ"):
+        return mangled[2:].replace("ǁ", ".")
+    return mangled.removeprefix("x_")
 
 
 def change(sources: dict[str, str], mutant: str) -> tuple[str, str]:
@@ -119,9 +127,9 @@ def collect(root: Path = ROOT) -> list[dict]:
         sources = function_sources(mutated)
         counts, survivors = Counter(), []
         for key, code in verdicts.items():
-            status = STATUS.get(code, "suspicious")
+            status = status_by_exit_code[code]
             name = key.rsplit(".", 1)[-1]
-            function = name.rsplit("__mutmut_", 1)[0].replace("xǁ", "").replace("ǁ", ".").lstrip("x_")
+            function = function_name(name.rsplit("__mutmut_", 1)[0])
             if status == "survived":
                 old, new = change(sources, name)
                 listed = is_listed(entries, module, function, old, new)
@@ -130,9 +138,12 @@ def collect(root: Path = ROOT) -> list[dict]:
                     status = "numerically equivalent" if listed and listed.get("kind") == "numerical" else "equivalent"
                 survivors.append({"mutant": name, "function": function, "old": old, "new": new, "equivalent": why})
             counts[status] += 1
-        excused = counts["equivalent"] + counts["numerically equivalent"]
-        reached = sum(counts[s] for s in ("killed", "timeout", "survived", "suspicious")) + excused
-        judged = reached - excused
+        # reached and not excused: a mutant that ended any other way (suspicious, segfault, interrupted) is not a kill
+        judged = len(verdicts) - sum(counts[s] for s in ("equivalent", "numerically equivalent", "no tests",
+                                                         "skipped", "not checked"))
+        other = judged - counts["killed"] - counts["timeout"] - counts["survived"]
+        if other:
+            counts["other"] = other
         rate = (counts["killed"] + counts["timeout"]) / judged if judged else float("nan")
         rows.append({"selection": mutants.parent.name,
                      "module": module, "counts": dict(counts), "total": len(verdicts), "kill_rate": rate,
@@ -158,10 +169,12 @@ def main(argv=None) -> int:
             for s in r["survivors"]:
                 if not s["equivalent"]:
                     print(f'[[equivalent]]\nmodule = "{r["module"]}"\nfunction = "{s["function"]}"\n'
-                          f"old = {json.dumps(s['old'], ensure_ascii=False)}\nnew = {json.dumps(s['new'], ensure_ascii=False)}\n"
+                          f"old = {json.dumps(s['old'], ensure_ascii=False)}\n"
+                          f"new = {json.dumps(s['new'], ensure_ascii=False)}\n"
                           f'why = "TODO {s["mutant"]}"\n')
         return 0
-    cols = ("killed", "timeout", "survived", "equivalent", "numerically equivalent", "no tests", "not checked")
+    cols = ("killed", "timeout", "survived", "other", "equivalent", "numerically equivalent", "no tests",
+            "not checked")
     if args.markdown:
         print("| module | mutants | " + " | ".join(cols) + " | kill rate |")
         print("|---|---|" + "---|" * len(cols) + "---|")
