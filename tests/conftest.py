@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 import logging
+import os
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +25,26 @@ from acroboter.runtime.cache import load_model
 from acroboter.runtime.compiled import CompiledModel
 
 REPO = Path(__file__).resolve().parent.parent
+
+
+def _models_from_the_generator() -> None:
+    """ACROBOTER_TEST_MODELS=casadi: every model the tests load in this process is CasadiModel, the generator's
+    functions evaluated by CasADi's VM (no C, no compiler), so a change to the generator (codegen/) acts at once.
+    What `tools/mutation.py` sets to mutate the generator modules; slower (a VM call costs tens of µs, and every
+    load builds the functions, about 2 s)."""
+    import acroboter.runtime.cache as cache
+    from acroboter.runtime.casadi_backend import CasadiModel
+
+    def model(spec, source=None, root=None, build=True):
+        # built anew on every load, never kept: a mutant switched on in a forked test process must reach it
+        return CasadiModel(spec)
+
+    cache.model_sources = lambda spec, root, generate=True: Path("<generator, in process>")
+    cache.CompiledModel = model
+
+
+if os.environ.get("ACROBOTER_TEST_MODELS") == "casadi":
+    _models_from_the_generator()
 # A test that needs an optional extra carries its marker (registered in pyproject.toml); without the extra it is
 # skipped, and the reason (which extra, the pip line) shows in the summary (-ra). `make test` installs them all.
 EXTRA_MARKERS = {"needs_mujoco": "mujoco", "needs_animation": "animation", "needs_dask": "dask"}

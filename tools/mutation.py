@@ -10,19 +10,19 @@ check and not the cross-implementation comparisons, which compare against a seco
 of the same code rather than an oracle). Compiled libraries come from the checkout's build/cache/
 (ACROBOTER_CACHE_DIR, as `make` sets it).
 
-Generator modules (codegen/*): a mutant of the generator changes nothing until the C is regenerated.
-The library loader (runtime/cache.py) regenerates into the cache when the generator's fingerprint
-differs from the shipped manifest's; mutmut puts all of a file's mutants behind run-time trampolines
-in one mutated copy, so that copy's fingerprint differs for every mutant alike and each test process
-would regenerate and compile every spec it loads (tens of seconds per spec, per mutant): out of reach
-on a shared 2-core machine. The target therefore takes runtime modules only and refuses codegen/;
-a generator mutant is checked the way the planted-bug table of docs/mutation.md was: apply it
-(`mutmut apply NAME` in build/mutation/ or by hand), `make generate`, run the tests, revert.
+Generator modules (codegen/symbolic.py, structured.py, plant.py): a mutant of the generator changes
+nothing in the compiled C, and regenerating and compiling every spec per mutant (tens of seconds per spec)
+is out of reach on a shared 2-core machine. Their selection runs with ACROBOTER_TEST_MODELS=casadi
+(tests/conftest.py): every model the tests load is the generator's functions evaluated by CasADi's VM in
+the test process (acroboter.runtime.casadi_backend.CasadiModel, no C), so a mutant acts at once, and the
+tests judge it against their oracles (the SymPy derivation, the control laws in numpy, closed-form
+physics). Without modules, `make mutation` runs the runtime core and then the generator, two selections.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shutil
 import subprocess
@@ -36,6 +36,11 @@ CORE = [
     "sim/plant.py", "sim/cable_events.py", "sim/sensing.py",
 ]
 GENERATOR = ["codegen/symbolic.py", "codegen/structured.py", "codegen/plant.py"]
+# The generator's judges: each runs on the CasADi VM's models and compares with an oracle of its own.
+GENERATOR_TESTS = [
+    "tests/test_sympy_oracle.py", "tests/test_control_law.py", "tests/test_controller_contract.py",
+    "tests/test_collocated.py", "tests/test_physics.py",
+]
 TESTS = [
     "tests/test_control_law.py", "tests/test_collocated.py", "tests/test_closed_loop.py",
     "tests/test_distribution.py", "tests/test_exact_distribution.py", "tests/test_limits.py",
@@ -53,27 +58,37 @@ def toml_list(items) -> str:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("modules", nargs="*", default=CORE,
-                        help="modules under acroboter/ to mutate (default: the runtime core, CORE)")
-    parser.add_argument("--tests", nargs="+", default=TESTS, help="the test files that judge the mutants "
-                        "(default: the physics and control-law tests, TESTS)")
+    parser.add_argument("modules", nargs="*",
+                        help="modules under acroboter/ to mutate (default: the runtime core, CORE, then the "
+                        "generator, GENERATOR, as two selections)")
+    parser.add_argument("--tests", nargs="+", help="the test files that judge the mutants (default: the "
+                        "physics and control-law tests, TESTS; for generator modules GENERATOR_TESTS)")
     parser.add_argument("--max-children", type=int, default=2, help="parallel test processes (default 2)")
     parser.add_argument("--only", nargs="+", help="mutants whose names match these globs, e.g. "
                         "'acroboter.control.distribution.xǁBoundedInputsǁaccept*' (default: all)")
     parser.add_argument("--work", type=Path, help="the scratch folder (default build/mutation/<modules>/)")
     args = parser.parse_args(argv)
+    if not args.modules:
+        if args.work or args.only:
+            parser.error("--work and --only need the modules named")
+        return max(select(CORE, args.tests or TESTS, args, "all"), select(GENERATOR, args.tests or GENERATOR_TESTS,
+                                                                          args, "generator"))
     modules = [m.removeprefix("acroboter/") for m in args.modules]
     for m in modules:
-        if m in GENERATOR or m.startswith("codegen/"):
-            parser.error(f"{m}: a generator module; its mutants act only after regenerating the C (see this "
-                         "script's docstring and docs/mutation.md)")
         if not (REPO / "acroboter" / m).is_file():
             parser.error(f"{m}: no such module under acroboter/")
-    bad = EXCLUDED.intersection(args.tests)
+    generator = any(m.startswith("codegen/") for m in modules)
+    tests = args.tests or (GENERATOR_TESTS if generator else TESTS)
+    bad = EXCLUDED.intersection(tests)
     if bad:
         parser.error(f"{', '.join(sorted(bad))}: not an oracle (freshness or a second implementation)")
+    return select(modules, tests, args, "+".join(Path(m).stem for m in modules))
+
+
+def select(modules: list[str], tests: list[str], args, name: str) -> int:
+    """One mutmut run: `modules` mutated, judged by `tests`, in build/mutation/<name>/ (or --work)."""
     # one scratch folder per selection, so the survivors of each module stay to be read (`mutmut show`)
-    WORK = args.work or MUTATION_ROOT / ("+".join(Path(m).stem for m in modules) if modules != CORE else "all")
+    WORK = args.work or MUTATION_ROOT / name
     if WORK.exists():
         shutil.rmtree(WORK)
     WORK.mkdir(parents=True)
@@ -87,19 +102,46 @@ def main(argv=None) -> int:
         "\n[tool.mutmut]\n"
         'paths_to_mutate = ["acroboter/"]\n'
         f"do_not_mutate = {toml_list(others)}\n"
-        f"tests_dir = {toml_list(args.tests)}\n"
+        f"tests_dir = {toml_list(tests)}\n"
         'also_copy = ["generated/", "model_spec/"]\n'
     )
     (WORK / "pyproject.toml").write_text(pyproject)
     env = dict(os.environ)
     env.setdefault("ACROBOTER_CACHE_DIR", str(REPO / "build" / "cache"))
+    if any(m.startswith("codegen/") for m in modules):
+        env["ACROBOTER_TEST_MODELS"] = "casadi"  # the models from the (mutated) generator, in process
     # the console script, not `python -m mutmut`: the mutants import mutmut.__main__, which must not be __main__
     mutmut = [str(Path(sys.executable).parent / "mutmut")]
-    print(f"mutating {', '.join(sorted(keep))} with {len(args.tests)} test files in {WORK}", flush=True)
+    print(f"mutating {', '.join(sorted(keep))} with {len(tests)} test files in {WORK}", flush=True)
     chosen = list(args.only or [])
+    if any(m.startswith("codegen/") for m in modules):
+        widen_generator_coverage(mutmut, WORK, env, args.max_children)
     done = subprocess.run([*mutmut, "run", "--max-children", str(args.max_children), *chosen], cwd=WORK, env=env)
     subprocess.run([*mutmut, "results"], cwd=WORK, env=env)
     return done.returncode
+
+
+def widen_generator_coverage(mutmut: list[str], work: Path, env: dict, children: int) -> None:
+    """Judge every generator mutant by every test of the selection.
+
+    mutmut runs a mutant against the tests that called its function in its statistics run, but the generator
+    runs when a model is loaded, and the tests share their models through fixtures: only the first test to load
+    each spec is recorded, while the tests that judge the terms are the others. So: mutmut's statistics run alone
+    (a filter that matches no mutant stops it right after), then every generator function it saw called is
+    given every test, and the mutation run that follows reads those statistics."""
+    subprocess.run([*mutmut, "run", "--max-children", str(children), "acroboter.codegen.no_such_mutant"], cwd=work,
+                   env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    path = work / "mutants" / "mutmut-stats.json"
+    if not path.is_file():
+        raise SystemExit(f"mutmut's statistics run wrote no {path}: run `mutmut run` in {work} to see why")
+    stats = json.loads(path.read_text())
+    everything = sorted(stats["duration_by_test"], key=stats["duration_by_test"].get)  # fastest first
+    called = stats["tests_by_mangled_function_name"]
+    for name in called:
+        if name.startswith("acroboter.codegen."):
+            called[name] = everything
+    path.write_text(json.dumps(stats, indent=2))
+    print(f"every generator function judged by all {len(everything)} tests of the selection", flush=True)
 
 
 if __name__ == "__main__":

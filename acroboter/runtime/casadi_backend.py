@@ -14,6 +14,7 @@ import numpy as np
 
 from ..model.layout import build_layout
 from ..model.spec import Spec
+from .compiled import SharedInputs
 
 
 class CasadiFunction:
@@ -44,15 +45,20 @@ class CasadiFunction:
         self.inputs[index] = self._shaped(index, flat)
 
 
-class CasadiModel:
-    """The spec's functions as casadi.Function objects behind CompiledModel's interface."""
+class CasadiModel(SharedInputs):
+    """The spec's functions as casadi.Function objects behind CompiledModel's interface: built from the
+    generator in this process (no C, no compiler), so a change to the generator acts at once."""
 
-    def __init__(self, spec: Spec):
+    def __init__(self, spec: Spec, context=None):
+        """context: the spec's GenerationContext with every function registered, if the caller has one
+        (building it is most of the cost); each CasadiModel has buffers of its own either way."""
         from acroboter.codegen.generate import GenerationContext  # CasADi symbolics: only this backend needs them
 
         self.spec = spec
         self.layout = build_layout(spec)
-        context = GenerationContext(spec).register_all()
+        context = context or GenerationContext(spec).register_all()
+        self.manifest = context.manifest()  # the generated folder's manifest.json, as CompiledModel reads it
+        self.source_dir = self.library_path = self.cache_root = None  # nothing on disk
         ns = self.layout.n_signals
         self.signals = np.zeros(3 * ns)
         self.buffers: dict[str, np.ndarray] = {
@@ -64,6 +70,7 @@ class CasadiModel:
         self.q, self.qd, self.p = self.buffers["q"], self.buffers["qd"], self.buffers["p"]
         self.parameters_owner = None
         self.s, self.sd, self.sdd = self.buffers["s"], self.buffers["sd"], self.buffers["sdd"]
+        self._inputs = (self.q, self.qd, self.s, self.sd, self.sdd)
         self.functions = {
             name: CasadiFunction(f, [self.buffers[f.name_in(i)] for i in range(f.n_in())])
             for name, f in context.functions.items()
@@ -72,8 +79,3 @@ class CasadiModel:
     def bind(self, name: str) -> CasadiFunction:
         f = self.functions[name].function
         return CasadiFunction(f, [self.buffers[f.name_in(i)] for i in range(f.n_in())])
-
-    def term(self, name: str) -> np.ndarray:
-        fn = self.functions[name]
-        fn.call()
-        return fn.outputs[name].copy()

@@ -27,7 +27,7 @@ from .integrity import (
     verify_sources,
 )
 
-__all__ = ["BoundFunction", "CompiledModel", "DamagedLibraryError", "NotBuiltError", "StaleModelError"]
+__all__ = ["BoundFunction", "CompiledModel", "SharedInputs", "DamagedLibraryError", "NotBuiltError", "StaleModelError"]
 log = logging.getLogger(__name__)
 
 _REAL_P = ctypes.POINTER(ctypes.c_double)
@@ -130,7 +130,29 @@ def _check_shapes(lib: ctypes.CDLL, symbol: str, input_sizes: list[int], outputs
                                   f"the library but a dense {rows}x{cols} in the manifest: regenerate")
 
 
-class CompiledModel:
+class SharedInputs:
+    """What every model backend offers over its five shared input buffers (q, qd, s, sd, sdd) and its
+    `functions` (each with `call()` and preallocated `outputs`): CompiledModel and the CasADi VM's CasadiModel."""
+
+    def set_inputs(self, q=None, qd=None, s=None, sd=None, sdd=None) -> None:
+        """Copy the given inputs into the shared buffers (others keep their values)."""
+        for buf, val in zip(self._inputs, (q, qd, s, sd, sdd), strict=True):
+            if val is not None:
+                buf[:] = val
+
+    def evaluate(self, name: str, q=None, qd=None, s=None, sd=None, sdd=None) -> dict[str, np.ndarray]:
+        """Convenience (not for hot loops): set inputs, call one function, return copies of its outputs."""
+        self.set_inputs(q, qd, s, sd, sdd)
+        fn = self.functions[name]
+        fn.call()
+        return {k: v.copy() for k, v in fn.outputs.items()}
+
+    def term(self, name: str, q=None, qd=None, s=None, sd=None, sdd=None) -> np.ndarray:
+        """One model term (e.g. 'mass_matrix', 'gamma') as a new array."""
+        return self.evaluate(name, q, qd, s, sd, sdd)[name]
+
+
+class CompiledModel(SharedInputs):
     """All generated functions of one spec, bound to shared input buffers q, qd, s, sd, sdd."""
 
     def __init__(self, spec: Spec, source_dir: Path, cache_root: Path, build: bool = True):
@@ -188,20 +210,3 @@ class CompiledModel:
         re-pointable with point_input), e.g. to chain calls without copying."""
         info = self.manifest["functions"][name]
         return BoundFunction(self.lib, info["symbol"], [self.buffers[i] for i, _ in info["inputs"]], info["outputs"])
-
-    def set_inputs(self, q=None, qd=None, s=None, sd=None, sdd=None) -> None:
-        """Copy the given inputs into the shared buffers (others keep their values)."""
-        for buf, val in zip(self._inputs, (q, qd, s, sd, sdd), strict=True):
-            if val is not None:
-                buf[:] = val
-
-    def evaluate(self, name: str, q=None, qd=None, s=None, sd=None, sdd=None) -> dict[str, np.ndarray]:
-        """Convenience (not for hot loops): set inputs, call one function, return copies of its outputs."""
-        self.set_inputs(q, qd, s, sd, sdd)
-        fn = self.functions[name]
-        fn.call()
-        return {k: v.copy() for k, v in fn.outputs.items()}
-
-    def term(self, name: str, q=None, qd=None, s=None, sd=None, sdd=None) -> np.ndarray:
-        """One model term (e.g. 'mass_matrix', 'gamma') as a new array."""
-        return self.evaluate(name, q, qd, s, sd, sdd)[name]
