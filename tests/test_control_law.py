@@ -21,6 +21,7 @@ a law with a wrong gain (k_P for k_P², Ω for Ω², half the plant's damping, .
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -403,3 +404,29 @@ def test_alpha_beta_filter_is_its_recursion_with_both_poles_at_the_design_pole(c
         expected = vf - a.T @ np.linalg.solve(a @ a.T, Tk["phi_dot"])
         np.testing.assert_allclose(qd_hat, expected, rtol=0, atol=1e-9 * max(1e-3, np.abs(expected).max()))
     assert np.abs(vf).max() > 1e-3  # the noise moves the estimate: the gains are exercised
+
+
+def test_the_laws_hold_with_gains_that_are_not_the_critical_ones(crane, tracking_runs, off_manifold_runs):
+    """The spec's gains are critical (k_D = k_P, μ = 1), where k_D in place of k_P or Ω/μ in place of Ωμ
+    change nothing: with k_D = 3 ≠ k_P = 5 and μ = 0.6, at the recorded states (on and off the manifold),
+    MLM's input realizes σ̈ = −2k_D σ̇ − k_P² σ exactly and iterative-3 commands
+    φ_q q̈ + γ = −(2Ωμ φ̇ + Ω² φ) to rounding (both in numpy from the model's terms)."""
+    spec, model, path, _ = crane
+    gains = replace(Gains.from_spec(spec), kp=5.0, kd=3.0, mu=0.6)
+    mlm, iterative = (make_controller(m, model, path, gains) for m in ("mlm", "iterative-3"))
+    r_on, (r_off, _) = tracking_runs["mlm"], off_manifold_runs["iterative-3"]
+    for r, instants in ((r_on, INSTANTS), (r_off, (0, 2, 5, 10))):
+        for k in instants:
+            T = terms(model, path, r.q[k], r.qd[k], r.t[k])
+            u = mlm.compute(r.q[k], r.qd[k], r.t[k])
+            qdd = constrained_acceleration(T, u, -T["gamma"])
+            law = servo_law(T, gains)
+            scale = np.abs(T["sigma_q"] @ qdd + T["gamma_s"]).max() + np.abs(law).max()
+            np.testing.assert_allclose(T["sigma_q"] @ qdd + T["gamma_s"], law, rtol=0, atol=1e-9 * scale)
+            iterative.compute(r.q[k], r.qd[k], r.t[k])
+            law = constraint_law(T, gains)
+            np.testing.assert_allclose(T["phi_q"] @ iterative.qdd + T["gamma"], law, rtol=0,
+                                       atol=1e-9 * (np.abs(law).max() + np.abs(T["gamma"]).max()))
+            if r is r_off:  # Ω/μ in place of Ωμ would be seen: (1/μ − μ)·2Ω φ̇ is far above the tolerance
+                assert np.abs(2 * gains.omega * (1 / gains.mu - gains.mu) * T["phi_dot"]).max() > 1e4 * 1e-9 * (
+                    np.abs(law).max() + np.abs(T["gamma"]).max())

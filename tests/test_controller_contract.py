@@ -250,3 +250,65 @@ def test_the_signals_given_are_the_ones_used(crane, states, method):
     given = make_controller(method, model, path, Gains.from_spec(spec)).compute(q, qd, 0.0, path.flat(t)).copy()
     own = make_controller(method, model, path, Gains.from_spec(spec)).compute(q, qd, t)
     np.testing.assert_array_equal(given, own)
+
+
+def _sigma(model, path, q, qd, t) -> np.ndarray:
+    return np.array(model.evaluate("sigma", q, qd, *path.signal_arrays(t))["sigma"], copy=True)
+
+
+def test_the_integral_holds_over_a_period_after_a_saturated_step(crane, states):
+    """Anti-windup (docs/integral_action.md): z advances by the trapezoid of σ over a period unless the step
+    that began it saturated. Unbounded, z is the trapezoid from the first step on; with the first winch's
+    max below what it asks at every state, every step saturates and z stays 0. k_I = 1 (any value but 0
+    integrates)."""
+    spec, model, path, _ = crane
+    gains = replace(Gains.from_spec(spec), ki=1.0)
+    lower, upper, preferred = spec.input_limits()
+    free = make_controller("mlm", model, path, gains)
+    asked = [free.compute(q, qd, t)[0] for q, qd, t in states]
+    tight = np.array(upper, dtype=float)
+    tight[0] = min(asked) - 0.05
+    for limits, saturates in ((None, False), ((lower, tight, preferred), True)):
+        controller = make_controller("mlm", model, path, gains, limits=limits)
+        expected = np.zeros(controller.k)
+        previous = None
+        for q, qd, t in states:
+            controller.compute(q, qd, t)
+            assert controller.saturation() is saturates
+            sigma = _sigma(model, path, q, qd, t)
+            if previous is not None and not saturates:
+                expected += 0.5 * (t - previous[0]) * (previous[1] + sigma)
+            previous = (t, sigma)
+            np.testing.assert_allclose(controller.integral, expected, rtol=1e-12, atol=1e-18)
+        assert saturates or np.abs(expected).max() > 1e-9  # σ is not 0 at these states
+
+
+def test_without_integral_action_nothing_is_integrated(crane, states):
+    spec, model, path, _ = crane
+    for method in ("mlm", "penalty"):
+        controller = make_controller(method, model, path, Gains.from_spec(spec))
+        assert controller.ki == 0.0 and controller.saturation() is False  # nothing judged before a step
+        for q, qd, t in states:
+            controller.compute(q, qd, t)
+        assert not controller.integral.any()
+
+
+def test_the_factory_passes_the_limits_and_the_distribution_its_weight():
+    """A caller's limits reach every method; the penalty methods' eq12/eq13 recoveries weight the
+    secondary objective where inputs are redundant (four cables), never on a square system."""
+    from acroboter.model.settings import PENALTY_SECONDARY_WEIGHT
+
+    for name, redundant in (("acroboter", False), ("acroboter_4cable", True)):
+        spec, model, path, _ = load_with_start(REPO / "model_spec" / f"{name}.toml")
+        lower, upper, preferred = spec.input_limits()
+        mine = (np.asarray(lower) - 1.0, np.asarray(upper, dtype=float) - 0.5, preferred)
+        for method in ("mlm", "penalty", "iterative-3"):
+            for recovery in ("projected", "eq12"):
+                gains = replace(Gains.from_spec(spec), recovery=recovery)
+                c = make_controller(method, model, path, gains, limits=mine)
+                np.testing.assert_array_equal(c.limits.upper, mine[1])
+                np.testing.assert_array_equal(c.limits.lower, mine[0])
+                weighted = redundant and method != "mlm" and recovery != "projected"
+                assert c.limits.weight == (PENALTY_SECONDARY_WEIGHT if weighted else 0.0)
+        with pytest.raises(ValueError, match="^saturation: expected 'qp' or 'underactuation', found 'clip'$"):
+            make_controller("mlm", model, path, replace(Gains.from_spec(spec), saturation="clip"))
