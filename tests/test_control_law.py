@@ -430,3 +430,24 @@ def test_the_laws_hold_with_gains_that_are_not_the_critical_ones(crane, tracking
             if r is r_off:  # Ω/μ in place of Ωμ would be seen: (1/μ − μ)·2Ω φ̇ is far above the tolerance
                 assert np.abs(2 * gains.omega * (1 / gains.mu - gains.mu) * T["phi_dot"]).max() > 1e4 * 1e-9 * (
                     np.abs(law).max() + np.abs(T["gamma"]).max())
+
+
+def test_the_structured_terms_refuse_a_mass_matrix_that_depends_on_the_state():
+    """The structured solver terms fold a constant M⁻¹ (natural coordinates give a constant M). A model whose M
+    depended on q or on q̇ would be refused by name, not folded at one state."""
+    from types import SimpleNamespace
+
+    import casadi as ca
+
+    from acroboter.codegen.structured import constant_inverse_mass
+
+    q, qd, s = ca.SX.sym("q", 2), ca.SX.sym("qd", 2), ca.SX.sym("s", 1)
+    message = ("^the mass matrix depends on the state: natural coordinates give a constant one; the structured "
+               "solver terms assume it$")
+    for entry in (q[1], qd[0]):  # each of q and q̇ is looked at
+        model = SimpleNamespace(inputs=[q, qd, s], mass_matrix=ca.diag(ca.vertcat(2.0 + entry**2, 3.0)))
+        with pytest.raises(ValueError, match=message):
+            constant_inverse_mass(model)
+    constant = SimpleNamespace(inputs=[q, qd, s], mass_matrix=ca.SX(ca.DM([[2.0, 0.5], [0.5, 3.0]])))
+    np.testing.assert_allclose(np.array(constant_inverse_mass(constant)) @ [[2.0, 0.5], [0.5, 3.0]], np.eye(2),
+                               atol=1e-15)
