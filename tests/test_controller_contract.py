@@ -312,3 +312,57 @@ def test_the_factory_passes_the_limits_and_the_distribution_its_weight():
                 assert c.limits.weight == (PENALTY_SECONDARY_WEIGHT if weighted else 0.0)
         with pytest.raises(ValueError, match="^saturation: expected 'qp' or 'underactuation', found 'clip'$"):
             make_controller("mlm", model, path, replace(Gains.from_spec(spec), saturation="clip"))
+
+
+def test_the_factory_builds_the_fast_path_of_the_method_asked(crane, states):
+    """fast=True wraps the reference controller of that method with that caller's limits: u as the reference's
+    (to the fast path's 1e-9, docs/fast-path.md), and unlike the neighbouring method's."""
+    from acroboter.control.fast import FastController
+
+    spec, model, path, _ = crane
+    gains = Gains.from_spec(spec)
+    lower, upper, preferred = spec.input_limits()
+    mine = (lower, np.asarray(upper, dtype=float) - 0.25, preferred)
+    q, qd, t = states[1]
+    asked = {m: make_controller(m, model, path, gains, limits=mine).compute(q, qd, t).copy()
+             for m in ("mlm", "penalty", "iterative-3")}
+    for method, other in (("mlm", "penalty"), ("iterative-3", "penalty")):
+        fast = make_controller(method, model, path, gains, limits=mine, fast=True)
+        assert isinstance(fast, FastController) and fast.name == method
+        np.testing.assert_array_equal(fast.reference.limits.upper, mine[1])
+        u = fast.compute(q, qd, t)
+        np.testing.assert_allclose(u, asked[method], rtol=0, atol=1e-9 * np.abs(asked[method]).max())
+        assert np.abs(u - asked[other]).max() > 100 * 1e-9 * np.abs(asked[method]).max()
+
+
+@pytest.mark.parametrize("method", ["penalty", "iterative-3"])
+@pytest.mark.parametrize("recovery", ["eq12", "eq13"])
+def test_a_bounded_least_squares_recovery_is_its_fit_within_the_limits(crane, states, method, recovery):
+    """eq12 (min |H u + σ_qᵀλ̂|) and eq13 (min |H u − (M q̈ + c + φ_qᵀλ)|) with the limit of the input they use
+    most moved 5 % inside what it asks (on this crane they leave the winches at 0: the pseudo-inverse's
+    answer, docs/model.md): the input is the same fit within the limits, scipy's bounded least squares
+    (lsq_linear) of the step's own λ̂, q̈ and λ, to 1e-7 of u."""
+    from scipy.optimize import lsq_linear
+
+    spec, model, path, _ = crane
+    gains = replace(Gains.from_spec(spec), recovery=recovery)
+    lower, upper, preferred = spec.input_limits()
+    for q, qd, t in states[:2]:
+        free = make_controller(method, model, path, gains).compute(q, qd, t).copy()
+        i = int(np.argmax(np.abs(free)))
+        low, high = np.array(lower, dtype=float), np.array(upper, dtype=float)
+        side = 1 if free[i] > 0 else -1
+        (high if side > 0 else low)[i] = 0.95 * free[i]
+        controller = make_controller(method, model, path, gains, limits=(low, high, preferred))
+        u = controller.compute(q, qd, t).copy()
+        lam, lam_hat = (np.array(a, copy=True) for a in controller.multipliers)
+        T = terms(model, path, q, qd, t)
+        H = T["input_matrix"]
+        if recovery == "eq12":
+            target = -(T["sigma_q"].T @ lam_hat)
+        else:
+            target = T["mass_matrix"] @ controller.qdd + T["bias_forces"] + T["phi_q"].T @ lam
+        best = lsq_linear(H, target, bounds=(low, high), tol=1e-14, method="bvls", max_iter=1000).x
+        assert u[i] == pytest.approx(0.95 * free[i], abs=1e-9) and controller.limit_state[i] == side
+        np.testing.assert_allclose(u, best, rtol=0, atol=1e-7 * np.abs(best).max())
+        assert np.abs(u - free).max() > 0.01 * np.abs(free).max()  # the limit changed the input
