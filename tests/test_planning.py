@@ -57,8 +57,9 @@ def lift_coefficients(z: float, v: float) -> tuple[float, float]:
     return a, b
 
 
-def fastest_lift(lo: float, hi: float) -> float:
-    """The bang-bang lift's duration: full acceleration from rest, full deceleration into the top at rest."""
+def fastest_lift(lo: float, hi: float, z0: float = 0.0, z1: float = LIFT) -> float:
+    """The bang-bang lift's duration from z0 to z1: full acceleration from rest, full deceleration into the top at
+    rest."""
 
     def accelerate(t, y):
         a, b = lift_coefficients(y[0], y[1])
@@ -69,14 +70,14 @@ def fastest_lift(lo: float, hi: float) -> float:
         return [-y[1], -(lo - b) / a]
 
     def top(t, y):
-        return y[0] - LIFT
+        return y[0] - z1
 
-    def bottom(t, y):
-        return y[0]
+    def bottom(t, y):  # a little below z0: the bracket of the meeting point below holds
+        return y[0] - z0 + 1e-3 * (z1 - z0)
 
     top.terminal = bottom.terminal = True
-    up = solve_ivp(accelerate, (0, 10), [0.0, 0.0], rtol=1e-11, atol=1e-13, dense_output=True, events=top)
-    down = solve_ivp(decelerate_backwards, (0, 10), [LIFT, 0.0], rtol=1e-11, atol=1e-13, dense_output=True,
+    up = solve_ivp(accelerate, (0, 10), [z0, 0.0], rtol=1e-11, atol=1e-13, dense_output=True, events=top)
+    down = solve_ivp(decelerate_backwards, (0, 10), [z1, 0.0], rtol=1e-11, atol=1e-13, dense_output=True,
                      events=bottom)
 
     def meet(t1: float) -> tuple[float, float]:
@@ -88,9 +89,11 @@ def fastest_lift(lo: float, hi: float) -> float:
     return t1 + meet(t1)[1]
 
 
-def lift_spec(tmp_path: Path, low: float, high: float) -> Path:
+def lift_spec(tmp_path: Path, low: float, high: float, stops: tuple[float, ...] = ()) -> Path:
+    """The lift; `stops`: heights of corners on the way up (each edge then runs rest to rest)."""
     text = re.sub(r'(cable = "L\d")', rf"\1\nlimits = [{low}, {high}]", DEFAULT.read_text())
-    text = re.sub(r"waypoints = \[.*?\n\]", f"waypoints = [[0.0, 0.0, 0.0], [0.0, 0.0, {LIFT}]]", text, flags=re.S)
+    points = ", ".join(f"[0.0, 0.0, {z}]" for z in (0.0, *stops, LIFT))
+    text = re.sub(r"waypoints = \[.*?\n\]", f"waypoints = [{points}]", text, flags=re.S)
     text = text.replace("yaw_deg = 90.0", "yaw_deg = 0.0")
     path = tmp_path / "lift.toml"
     path.write_text(text)
@@ -120,6 +123,23 @@ def test_a_vertical_lift_is_as_fast_as_the_bang_bang_oracle(tmp_path):
     rise = plan.positions - plan.positions[0]
     assert np.abs(rise[:, :2]).max() < 1e-12 and rise[-1, 2] == pytest.approx(LIFT, abs=1e-9)
     assert np.abs(plan.velocities[[0, -1]]).max() < 1e-9
+
+
+def test_the_receding_window_on_a_lift_in_two_edges_is_the_sum_of_the_half_lifts_oracles(tmp_path):
+    """The lift in two edges of 0.05 m, at rest at the corner: the window of one phase (each edge from the state the
+    one before leaves, acroboter.planning.windows) gives the sum of the two half lifts' bang-bang durations (the CC
+    stays at rest: nothing carries over the corner), the whole-path optimum. Measured 2026-12-03 with 16 intervals:
+    windowed 1.00600 s, the whole path in one solve 1.00591 s (0.01 %; 42 s against 61 s, not run here)."""
+    crane = acroboter.Crane.from_toml(lift_spec(tmp_path, 24.0, 29.0, stops=(0.05,)))
+    plan = crane.plan(margin=0.05, intervals=16, certify=False, window=1)
+    expected = fastest_lift(24.25, 28.75, 0.0, 0.05) + fastest_lift(24.25, 28.75, 0.05, LIFT)
+    assert plan.window == 1 and [s["phases"] for s in plan.solves] == [[0], [1]]
+    assert plan.duration == pytest.approx(expected, rel=0.01)
+    assert plan.duration <= min(plan.phase_duration, plan.uniform_duration)
+    winches = plan.inputs[:, :3]
+    assert winches.max() <= 28.75 + 1e-6 and winches.min() >= 24.25 - 1e-6
+    rise = plan.positions - plan.positions[0]
+    assert rise[-1, 2] == pytest.approx(LIFT, abs=1e-9) and np.abs(plan.velocities[[0, -1]]).max() < 1e-9
 
 
 def test_limits_that_cannot_hold_the_load_at_rest_are_found_before_any_solve(tmp_path):

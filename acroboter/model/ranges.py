@@ -261,6 +261,9 @@ PLAN_ACCEL = Range("max_accel", 0.0, 1000.0, "m/s²", low_open=True,
                    why="a retiming's bound on the tracked point's acceleration (about 100 g at most)")
 PLAN_INTERVALS = Range("intervals", 4, 5000, "", whole=True,
                        why="the retiming's grid: intervals over the whole path (each edge gets at least 6)")
+PLAN_WINDOW = Range("window", 0, 1000, "", whole=True,
+                    why="the retiming's receding window: phases (edges) optimised together, 0 for the whole path in "
+                        "one solve")
 DURATION = Range("duration", 0.0, 1e6, "s", low_open=True,
                  why="simulated seconds; also 1 to 360,000 control steps of the spec's rate (checked with the spec)")
 STUDY_DURATION = Range("duration", 0.0, 7200.0, "s", low_open=True,

@@ -24,6 +24,7 @@ from .dynamics import IdealDynamics, PlanningError
 from .geometry import PathGeometry
 from .limits import active_intervals, margin_achieved, tightened
 from .retiming import Retiming, Solution
+from .windows import WindowedRetiming
 
 # The certificate: the closed loop samples the path at the control rate and holds its input in between, so
 # its inputs stray from the ideal ones the plan bounds, most where σ̈ jumps; that is what the margin is for.
@@ -33,6 +34,9 @@ CERTIFICATE_TOLERANCE = 1e-9
 # Samples of the written trajectory per second (and every node of the optimiser's grid).
 SAMPLE_RATE_HZ = 100.0
 DEFAULT_INTERVALS = 120
+# The receding window (acroboter.planning.windows): phases solved together; paths with more phases than this are
+# planned by the window unless the caller asks for the whole path (window = 0).
+DEFAULT_WINDOW = 2
 # The two samples at a node of the grid, one on each side (s).
 NODE_GAP_S = 1e-6
 
@@ -69,6 +73,9 @@ class Plan:
     solve_s: float
     iterations: int
     intervals: int
+    window: int = 0  # phases per window (0: the whole path in one solve)
+    phase_duration: float | None = None  # the phase-wise slowdown's duration (the window's warm start)
+    solves: list[dict] = field(default_factory=list)  # per solve: phases, intervals, RK4 steps, iterations, s
     certificate: Certificate | None = None
     warnings: list[str] = field(default_factory=list)
 
@@ -112,6 +119,9 @@ class Plan:
                            self.input_names, self.input_units, *self.limits, *self.bounds, strict=True))},
             "active_limits": self.active,
             "intervals": self.intervals,
+            "window": self.window,
+            "phase_slowdown_duration_s": self.phase_duration,
+            "solves": self.solves,
             "iterations": self.iterations,
             "solve_s": self.solve_s,
             "warnings": self.warnings,
@@ -127,7 +137,9 @@ class Plan:
 
 def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_speed: float | None = None,
          max_accel: float | None = None, intervals: int = DEFAULT_INTERVALS, certify_plan: bool = True,
-         verbose: bool = False) -> Plan:
+         verbose: bool = False, window: int | None = None) -> Plan:
+    """`window`: phases per receding window (acroboter.planning.windows), 0 the whole path in one solve, None
+    DEFAULT_WINDOW (a path of at most DEFAULT_WINDOW phases is then one solve anyway)."""
     spec, lay = model.spec, model.layout
     if not (isinstance(margin, (int, float)) and 0.0 <= margin < 0.5):
         raise PlanningError(f"margin: expected a fraction from 0 to below 0.5 (0 to 50 %), found {margin!r}")
@@ -137,7 +149,14 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
     needs = check_statics(model, geometry, lower, upper, low, high, margin)
     static_margin, _ = margin_achieved(needs, lower, upper)
     dynamics = IdealDynamics(spec)
-    problem = Retiming(dynamics, geometry, q0, low, high, max_speed=max_speed, max_accel=max_accel)
+    window = DEFAULT_WINDOW if window is None else int(window)
+    if window >= len(geometry.phases):
+        window = 0  # the window would be the whole path
+    if window:
+        problem = WindowedRetiming(dynamics, geometry, q0, low, high, max_speed=max_speed, max_accel=max_accel,
+                                   window=window)
+    else:
+        problem = Retiming(dynamics, geometry, q0, low, high, max_speed=max_speed, max_accel=max_accel)
     solution = problem.solve(intervals, verbose=verbose)
     trajectory = sample(geometry, solution, problem.n)
     achieved, where = margin_achieved(solution.inputs, lower, upper)
@@ -150,7 +169,9 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
         margin_achieved=achieved, margin_input=None if where is None else lay.inputs[where],
         active=active_intervals(solution.input_times, solution.inputs, low, high, list(lay.inputs)),
         uniform_duration=solution.uniform_duration, uniform_slowdown=solution.uniform_slowdown,
-        static_margin=static_margin, solve_s=solution.solve_s, iterations=solution.iterations, intervals=intervals)
+        static_margin=static_margin, solve_s=solution.solve_s, iterations=solution.iterations, intervals=intervals,
+        window=window, phase_duration=None if problem.phase_slowdown is None else problem.phase_slowdown[1],
+        solves=solution.windows)
     if certify_plan:
         # what is certified is the written trajectory (its samples, interpolated), as `run --trajectory` flies it
         flown_path = TrajectoryPath(spec, lay, trajectory, trajectory.duration, float(path.start_yaw))

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
@@ -66,6 +66,22 @@ class Solution:
     solve_s: float
     uniform_slowdown: float  # the best uniform slowdown factor of the path's own timing (feasible)
     uniform_duration: float
+    windows: list[dict] = field(default_factory=list)  # per solve: phases, intervals, RK4 steps, iterations, s
+
+
+@dataclass
+class Part:
+    """One solve over consecutive phases (or their committed concatenation): the phases' durations, σ̈ per
+    interval, the node states (nodes x (2n + 2)), the inputs at every RK4 step start and at the end."""
+
+    durations: np.ndarray
+    tau_dd: np.ndarray
+    states: np.ndarray
+    inputs: np.ndarray
+    status: str
+    iterations: int
+    windows: list[dict]
+    substeps: list[int]  # RK4 steps per interval, per phase
 
 
 class Retiming:
@@ -87,6 +103,8 @@ class Retiming:
         self.rest_start = bool(np.abs(d_start).max() > 1e-9)
         self.rest_end = bool(np.abs(d_end).max() > 1e-9)
         self._check_cache: dict[int, ca.Function] = {}
+        self._steps: dict[int, ca.Function] = {}
+        self.phase_slowdown: tuple[list[float], float] | None = None  # set by a windowed solve
         self.ipopt: dict = {}  # extra IPOPT options (exact Hessian: L-BFGS stalls short of the bang-bang optimum)
 
     # --- the uniform slowdown: a lower-bound check and the starting guess ---------------------------
@@ -147,36 +165,72 @@ class Retiming:
 
     def solve(self, intervals: int, guess_factor: float | None = None, max_iter: int = 400,
               verbose: bool = False) -> Solution:
+        """The fastest timing on `intervals` intervals: the whole path in one problem (`solve_all`; a receding
+        window over its phases in acroboter.planning.windows.WindowedRetiming)."""
         started = time.perf_counter()
         factor = self.best_uniform() if guess_factor is None else guess_factor
         uniform_duration = factor * self.geo.path_duration
         counts = self.grid(intervals)
-        N, n, phases = sum(counts), self.n, self.geo.phases
+        phases = self.geo.phases
         # RK4 steps per interval: none longer than MAX_STEP_S at the starting guess (the Baumgarte terms and the
         # connector's swing are not resolved by longer ones; RK4 turns unstable near 2.8 / Ω)
         longest = factor * max(T / c for (_, _, T), c in zip(phases, counts, strict=True))
         self.substeps = max(self.substeps, int(math.ceil(longest / MAX_STEP_S)))
-        self.step = rk4_step(self.dyn, self.geo, self.substeps)
+        self.step = self.stepper(self.substeps)
+        x0 = np.concatenate([self.x0, [0.0, 0.0]])
+        part = self.solve_all(x0, counts, factor, uniform_duration, max_iter, verbose)
+        duration = float(np.sum(part.durations))
+        if duration <= 1.001e-3 * uniform_duration:
+            raise PlanningError("the limits do not bound this motion (the fastest timing is as short as allowed): "
+                                "give max_speed / max_accel (--max-speed, --max-accel)")
+        h = np.repeat(part.durations / np.asarray(counts), counts)
+        times = np.concatenate([[0.0], np.cumsum(h)])
+        per = np.repeat(part.substeps, counts)  # RK4 steps of each interval
+        starts = [t0 + np.arange(m) * (dt / m) for t0, dt, m in zip(times[:-1], h, per, strict=True)]
+        input_times = np.concatenate([*starts, [times[-1]]])
+        return Solution(duration, times, part.states, part.tau_dd, input_times, part.inputs, part.status,
+                        part.iterations, time.perf_counter() - started, factor, uniform_duration, part.windows)
+
+    def solve_all(self, x0: np.ndarray, counts: list[int], factor: float, uniform_duration: float,
+                  max_iter: int = 400, verbose: bool = False) -> Part:
+        """Every phase in one problem from the static start, from the best uniform slowdown."""
+        _, guess_a = self._guess(factor, counts)
+        return self.solve_phases(x0, list(range(len(self.geo.phases))), counts, guess_a,
+                                 [factor * T for _, _, T in self.geo.phases], uniform_duration, max_iter, verbose)
+
+    def solve_phases(self, x_start: np.ndarray, which: list[int], counts: list[int], guess_a: np.ndarray,
+                     guess_T, uniform_duration: float, max_iter: int = 400, verbose: bool = False,
+                     substeps: int | None = None) -> Part:
+        """The time-optimal problem over the consecutive phases `which` (indices into the path's phases), from the
+        state x_start at the first one's start (σ there, σ̇ = 0 unless the path starts there). The inputs are kept
+        at the start of every RK4 step, and at the end of the last phase."""
+        n, phases = self.n, self.geo.phases
+        substeps = self.substeps if substeps is None else substeps
+        step = self.stepper(substeps)
+        sub = [counts[j] for j in which]
+        N = sum(sub)
         opti = ca.Opti()
         A = opti.variable(1, N)
-        durations = opti.variable(len(phases))
-        steps = ca.horzcat(*[ca.repmat(durations[j] / c, 1, c) for j, c in enumerate(counts)])
-        # single shooting: the states are the integration of the dynamics from the static start (the
-        # internal dynamics are stable and damped; without the states as variables IPOPT sees a problem in
-        # the timing alone, which it solves reliably, where multiple shooting's many redundant states of the
-        # natural coordinates made it wander)
-        x0 = ca.DM(np.concatenate([self.x0, [0.0, 0.0]]))
-        x_end, inputs = self.step.mapaccum(N)(x0, A, steps)
+        durations = opti.variable(len(which))
+        steps = ca.horzcat(*[ca.repmat(durations[i] / c, 1, c) for i, c in enumerate(sub)])
+        # single shooting: the states are the integration of the dynamics from x_start (the internal dynamics
+        # are stable and damped; without the states as variables IPOPT sees a problem in the timing alone, which
+        # it solves reliably, where multiple shooting's many redundant states of the natural coordinates made it
+        # wander)
+        x0 = ca.DM(x_start)
+        x_end, inputs = step.mapaccum(N)(x0, A, steps)
         X = ca.horzcat(x0, x_end)
-        boundaries = np.concatenate([[0], np.cumsum(counts)])
-        for j, (start, stop, _) in enumerate(phases):  # each phase from its start to its end
-            if j > 0:
-                opti.subject_to(X[2 * n, boundaries[j]] == start)
-            opti.subject_to(X[2 * n, boundaries[j + 1]] == stop)
+        boundaries = np.concatenate([[0], np.cumsum(sub)])
+        for i, j in enumerate(which):  # each phase from its start to its end
+            start, stop, _ = phases[j]
+            if i > 0:
+                opti.subject_to(X[2 * n, boundaries[i]] == start)
+            opti.subject_to(X[2 * n, boundaries[i + 1]] == stop)
             if self.geo.edges:  # a corner: at rest
-                opti.subject_to(X[2 * n + 1, boundaries[j + 1]] == 0)
+                opti.subject_to(X[2 * n + 1, boundaries[i + 1]] == 0)
         opti.subject_to(X[2 * n + 1, 1:] >= 0)
-        if self.rest_end:
+        final = which[-1] == len(phases) - 1
+        if final and self.rest_end:
             opti.subject_to(X[2 * n + 1, N] == 0)
         last = inputs_at(self.dyn, self.geo, X[:, N], A[N - 1])
         u_all = ca.horzcat(inputs, last)
@@ -189,12 +243,12 @@ class Retiming:
         opti.subject_to(durations >= 1e-3 * uniform_duration / len(phases))
         total = ca.sum1(durations)
         opti.minimize(total)
-        _, guess_a = self._guess(factor, counts)
-        opti.set_initial(A, guess_a[None, :])
-        opti.set_initial(durations, [factor * T for _, _, T in phases])
+        opti.set_initial(A, np.asarray(guess_a, float)[None, :])
+        opti.set_initial(durations, list(guess_T))
         opti.solver("ipopt", {"print_time": False},
                     {"print_level": 5 if verbose else 0, "max_iter": max_iter, "tol": 1e-8, "sb": "yes",
                      "constr_viol_tol": 1e-9, **ACCEPTABLE, **self.ipopt})
+        started = time.perf_counter()
         try:
             value = opti.solve().value
         except RuntimeError as err:
@@ -207,20 +261,21 @@ class Retiming:
             else:
                 raise PlanningError(f"the time-optimal problem was not solved ({stats.get('return_status', err)}) "
                                     f"after {stats.get('iter_count', '?')} iterations; the best uniform slowdown "
-                                    f"({factor:.4g}x, {uniform_duration:.4g} s) is feasible: try more --intervals or "
-                                    "a larger margin") from None
+                                    f"({uniform_duration:.4g} s) is feasible: try more --intervals or a larger "
+                                    "margin") from None
         stats = opti.stats()
-        duration = float(value(total))
-        if duration <= 1.001e-3 * uniform_duration:
-            raise PlanningError("the limits do not bound this motion (the fastest timing is as short as allowed): "
-                                "give max_speed / max_accel (--max-speed, --max-accel)")
-        h = np.asarray(value(steps)).ravel()
-        times = np.concatenate([[0.0], np.cumsum(h)])
-        starts = times[:-1, None] + np.arange(self.substeps)[None, :] * (h / self.substeps)[:, None]
-        input_times = np.concatenate([starts.ravel(), [times[-1]]])
-        return Solution(duration, times, np.asarray(value(X)).T, np.asarray(value(A)).ravel(), input_times,
-                        np.asarray(value(u_all)).T, stats.get("return_status", ""), int(stats["iter_count"]),
-                        time.perf_counter() - started, factor, uniform_duration)
+        record = {"phases": [int(j) for j in which], "intervals": N, "rk4_steps": N * substeps, "substeps": substeps,
+                  "iterations": int(stats["iter_count"]), "solve_s": time.perf_counter() - started,
+                  "status": stats.get("return_status", "")}
+        return Part(np.asarray(value(durations)).ravel(), np.asarray(value(A)).ravel(), np.asarray(value(X)).T,
+                    np.asarray(value(u_all)).T, record["status"], record["iterations"], [record],
+                    [substeps] * len(which))
+
+    def stepper(self, substeps: int) -> ca.Function:
+        """One interval with `substeps` RK4 steps (rk4_step), built once per count."""
+        if substeps not in self._steps:
+            self._steps[substeps] = rk4_step(self.dyn, self.geo, substeps)
+        return self._steps[substeps]
 
     def _guess(self, factor: float, counts: list[int]) -> tuple[np.ndarray, np.ndarray]:
         """The uniform slowdown on the problem's grid: states at the nodes and σ̈ per interval."""

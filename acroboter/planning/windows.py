@@ -1,0 +1,150 @@
+"""The receding window over the phases of a long path: WindowedRetiming, a Retiming
+(acroboter.planning.retiming) whose `solve` optimises `window` phases at a time.
+
+A waypoint path's phases (its edges) meet at corners where the path speed is 0, but the connector's swing
+(q, q̇) carries over from one phase into the next. The whole path in one single-shooting problem has an exact
+Hessian over every RK4 step of the path (about a thousand on the default path: minutes per IPOPT iteration).
+The window solves phases j .. j + w − 1 together from the committed end state of phase j − 1, commits phase j
+(its duration and σ̈; its end state, swing included, is the next window's start), and moves on by one phase;
+the last window commits all of its phases. Each window is a small problem: its own phases' RK4 steps and
+decision variables, its RK4 steps per interval chosen for its own durations (none longer than MAX_STEP_S;
+re-solved with more when the solution's are longer).
+
+The warm start is the phase-wise slowdown: each edge's own quintic timing slowed by the smallest factor that
+keeps the inputs within the bounds from the state the edges before it leave (a bisection per edge, the swing
+carried over); it is feasible, so its duration is a second upper bound besides the best uniform slowdown. A
+window's phases it shares with the previous window start from that window's answer.
+
+What a window cannot see is the cost its end state (the swing it leaves) puts on the phases after it; a wider
+window sees more of it. docs/planning.md reports how much the duration changes from w = 2 to w = 3.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .dynamics import PlanningError
+from .retiming import CHECK_INTERVAL_S, CHECK_SUBSTEPS, MAX_SLOWDOWN, MAX_STEP_S, Part, Retiming
+
+# The phase-wise slowdown's bisection: relative resolution of each edge's factor.
+PHASE_BISECTION = 1e-2
+
+
+def phase_uniform(problem, x_start: np.ndarray, j: int, factor: float) -> tuple[np.ndarray, np.ndarray]:
+    """Phase j's own timing slowed by `factor` from x_start: (the end state, the inputs at every step start)."""
+    geo = problem.geo
+    start, _, T = geo.phases[j]
+    duration = factor * T
+    count = max(2, int(math.ceil(duration / CHECK_INTERVAL_S)))
+    if count not in problem._check_cache:
+        problem._check_cache[count] = problem.stepper(CHECK_SUBSTEPS).mapaccum(count)
+    h = duration / count
+    t0 = geo.path.edge_t0[j] if geo.edges else 0.0
+    _, _, acc = geo.own_timing(t0 + (np.arange(count) + 0.5) * h / factor)
+    x = np.array(x_start, float)
+    x[-2:] = start, 0.0
+    xs, us = problem._check_cache[count](x, acc[None, :] / factor**2, h)
+    return np.asarray(xs)[:, -1], np.asarray(us).T
+
+
+def phase_slowdown(problem, high: float) -> tuple[list[float], float]:
+    """The phase-wise slowdown (see the module's docstring): each phase's factor and the total duration.
+    PlanningError when a phase is not feasible up to MAX_SLOWDOWN from the state the phases before it leave."""
+    phases = problem.geo.phases
+    x = np.concatenate([problem.x0, [0.0, 0.0]])
+    factors = []
+    for j in range(len(phases)):
+        def feasible(f, x=x, j=j):
+            return problem.excess(phase_uniform(problem, x, j, f)[1]) <= 0
+
+        hi = high
+        while not feasible(hi):
+            hi *= 2.0
+            if hi > MAX_SLOWDOWN:
+                raise PlanningError(f"no slowdown of phase {j + 1} up to {MAX_SLOWDOWN:g}x keeps the inputs within the "
+                                    "limits with the margin from the swing the phases before it leave")
+        lo = hi / 2.0
+        while lo > 1e-3 and feasible(lo):
+            hi, lo = lo, lo / 2.0
+        while hi - lo > PHASE_BISECTION * hi:
+            mid = 0.5 * (lo + hi)
+            if feasible(mid):
+                hi = mid
+            else:
+                lo = mid
+        factors.append(hi)
+        x, _ = phase_uniform(problem, x, j, hi)
+    return factors, float(sum(f * T for f, (_, _, T) in zip(factors, phases, strict=True)))
+
+
+def _warm(problem, counts: list[int], factors: list[float]) -> tuple[dict, dict]:
+    """σ̈ per interval (mid-interval of the slowed quintic) and the duration of each phase slowed by its factor."""
+    geo, warm_a, warm_T = problem.geo, {}, {}
+    for j, ((_, _, T), c, f) in enumerate(zip(geo.phases, counts, factors, strict=True)):
+        t0 = geo.path.edge_t0[j] if geo.edges else 0.0
+        _, _, acc = geo.own_timing(t0 + (np.arange(c) + 0.5) * T / c)
+        warm_a[j], warm_T[j] = acc / f**2, f * T
+    return warm_a, warm_T
+
+
+def _substeps(durations, counts) -> int:
+    return max(2, int(math.ceil(max(T / c for T, c in zip(durations, counts, strict=True)) / MAX_STEP_S)))
+
+
+class WindowedRetiming(Retiming):
+    """A Retiming solved by a receding window of `window` phases (see the module's docstring)."""
+
+    def __init__(self, *args, window: int = 2, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.window = window
+
+    def solve_all(self, x0: np.ndarray, counts: list[int], factor: float, uniform_duration: float,
+                  max_iter: int = 400, verbose: bool = False) -> Part:
+        return receding(self, x0, counts, factor, uniform_duration, self.window, max_iter, verbose)
+
+
+def receding(problem, x0: np.ndarray, counts: list[int], factor: float, uniform_duration: float, window: int,
+             max_iter: int = 400, verbose: bool = False) -> Part:
+    """The committed phases of a receding window of `window` phases (see the module's docstring)."""
+    K = len(problem.geo.phases)
+    factors, phase_duration = phase_slowdown(problem, factor)
+    problem.phase_slowdown = (factors, phase_duration)
+    warm_a, warm_T = _warm(problem, counts, factors)
+    durations, tau_dd, states, inputs, records, substeps = [], [], [x0[None, :]], [], [], []
+    status, iterations, x, j = "", 0, np.asarray(x0, float), 0
+    while j < K:
+        which = list(range(j, min(j + window, K)))
+        mine = [counts[i] for i in which]
+        m = _substeps([warm_T[i] for i in which], mine)
+        while True:
+            part = problem.solve_phases(x, which, counts, np.concatenate([warm_a[i] for i in which]),
+                                        [warm_T[i] for i in which], uniform_duration, max_iter, verbose, m)
+            records += part.windows
+            iterations += part.iterations
+            needed = _substeps(part.durations, mine)
+            if needed <= m:
+                break
+            m = needed  # the solution's steps are longer than MAX_STEP_S: again with more, from the answer
+            local = np.concatenate([[0], np.cumsum(mine)])
+            for i, p in enumerate(which):
+                warm_a[p], warm_T[p] = part.tau_dd[local[i]:local[i + 1]], float(part.durations[i])
+        if not status or status == "Solve_Succeeded":  # the first that is not a success, else success
+            status = part.status
+        commit = which if which[-1] == K - 1 else which[:1]  # the last window commits all of its phases
+        local = np.concatenate([[0], np.cumsum(mine)])
+        for i, p in enumerate(which):
+            if p not in commit:  # the next window's warm start
+                warm_a[p], warm_T[p] = part.tau_dd[local[i]:local[i + 1]], float(part.durations[i])
+        stop = local[len(commit)]
+        durations.append(part.durations[:len(commit)])
+        tau_dd.append(part.tau_dd[:stop])
+        states.append(part.states[1:stop + 1])
+        substeps += [m] * len(commit)
+        last = commit[-1] == K - 1
+        inputs.append(part.inputs if last else part.inputs[:stop * m])
+        x = part.states[stop]
+        j = commit[-1] + 1
+    return Part(np.concatenate(durations), np.concatenate(tau_dd), np.vstack(states), np.vstack(inputs), status,
+                iterations, records, substeps)
