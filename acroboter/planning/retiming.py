@@ -200,10 +200,12 @@ class Retiming:
 
     def solve_phases(self, x_start: np.ndarray, which: list[int], counts: list[int], guess_a: np.ndarray,
                      guess_T, uniform_duration: float, max_iter: int = 400, verbose: bool = False,
-                     substeps: int | None = None) -> Part:
+                     substeps: int | None = None, tail_s: float = 0.0) -> Part:
         """The time-optimal problem over the consecutive phases `which` (indices into the path's phases), from the
         state x_start at the first one's start (σ there, σ̇ = 0 unless the path starts there). The inputs are kept
-        at the start of every RK4 step, and at the end of the last phase."""
+        at the start of every RK4 step, and at the end of the last phase. `tail_s` > 0: the path then held at rest
+        at its corner for tail_s seconds with the inputs within the bounds too (the swing the phases leave must
+        not take an input beyond them while the next phase starts: acroboter.planning.windows)."""
         n, phases = self.n, self.geo.phases
         substeps = self.substeps if substeps is None else substeps
         step = self.stepper(substeps)
@@ -234,11 +236,16 @@ class Retiming:
             opti.subject_to(X[2 * n + 1, N] == 0)
         last = inputs_at(self.dyn, self.geo, X[:, N], A[N - 1])
         u_all = ca.horzcat(inputs, last)
+        bounded = u_all
+        if tail_s > 0:
+            count = max(1, int(math.ceil(tail_s / (substeps * MAX_STEP_S))))
+            _, held = step.mapaccum(count)(X[:, N], ca.DM.zeros(1, count), ca.DM.ones(1, count) * (tail_s / count))
+            bounded = ca.horzcat(u_all, held)
         for i in range(self.lower.size):
             if math.isfinite(self.upper[i]):
-                opti.subject_to(u_all[i, :] <= self.upper[i])
+                opti.subject_to(bounded[i, :] <= self.upper[i])
             if math.isfinite(self.lower[i]):
-                opti.subject_to(u_all[i, :] >= self.lower[i])
+                opti.subject_to(bounded[i, :] >= self.lower[i])
         self._path_bounds(opti, X, A, N)
         opti.subject_to(durations >= 1e-3 * uniform_duration / len(phases))
         total = ca.sum1(durations)

@@ -8,12 +8,15 @@ The window solves phases j .. j + w − 1 together from the committed end state 
 (its duration and σ̈; its end state, swing included, is the next window's start), and moves on by one phase;
 the last window commits all of its phases. Each window is a small problem: its own phases' RK4 steps and
 decision variables, its RK4 steps per interval chosen for its own durations (none longer than MAX_STEP_S;
-re-solved with more when the solution's are longer).
+re-solved with more when the solution's are longer), followed by the path held at rest at its last corner
+for WINDOW_TAIL_S with the inputs within the bounds (the swing it leaves must leave the next window a start).
 
 The warm start is the phase-wise slowdown: each edge's own quintic timing slowed by the smallest factor that
 keeps the inputs within the bounds from the state the edges before it leave (a bisection per edge, the swing
 carried over); it is feasible, so its duration is a second upper bound besides the best uniform slowdown. A
-window's phases it shares with the previous window start from that window's answer.
+window's phases it shares with the previous window start from that window's answer, and the phase that enters
+from the phase-wise factor found again from the state that answer leaves (its swing would otherwise make the
+warm start infeasible, and IPOPT crawl out of it).
 
 What a window cannot see is the cost its end state (the swing it leaves) puts on the phases after it; a wider
 window sees more of it. docs/planning.md reports how much the duration changes from w = 2 to w = 3.
@@ -30,6 +33,10 @@ from .retiming import CHECK_INTERVAL_S, CHECK_SUBSTEPS, MAX_SLOWDOWN, MAX_STEP_S
 
 # The phase-wise slowdown's bisection: relative resolution of each edge's factor.
 PHASE_BISECTION = 1e-2
+# A window that does not reach the path's end is followed by the path held at rest at its last corner for this
+# long with the inputs within the bounds: the connector's swing, barely damped (the default crane's period is
+# about 2.8 s, its decay time about a minute), would otherwise leave the next phase no feasible start.
+WINDOW_TAIL_S = 3.0
 
 
 def phase_uniform(problem, x_start: np.ndarray, j: int, factor: float) -> tuple[np.ndarray, np.ndarray]:
@@ -49,44 +56,48 @@ def phase_uniform(problem, x_start: np.ndarray, j: int, factor: float) -> tuple[
     return np.asarray(xs)[:, -1], np.asarray(us).T
 
 
+def phase_factor(problem, x: np.ndarray, j: int, high: float) -> float:
+    """The smallest factor (within PHASE_BISECTION) of phase j's own timing that keeps the inputs within the bounds
+    from the state x; PlanningError when none up to MAX_SLOWDOWN does."""
+    def feasible(f):
+        return problem.excess(phase_uniform(problem, x, j, f)[1]) <= 0
+
+    hi = high
+    while not feasible(hi):
+        hi *= 2.0
+        if hi > MAX_SLOWDOWN:
+            raise PlanningError(f"no slowdown of phase {j + 1} up to {MAX_SLOWDOWN:g}x keeps the inputs within the "
+                                "limits with the margin from the swing the phases before it leave")
+    lo = hi / 2.0
+    while lo > 1e-3 and feasible(lo):
+        hi, lo = lo, lo / 2.0
+    while hi - lo > PHASE_BISECTION * hi:
+        mid = 0.5 * (lo + hi)
+        if feasible(mid):
+            hi = mid
+        else:
+            lo = mid
+    return hi
+
+
 def phase_slowdown(problem, high: float) -> tuple[list[float], float]:
-    """The phase-wise slowdown (see the module's docstring): each phase's factor and the total duration.
-    PlanningError when a phase is not feasible up to MAX_SLOWDOWN from the state the phases before it leave."""
+    """The phase-wise slowdown (see the module's docstring): each phase's factor and the total duration."""
     phases = problem.geo.phases
     x = np.concatenate([problem.x0, [0.0, 0.0]])
     factors = []
     for j in range(len(phases)):
-        def feasible(f, x=x, j=j):
-            return problem.excess(phase_uniform(problem, x, j, f)[1]) <= 0
-
-        hi = high
-        while not feasible(hi):
-            hi *= 2.0
-            if hi > MAX_SLOWDOWN:
-                raise PlanningError(f"no slowdown of phase {j + 1} up to {MAX_SLOWDOWN:g}x keeps the inputs within the "
-                                    "limits with the margin from the swing the phases before it leave")
-        lo = hi / 2.0
-        while lo > 1e-3 and feasible(lo):
-            hi, lo = lo, lo / 2.0
-        while hi - lo > PHASE_BISECTION * hi:
-            mid = 0.5 * (lo + hi)
-            if feasible(mid):
-                hi = mid
-            else:
-                lo = mid
-        factors.append(hi)
-        x, _ = phase_uniform(problem, x, j, hi)
+        factors.append(phase_factor(problem, x, j, high))
+        x, _ = phase_uniform(problem, x, j, factors[-1])
     return factors, float(sum(f * T for f, (_, _, T) in zip(factors, phases, strict=True)))
 
 
-def _warm(problem, counts: list[int], factors: list[float]) -> tuple[dict, dict]:
-    """σ̈ per interval (mid-interval of the slowed quintic) and the duration of each phase slowed by its factor."""
-    geo, warm_a, warm_T = problem.geo, {}, {}
-    for j, ((_, _, T), c, f) in enumerate(zip(geo.phases, counts, factors, strict=True)):
-        t0 = geo.path.edge_t0[j] if geo.edges else 0.0
-        _, _, acc = geo.own_timing(t0 + (np.arange(c) + 0.5) * T / c)
-        warm_a[j], warm_T[j] = acc / f**2, f * T
-    return warm_a, warm_T
+def _warm(problem, j: int, count: int, factor: float) -> tuple[np.ndarray, float]:
+    """Phase j slowed by `factor` on its `count` intervals: σ̈ per interval (mid-interval) and its duration."""
+    geo = problem.geo
+    T = geo.phases[j][2]
+    t0 = geo.path.edge_t0[j] if geo.edges else 0.0
+    _, _, acc = geo.own_timing(t0 + (np.arange(count) + 0.5) * T / count)
+    return acc / factor**2, factor * T
 
 
 def _substeps(durations, counts) -> int:
@@ -111,7 +122,9 @@ def receding(problem, x0: np.ndarray, counts: list[int], factor: float, uniform_
     K = len(problem.geo.phases)
     factors, phase_duration = phase_slowdown(problem, factor)
     problem.phase_slowdown = (factors, phase_duration)
-    warm_a, warm_T = _warm(problem, counts, factors)
+    warm_a, warm_T = {}, {}
+    for p in range(K):
+        warm_a[p], warm_T[p] = _warm(problem, p, counts[p], factors[p])
     durations, tau_dd, states, inputs, records, substeps = [], [], [x0[None, :]], [], [], []
     status, iterations, x, j = "", 0, np.asarray(x0, float), 0
     while j < K:
@@ -120,7 +133,8 @@ def receding(problem, x0: np.ndarray, counts: list[int], factor: float, uniform_
         m = _substeps([warm_T[i] for i in which], mine)
         while True:
             part = problem.solve_phases(x, which, counts, np.concatenate([warm_a[i] for i in which]),
-                                        [warm_T[i] for i in which], uniform_duration, max_iter, verbose, m)
+                                        [warm_T[i] for i in which], uniform_duration, max_iter, verbose, m,
+                                        0.0 if which[-1] == K - 1 else WINDOW_TAIL_S)
             records += part.windows
             iterations += part.iterations
             needed = _substeps(part.durations, mine)
@@ -146,5 +160,12 @@ def receding(problem, x0: np.ndarray, counts: list[int], factor: float, uniform_
         inputs.append(part.inputs if last else part.inputs[:stop * m])
         x = part.states[stop]
         j = commit[-1] + 1
+        entering = which[-1] + 1
+        if entering < K:  # slowed from the state this window's answer leaves it, the swing included
+            try:
+                factor_e = phase_factor(problem, part.states[-1], entering, factors[entering])
+                warm_a[entering], warm_T[entering] = _warm(problem, entering, counts[entering], factor_e)
+            except PlanningError:  # no slowdown is feasible from there: IPOPT starts from the phase-wise one
+                pass
     return Part(np.concatenate(durations), np.concatenate(tau_dd), np.vstack(states), np.vstack(inputs), status,
                 iterations, records, substeps)
