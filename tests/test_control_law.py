@@ -452,3 +452,34 @@ def test_the_structured_terms_refuse_a_mass_matrix_that_depends_on_the_state():
     constant = SimpleNamespace(inputs=[q, qd, s], mass_matrix=ca.SX(ca.DM([[2.0, 0.5], [0.5, 3.0]])))
     np.testing.assert_allclose(np.array(constant_inverse_mass(constant)) @ [[2.0, 0.5], [0.5, 3.0]], np.eye(2),
                                atol=1e-15)
+
+
+def test_mlm_under_a_binding_limit_is_the_best_servo_fit_within_the_limits(crane, tracking_runs):
+    """With the first winch's max 0.05 N below what it asks, MLM's input is the one within the limits whose
+    servo accelerations come closest to the law: min |σ̈(u) − (−2k_D σ̇ − k_P² σ)| with σ̈(u) = σ_q q̈(u) + γ_s
+    and q̈(u) from a dense solve of the constrained dynamics (numpy), by scipy's bounded least squares. At the
+    recorded positions with q̇ twenty times the recorded one: the velocity terms (γ, γ_s, c) then weigh in the
+    fit as much as the inputs do (on the slow path itself they are below the tolerance)."""
+    from scipy.optimize import lsq_linear
+
+    spec, model, path, _ = crane
+    gains = Gains.from_spec(spec)
+    lower, upper, preferred = (np.array(a, dtype=float) for a in spec.input_limits())
+    r = tracking_runs["mlm"]
+    for k in INSTANTS[1:4]:
+        q, qd, t = r.q[k], 20.0 * r.qd[k], r.t[k]
+        T = terms(model, path, q, qd, t)
+
+        def servo_acceleration(u):
+            return T["sigma_q"] @ constrained_acceleration(T, u, -T["gamma"]) + T["gamma_s"]
+
+        free = make_controller("mlm", model, path, gains).compute(q, qd, t).copy()
+        tight = upper.copy()
+        tight[0] = free[0] - 0.05
+        u = make_controller("mlm", model, path, gains, limits=(lower, tight, preferred)).compute(q, qd, t).copy()
+        base = servo_acceleration(np.zeros_like(u))
+        E = np.column_stack([servo_acceleration(e) - base for e in np.eye(u.size)])
+        best = lsq_linear(E, servo_law(T, gains) - base, bounds=(lower, tight), method="bvls", tol=1e-14,
+                          max_iter=1000).x
+        assert u[0] == pytest.approx(tight[0], abs=1e-9)
+        np.testing.assert_allclose(u, best, rtol=0, atol=1e-7 * np.abs(best).max())
