@@ -470,7 +470,7 @@ def test_mlm_under_a_binding_limit_is_the_best_servo_fit_within_the_limits(crane
         q, qd, t = r.q[k], 20.0 * r.qd[k], r.t[k]
         T = terms(model, path, q, qd, t)
 
-        def servo_acceleration(u):
+        def servo_acceleration(u, T=T):  # T of this instant
             return T["sigma_q"] @ constrained_acceleration(T, u, -T["gamma"]) + T["gamma_s"]
 
         free = make_controller("mlm", model, path, gains).compute(q, qd, t).copy()
