@@ -252,10 +252,6 @@ def test_the_signals_given_are_the_ones_used(crane, states, method):
     np.testing.assert_array_equal(given, own)
 
 
-def _sigma(model, path, q, qd, t) -> np.ndarray:
-    return np.array(model.evaluate("sigma", q, qd, *path.signal_arrays(t))["sigma"], copy=True)
-
-
 def test_the_integral_holds_over_a_period_after_a_saturated_step(crane, states):
     """Anti-windup (docs/integral_action.md): z advances by the trapezoid of σ over a period unless the step
     that began it saturated. Unbounded, z is the trapezoid from the first step on; with the first winch's
@@ -275,7 +271,7 @@ def test_the_integral_holds_over_a_period_after_a_saturated_step(crane, states):
         for q, qd, t in states:
             controller.compute(q, qd, t)
             assert controller.saturation() is saturates
-            sigma = _sigma(model, path, q, qd, t)
+            sigma = terms(model, path, q, qd, t)["sigma"]
             if previous is not None and not saturates:
                 expected += 0.5 * (t - previous[0]) * (previous[1] + sigma)
             previous = (t, sigma)

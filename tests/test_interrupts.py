@@ -304,7 +304,6 @@ def test_a_ctrl_c_that_a_weakref_callback_swallows_is_not_lost(capsys):
     """CI, 2026-12-03: a SIGINT landed while matplotlib's weakref callback ran during garbage collection; Python
     printed "Exception ignored in" and went on, and `animate` published its video and exited 0. Now the block
     remembers such a Ctrl-C: nothing is published after it (deferred_interrupt raises first) and nothing is printed."""
-    import signal
     import weakref
 
     from acroboter.model.interrupts import deferred_interrupt, remembered_interrupt
