@@ -374,6 +374,77 @@ def test_each_recovery_meets_its_defining_equation(toy, kind, iterations):
             assert np.abs(shift).max() > 1e3 * 1e-6 * np.abs(expected).max()
 
 
+@pytest.mark.parametrize("iterations", [1, 3])
+def test_the_projected_recoverys_fallback_meets_its_defining_equation(toy, iterations, monkeypatch):
+    """Where the generated projected map comes out singular (non-finite: dependent actuators and reactions),
+    recover() solves the same fit by a pivoted QR of M^(-1/2) B (recovery.py). With the map made to fail, u is
+    still the fit in the M⁻¹ metric, solved with numpy from a numpy penalty solve."""
+    spec, model, path = toy
+    gains = Gains.from_spec(spec, recovery="projected")
+    controller = make_controller("penalty" if iterations == 1 else f"iterative-{iterations}", model, path, gains)
+    monkeypatch.setattr(controller.recovery, "projected_fast", lambda *args: None)  # as a singular map returns
+    for q, qd, t in toy_states(toy):
+        T = terms(model, path, q, qd, t)
+        qdd, lam, lam_hat = penalty_in_numpy(T, gains, iterations)
+        expected = expected_input("projected", T, T["mass_matrix"], qdd, lam, lam_hat, gains.kappa)
+        u = controller.compute(q, qd, t)
+        np.testing.assert_allclose(u, expected, rtol=1e-6, atol=1e-6 * np.abs(expected).max())
+
+
+@pytest.fixture(scope="module")
+def turning_toy(tmp_path_factory):
+    """The loaded toy with its thrust along v replaced by a torque about v: that torque's generalized force and
+    thrust_x's both act on the w axis' coordinates, so HᵀH is not diagonal (with thrusters alone, along the
+    body's axes, it is: their generalized forces are orthogonal wherever they act). Three inputs for three
+    servo-constraints, as eq15 and κ need; the task's v direction is not actuated, which no recovery minds."""
+    root = tmp_path_factory.mktemp("turning_toy")
+    text = TOY.read_text().replace('name = "loaded_toy"', 'name = "turning_toy"')
+    thrust_y = ('name = "thrust_y"\nkind = "body_thrust"\nbody = "box"\naxis = "v"\npoint = [0.0, 0.0, 0.2]\n'
+                'gain = -1.0\n')
+    assert thrust_y in text
+    text = text.replace(thrust_y, 'name = "torque_v"\nkind = "body_torque"\nbody = "box"\naxis = "v"\n')
+    (root / "turning_toy.toml").write_text(text)
+    return build_in(root, load_spec(root / "turning_toy.toml"))
+
+
+@pytest.mark.parametrize("kind", ["eq12", "eq13", "eq15", "kappa"])
+def test_a_bounded_recovery_is_its_own_fit_within_the_limits(turning_toy, kind):
+    """With the limit of the input each asks most of moved 5 % inside it: eq12 and eq13 stay their least squares in
+    H u (scipy's lsq_linear of the step's own λ̂, or q̈ and λ), eq15 and κ, explicit maps, give the input within the
+    limits nearest theirs (the box projection). On the turning toy HᵀH is not diagonal, so the two answers differ
+    by far more than the tolerance and a recovery bounded by the other's rule fails (on the crane and the loaded
+    toy they coincide)."""
+    from scipy.optimize import lsq_linear
+
+    least_squares = kind in ("eq12", "eq13")
+    spec, model, path = turning_toy
+    gains = Gains.from_spec(spec, recovery=kind, kappa=0.3 if kind == "kappa" else None)
+    _, _, preferred = spec.input_limits()
+    for q, qd, t in toy_states((spec, model, path)):
+        free = make_controller("penalty", model, path, gains).compute(q, qd, t).copy()
+        i = int(np.argmax(np.abs(free)))
+        span = 10 * np.abs(free).max()
+        low, high = np.full(free.size, -span), np.full(free.size, span)
+        side = 1 if free[i] > 0 else -1
+        (high if side > 0 else low)[i] = 0.95 * free[i]
+        controller = make_controller("penalty", model, path, gains, limits=(low, high, preferred))
+        u = controller.compute(q, qd, t).copy()
+        lam, lam_hat = (np.array(a, copy=True) for a in controller.multipliers)
+        T = terms(model, path, q, qd, t)
+        H = T["input_matrix"]
+        if kind == "eq13":
+            target = T["mass_matrix"] @ controller.qdd + T["bias_forces"] + T["phi_q"].T @ lam
+        else:
+            target = -(T["sigma_q"].T @ lam_hat)
+        fit = lsq_linear(H, target, bounds=(low, high), tol=1e-14, method="bvls", max_iter=1000).x
+        nearest = np.clip(free, low, high)
+        best, other = (fit, nearest) if least_squares else (nearest, fit)
+        tolerance = 1e-7 * np.abs(best).max()
+        assert u[i] == pytest.approx(0.95 * free[i], abs=1e-9) and controller.limit_state[i] == side
+        np.testing.assert_allclose(u, best, rtol=0, atol=tolerance)
+        assert np.abs(best - other).max() > 100 * tolerance  # the other rule would fail
+
+
 # --- (d) the α-β velocity filter ----------------------------------------------------------------------------
 
 def test_alpha_beta_filter_is_its_recursion_with_both_poles_at_the_design_pole(crane, tracking_runs):
