@@ -375,18 +375,24 @@ def test_each_recovery_meets_its_defining_equation(toy, kind, iterations):
 
 
 @pytest.mark.parametrize("iterations", [1, 3])
-def test_the_projected_recoverys_fallback_meets_its_defining_equation(toy, iterations, monkeypatch):
+@pytest.mark.parametrize("system", ["toy", "turning_toy"])
+def test_the_projected_recoverys_fallback_meets_its_defining_equation(request, system, iterations, monkeypatch):
     """Where the generated projected map comes out singular (non-finite: dependent actuators and reactions),
     recover() solves the same fit by a pivoted QR of M^(-1/2) B (recovery.py). With the map made to fail, u is
-    still the fit in the M⁻¹ metric, solved with numpy from a numpy penalty solve."""
-    spec, model, path = toy
+    still the fit in the M⁻¹ metric, solved with numpy from a numpy penalty solve: on the loaded toy, and on the
+    turning toy, whose body has products of inertia, so that its M is not diagonal (the loaded toy's and the
+    crane's are: a wrong M^(-1/2), an upper factor read as a lower one, goes unseen there)."""
+    spec, model, path = request.getfixturevalue(system)
     gains = Gains.from_spec(spec, recovery="projected")
     controller = make_controller("penalty" if iterations == 1 else f"iterative-{iterations}", model, path, gains)
     monkeypatch.setattr(controller.recovery, "projected_fast", lambda *args: None)  # as a singular map returns
-    for q, qd, t in toy_states(toy):
+    for q, qd, t in toy_states((spec, model, path)):
         T = terms(model, path, q, qd, t)
+        mass = T["mass_matrix"]
+        if system == "turning_toy":
+            assert np.abs(mass - np.diag(np.diag(mass))).max() > 1e-2 * np.abs(np.diag(mass)[3:]).min()
         qdd, lam, lam_hat = penalty_in_numpy(T, gains, iterations)
-        expected = expected_input("projected", T, T["mass_matrix"], qdd, lam, lam_hat, gains.kappa)
+        expected = expected_input("projected", T, mass, qdd, lam, lam_hat, gains.kappa)
         u = controller.compute(q, qd, t)
         np.testing.assert_allclose(u, expected, rtol=1e-6, atol=1e-6 * np.abs(expected).max())
 
@@ -396,9 +402,13 @@ def turning_toy(tmp_path_factory):
     """The loaded toy with its thrust along v replaced by a torque about v: that torque's generalized force and
     thrust_x's both act on the w axis' coordinates, so HᵀH is not diagonal (with thrusters alone, along the
     body's axes, it is: their generalized forces are orthogonal wherever they act). Three inputs for three
-    servo-constraints, as eq15 and κ need; the task's v direction is not actuated, which no recovery minds."""
+    servo-constraints, as eq15 and κ need; the task's v direction is not actuated, which no recovery minds.
+    Its body has products of inertia, so its mass matrix is not diagonal either."""
     root = tmp_path_factory.mktemp("turning_toy")
+    inertia = "inertia = [[0.05, 0.0, 0.0], [0.0, 0.06, 0.0], [0.0, 0.0, 0.08]]"
     text = TOY.read_text().replace('name = "loaded_toy"', 'name = "turning_toy"')
+    assert inertia in text
+    text = text.replace(inertia, "inertia = [[0.05, 0.012, -0.008], [0.012, 0.06, 0.01], [-0.008, 0.01, 0.08]]")
     thrust_y = ('name = "thrust_y"\nkind = "body_thrust"\nbody = "box"\naxis = "v"\npoint = [0.0, 0.0, 0.2]\n'
                 'gain = -1.0\n')
     assert thrust_y in text

@@ -375,17 +375,18 @@ def test_the_recoveries_refuse_what_they_cannot_do_and_say_why():
     """An unknown recovery names the choices; eq15 and κ, square maps, refuse a system with more servo-constraints
     than inputs and name the recoveries that can; dependent actuators make eq12's HᵀH singular, said in words."""
     mass = np.diag([2.0, 2.0, 2.0, 1.0])
-    with pytest.raises(RecoveryError, match=re.escape(f"unknown input recovery 'eq14': choose one of "
-                                                      f"{', '.join(RECOVERIES)}")):
+    with pytest.raises(RecoveryError, match="^" + re.escape(f"unknown input recovery 'eq14': choose one of "
+                                                            f"{', '.join(RECOVERIES)}") + "$"):
         InputRecovery("eq14", mass, 3, 3, 0.5)
     assert ", ".join(RECOVERIES) == "projected, eq12, eq13, eq15, kappa"
     for kind in ("eq15", "kappa"):
-        with pytest.raises(RecoveryError, match=re.escape(f"recovery '{kind}' needs as many servo-constraints as "
-                                                          "inputs (found 3 for 2): use 'projected' or 'eq12'")):
+        with pytest.raises(RecoveryError, match="^" + re.escape(f"recovery '{kind}' needs as many servo-constraints "
+                                                                "as inputs (found 3 for 2): use 'projected' or "
+                                                                "'eq12'") + "$"):
             InputRecovery(kind, mass, 3, 2, 0.5)
         InputRecovery(kind, mass, 2, 2, 0.5)  # square: accepted
     dependent = np.array([[1.0, 2.0], [0.0, 0.0], [1.0, 2.0], [0.0, 0.0]])  # the second actuator is twice the first
     terms = {"input_matrix": dependent, "sigma_q": np.ones((2, 4))}
-    with pytest.raises(RecoveryError, match=re.escape("HᵀH is singular: the actuators' generalized forces are "
-                                                      "linearly dependent")):
+    with pytest.raises(RecoveryError, match="^" + re.escape("HᵀH is singular: the actuators' generalized forces "
+                                                            "are linearly dependent") + "$"):
         InputRecovery("eq12", mass, 2, 2, 0.5).recover(terms, np.ones(2), np.zeros(4), np.zeros(0))
