@@ -310,6 +310,7 @@ def test_a_pendulum_whirled_too_slowly_goes_slack_flies_and_snaps_taut(ball):
     assert taut_event.delta_kinetic < 0
     assert taut_event.delta_kinetic == pytest.approx(-0.5 * MASS * (v_hit @ normal) ** 2, rel=1e-6)
     assert plant.impact_energy == taut_event.delta_kinetic
+    assert_event_log_consistent(plant, [True])
     # after it, taut again: the string pulls and the ball stays on the sphere
     after = t > taut_event.t + H
     np.testing.assert_allclose(np.linalg.norm(p[after] - HOOK, axis=1), LENGTH, atol=1e-9)
@@ -336,6 +337,7 @@ def test_a_radial_throw_loses_all_its_radial_velocity(ball):
     assert taut_event.kind == "taut"
     assert taut_event.t == pytest.approx(2 * v0 / G, abs=1e-9)
     assert taut_event.delta_kinetic == pytest.approx(-0.5 * MASS * v0**2, rel=1e-9)
+    assert_event_log_consistent(plant, [True])
     flying = t <= taut_event.t
     np.testing.assert_allclose(states[flying, 2], HOOK[2] - LENGTH + v0 * t[flying] - 0.5 * G * t[flying] ** 2,
                                atol=1e-9, rtol=0)
@@ -343,6 +345,63 @@ def test_a_radial_throw_loses_all_its_radial_velocity(ball):
     assert np.abs(states[after, n : 2 * n]).max() < 1e-9  # at rest: no radial velocity left, nothing else
     assert np.abs(states[after, :3] - (HOOK - [0.0, 0.0, LENGTH])).max() < 1e-9
     np.testing.assert_allclose(tensions[after[:-1]][1:], MASS * G, rtol=1e-9)
+
+
+def assert_event_log_consistent(plant, started_taut):
+    """The plant's event log against its own bookkeeping: every event is "slack" or "taut"; each cable's events
+    alternate, from the opposite of how it started; `transitions` counts them; the kinetic energy the events
+    carry adds up to `impact_energy`; times do not go back (beyond rounding: an event's time is the substep's start
+    plus a fraction of it, and two events microseconds apart get it by different sums)."""
+    assert all(e.kind in ("slack", "taut") for e in plant.events), {e.kind for e in plant.events}
+    for c, taut in enumerate(started_taut):
+        kinds = [e.kind for e in plant.events if e.cable == c]
+        expected = ["slack", "taut"] if taut else ["taut", "slack"]
+        assert kinds == [expected[i % 2] for i in range(len(kinds))], (c, kinds)
+        assert plant.transitions[c] == len(kinds)
+    assert sum(e.delta_kinetic for e in plant.events) == pytest.approx(plant.impact_energy, rel=1e-12, abs=1e-15)
+    times = np.array([e.t for e in plant.events])
+    assert (np.diff(times) >= -1e-12 * np.maximum(1.0, np.abs(times[1:]))).all()
+
+
+@pytest.mark.parametrize("degrees", [0.0, 60.0, 89.0, 91.0, 120.0, 175.0])
+def test_probe_gives_the_strings_closed_form_tension_and_never_a_pushing_one(ball, degrees):
+    """The ball at rest on its sphere at θ from the bottom: the string's tension is m g cos θ while that pulls
+    (θ < 90°); beyond, a string would push, so probe marks it slack, says so in the event log, and reports 0.
+    The state is kept as it was."""
+    model, plant = ball
+    theta = math.radians(degrees)
+    q0 = np.concatenate([HOOK + LENGTH * np.array([math.sin(theta), 0.0, -math.cos(theta)]), np.eye(3).reshape(-1)])
+    x = plant.initial_state(q0)
+    assert plant.start_active[0] == 1.0  # at the string's length: starts taut
+    kept = x.copy()
+    plant.probe(x, np.zeros(1), 0.25)
+    np.testing.assert_array_equal(x, kept)
+    if degrees < 90.0:
+        assert plant.start_active[0] == 1.0 and plant.events == []
+        assert plant.start_tension[0] == pytest.approx(MASS * G * math.cos(theta), rel=1e-9, abs=1e-9 * MASS * G)
+    else:
+        assert plant.start_active[0] == 0.0 and plant.start_tension[0] == 0.0
+        assert [(e.t, e.cable, e.kind, e.delta_kinetic) for e in plant.events] == [(0.25, 0, "slack", 0.0)]
+        assert_event_log_consistent(plant, [True])
+
+
+@pytest.mark.parametrize("steps", [200, 137])
+def test_a_return_to_contact_exactly_at_a_step_boundary_is_still_the_impact(ball, steps):
+    """Thrown up at v0 = g·steps·H/2, the ball is back at the bottom exactly at the end of a step (RK4 is exact on
+    the parabola): it ends that step at contact without stretch, and starts the next one stretching the slack
+    string at once, the rare case of an impact at the start of a step. The answer is the radial throw's: taut at
+    2 v0/g, ΔT = −½ m v0², then at rest."""
+    v0 = G * steps * H / 2
+    t, states, tensions, plant = throw(ball, np.array([0.0, 0.0, v0]), (steps + 20) * H)
+    n = plant.n
+    slack_event, taut_event = plant.events
+    assert (slack_event.kind, slack_event.t, taut_event.kind) == ("slack", 0.0, "taut")
+    assert taut_event.t == pytest.approx(2 * v0 / G, abs=1e-9)
+    assert taut_event.delta_kinetic == pytest.approx(-0.5 * MASS * v0**2, rel=1e-9)
+    after = t > taut_event.t + 1e-9
+    assert np.abs(states[after, n : 2 * n]).max() < 1e-9
+    assert np.abs(states[after, :3] - (HOOK - [0.0, 0.0, LENGTH])).max() < 1e-9
+    assert_event_log_consistent(plant, [True])
 
 
 # --- (c) the taut crane under MLM is the rigid plant ---------------------------------------------------
@@ -414,6 +473,7 @@ def test_energy_balance_across_slack_and_taut_transitions(crane):
     assert all(e.delta_kinetic <= 0 for e in plant.events)
     assert total == pytest.approx(plant.impact_energy, rel=1e-12)
     assert plant.impact_energy < -50.0
+    assert_event_log_consistent(plant, [True] * len(plant.cable_names))
     # the balance holds to the integrator's accuracy: its drift shrinks as h⁴ (RK4), so it is
     # truncation error, not a term left out (which would not shrink, and is ≥ 0.2 J here)
     drift = np.abs(balance - balance[0]).max()
@@ -448,6 +508,7 @@ def test_the_non_collocated_crane_under_mlm_keeps_its_cables_consistent():
         phi = result.phi[:, rows]  # |d|² − L²: > 0 stretched
         assert phi[~taut].max() < 1e-9 and np.abs(phi[taut]).max() < 1e-8
         assert max(e.delta_kinetic for e in plant.events) < 1e-9
+        assert_event_log_consistent(plant, [True] * len(plant.cable_names))
         e = result.energy
         balance = e["mechanical"] - (e["work_inputs"] + e["work_anchors"] - e["dissipated"] + e["impacts"])
         drifts.append(np.abs(balance - balance[0]).max())
