@@ -404,13 +404,18 @@ def test_a_return_to_contact_exactly_at_a_step_boundary_is_still_the_impact(ball
     assert_event_log_consistent(plant, [True])
 
 
+MOVING_LENGTH = 1.3  # m: not 1, where L², L³ and L·2... would coincide (the generated gap φ/(√(φ + L²) + L))
+
+
 @pytest.fixture(scope="module")
 def moving_hook(tmp_path_factory):
     """The ball on its string from a hook that moves along x with the path (0.3 m in about a second, from rest to
     rest): the plant's stage signals then matter inside a step, at the fractions of it where events are located
     and resolved."""
-    spec = parse_spec({**BALL, "name": "cable_ball_moving_hook",
+    ball = {**BALL["bodies"][0], "initial_position": [0.0, 0.0, 2.0 - MOVING_LENGTH]}
+    spec = parse_spec({**BALL, "name": "cable_ball_moving_hook", "bodies": [ball],
                        "anchors": [{"name": "hook", "position": [0.0, 0.0, 2.0], "follows_path": ["x"]}],
+                       "cables": [{**BALL["cables"][0], "length": MOVING_LENGTH}],
                        "path": {"waypoints": [[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]], "mean_speed": 0.3}},
                       "cable_ball_moving_hook (test)")
     root = tmp_path_factory.mktemp("cable_ball_moving_hook")
@@ -433,41 +438,45 @@ def test_a_throw_under_a_moving_hook_flies_and_snaps_taut_where_the_closed_form_
     def hook(t):
         return HOOK + np.array([path.position(t)[0][0] - start[0], 0.0, 0.0])
 
-    v0 = 2.0
-    q0 = np.concatenate([HOOK - [0.0, 0.0, LENGTH], np.eye(3).reshape(-1)])
+    v0, length = 2.0, MOVING_LENGTH
+    q0 = np.concatenate([HOOK - [0.0, 0.0, length], np.eye(3).reshape(-1)])
     x = plant.initial_state(q0, np.concatenate([[0.0, 0.0, v0], np.zeros(9)]))
-    steps = 250
+    steps = 300
     table = plant.stage_table(0.0, H, steps)
-    states = [x.copy()]
+    states, gaps = [x.copy()], [plant.cable_gap[0]]
     for i in range(steps):
         plant.advance(x, np.zeros(1), H, table, i, 1)
         states.append(x.copy())
+        gaps.append(plant.cable_gap[0])
     states = np.array(states)
     t = H * np.arange(steps + 1)
     slack_event, taut_event = plant.events
     assert (slack_event.kind, slack_event.t, taut_event.kind) == ("slack", 0.0, "taut")
-    p0, vel0 = HOOK - [0.0, 0.0, LENGTH], np.array([0.0, 0.0, v0])
+    p0, vel0 = HOOK - [0.0, 0.0, length], np.array([0.0, 0.0, v0])
 
     def ball(tau):
         return p0 + vel0 * tau + 0.5 * GRAVITY * tau**2
 
     def gap(tau):
-        return np.linalg.norm(ball(tau) - hook(tau)) - LENGTH
+        return np.linalg.norm(ball(tau) - hook(tau)) - length
 
-    t_taut = brentq(gap, 0.3, 0.45, xtol=1e-15, rtol=1e-15)
+    t_taut = brentq(gap, 0.3, 0.5, xtol=1e-15, rtol=1e-15)
     assert abs(hook(t_taut)[0] - HOOK[0]) > 0.05  # the hook has moved by then, and is moving
     v_hook = np.array([path.position(t_taut)[1][0], 0.0, 0.0])
     assert abs(v_hook[0]) > 0.1
     assert taut_event.t == pytest.approx(t_taut, abs=1e-9)
     v_minus = vel0 + GRAVITY * t_taut
-    normal = (ball(t_taut) - hook(t_taut)) / LENGTH
+    normal = (ball(t_taut) - hook(t_taut)) / length
     v_plus = v_minus - ((v_minus - v_hook) @ normal) * normal
     assert taut_event.delta_kinetic == pytest.approx(0.5 * MASS * (v_plus @ v_plus - v_minus @ v_minus), rel=1e-6)
     flying = t <= taut_event.t
     np.testing.assert_allclose(states[flying, :3], [ball(tau) for tau in t[flying]], atol=1e-9, rtol=0)
+    # the plant's reported gap |p − hook| − L, while the string is slack: centimetres below contact
+    np.testing.assert_allclose(np.array(gaps)[flying], [gap(tau) for tau in t[flying]], atol=1e-9, rtol=0)
+    assert min(gaps) < -0.05
     after = t > taut_event.t
     lengths = [np.linalg.norm(states[k, :3] - hook(t[k])) for k in np.flatnonzero(after)]
-    np.testing.assert_allclose(lengths, LENGTH, atol=1e-9, rtol=0)
+    np.testing.assert_allclose(lengths, length, atol=1e-9, rtol=0)
     assert_event_log_consistent(plant, [True])
     events = list(plant.events)
     # a hand-made table (a plain array of the same rows) and a view of the table start at t = 0 as documented:
