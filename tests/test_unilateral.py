@@ -19,11 +19,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import load_with_start, rigid_plant_rhs
+from conftest import build_in, load_with_start, rigid_plant_rhs
 from scipy.integrate import quad, solve_ivp
 from scipy.optimize import brentq
 
-from acroboter.codegen.generate import generate
 from acroboter.control.controllers import Gains, make_controller
 from acroboter.model.spec import load_spec, parse_spec
 from acroboter.runtime.cache import load_model
@@ -211,33 +210,43 @@ GRAVITY = np.array([0.0, 0.0, -G])
 H = 0.002
 
 
+def ball_on_a_string(tmp_path_factory, data: dict):
+    """(model, path, plant) of a ball spec (BALL or a variant), generated and compiled into a temporary folder."""
+    spec = parse_spec(data, f"{data['name']} (test)")
+    _, model, path = build_in(tmp_path_factory.mktemp(data["name"]), spec)
+    sim = spec.simulation
+    return model, path, Plant(model, path, sim.baumgarte_zeta, sim.baumgarte_omega)
+
+
 @pytest.fixture(scope="module")
 def ball(tmp_path_factory):
     """The ball is a test spec: generated and compiled into a temporary folder."""
-    spec = parse_spec(BALL, "cable_ball (test)")
-    root = tmp_path_factory.mktemp("cable_ball")
-    generate(spec, root / "generated")
-    model = load_model(spec, generated_dir=root / "generated", cache_dir=root / "build")
-    path = desired_path(model)
-    sim = spec.simulation
-    return model, Plant(model, path, sim.baumgarte_zeta, sim.baumgarte_omega)
+    model, _, plant = ball_on_a_string(tmp_path_factory, BALL)
+    return model, plant
 
 
-def throw(ball, velocity, seconds):
-    """The ball from the bottom of the string (at rest on its sphere) with a velocity; unforced.
-    Returns times, states after every step, the start-of-step tensions and the plant."""
-    model, plant = ball
-    q0 = np.concatenate([HOOK - [0.0, 0.0, LENGTH], np.eye(3).reshape(-1)])
-    qd0 = np.concatenate([velocity, np.zeros(9)])
-    x = plant.initial_state(q0, qd0)
-    steps = round(seconds / H)
+def unforced_flight(plant, velocity, steps, length=LENGTH):
+    """The ball from the bottom of its string (at rest on its sphere, under the hook at its start) with a velocity;
+    unforced, `steps` steps of H. Returns the times, the states, the start-of-step tensions and the end-of-step
+    gaps (the first: the start's)."""
+    q0 = np.concatenate([HOOK - [0.0, 0.0, length], np.eye(3).reshape(-1)])
+    x = plant.initial_state(q0, np.concatenate([velocity, np.zeros(9)]))
     table = plant.stage_table(0.0, H, steps)
-    states, tensions = [x.copy()], []
+    states, tensions, gaps = [x.copy()], [], [plant.cable_gap[0]]
     for i in range(steps):
         plant.advance(x, np.zeros(1), H, table, i, 1)
         states.append(x.copy())
         tensions.append(plant.start_tension[0])
-    return H * np.arange(steps + 1), np.array(states), np.array(tensions), plant
+        gaps.append(plant.cable_gap[0])
+    return H * np.arange(steps + 1), np.array(states), np.array(tensions), np.array(gaps)
+
+
+def throw(ball, velocity, seconds):
+    """The ball from the bottom of the string with a velocity, unforced, for `seconds`. Returns times, states
+    after every step, the start-of-step tensions and the plant."""
+    _, plant = ball
+    t, states, tensions, _ = unforced_flight(plant, velocity, round(seconds / H))
+    return t, states, tensions, plant
 
 
 def energy_balance(plant, states):
@@ -413,17 +422,11 @@ def moving_hook(tmp_path_factory):
     rest): the plant's stage signals then matter inside a step, at the fractions of it where events are located
     and resolved."""
     ball = {**BALL["bodies"][0], "initial_position": [0.0, 0.0, 2.0 - MOVING_LENGTH]}
-    spec = parse_spec({**BALL, "name": "cable_ball_moving_hook", "bodies": [ball],
-                       "anchors": [{"name": "hook", "position": [0.0, 0.0, 2.0], "follows_path": ["x"]}],
-                       "cables": [{**BALL["cables"][0], "length": MOVING_LENGTH}],
-                       "path": {"waypoints": [[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]], "mean_speed": 0.3}},
-                      "cable_ball_moving_hook (test)")
-    root = tmp_path_factory.mktemp("cable_ball_moving_hook")
-    generate(spec, root / "generated")
-    model = load_model(spec, generated_dir=root / "generated", cache_dir=root / "build")
-    path = desired_path(model)
-    sim = spec.simulation
-    return model, path, Plant(model, path, sim.baumgarte_zeta, sim.baumgarte_omega)
+    return ball_on_a_string(tmp_path_factory, {
+        **BALL, "name": "cable_ball_moving_hook", "bodies": [ball],
+        "anchors": [{"name": "hook", "position": [0.0, 0.0, 2.0], "follows_path": ["x"]}],
+        "cables": [{**BALL["cables"][0], "length": MOVING_LENGTH}],
+        "path": {"waypoints": [[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]], "mean_speed": 0.3}})
 
 
 def test_a_throw_under_a_moving_hook_flies_and_snaps_taut_where_the_closed_form_says(moving_hook):
@@ -438,18 +441,8 @@ def test_a_throw_under_a_moving_hook_flies_and_snaps_taut_where_the_closed_form_
     def hook(t):
         return HOOK + np.array([path.position(t)[0][0] - start[0], 0.0, 0.0])
 
-    v0, length = 2.0, MOVING_LENGTH
-    q0 = np.concatenate([HOOK - [0.0, 0.0, length], np.eye(3).reshape(-1)])
-    x = plant.initial_state(q0, np.concatenate([[0.0, 0.0, v0], np.zeros(9)]))
-    steps = 300
-    table = plant.stage_table(0.0, H, steps)
-    states, gaps = [x.copy()], [plant.cable_gap[0]]
-    for i in range(steps):
-        plant.advance(x, np.zeros(1), H, table, i, 1)
-        states.append(x.copy())
-        gaps.append(plant.cable_gap[0])
-    states = np.array(states)
-    t = H * np.arange(steps + 1)
+    v0, length, steps = 2.0, MOVING_LENGTH, 300
+    t, states, _, gaps = unforced_flight(plant, np.array([0.0, 0.0, v0]), steps, length)
     slack_event, taut_event = plant.events
     assert (slack_event.kind, slack_event.t, taut_event.kind) == ("slack", 0.0, "taut")
     p0, vel0 = HOOK - [0.0, 0.0, length], np.array([0.0, 0.0, v0])
@@ -472,7 +465,7 @@ def test_a_throw_under_a_moving_hook_flies_and_snaps_taut_where_the_closed_form_
     flying = t <= taut_event.t
     np.testing.assert_allclose(states[flying, :3], [ball(tau) for tau in t[flying]], atol=1e-9, rtol=0)
     # the plant's reported gap |p − hook| − L, while the string is slack: centimetres below contact
-    np.testing.assert_allclose(np.array(gaps)[flying], [gap(tau) for tau in t[flying]], atol=1e-9, rtol=0)
+    np.testing.assert_allclose(gaps[flying], [gap(tau) for tau in t[flying]], atol=1e-9, rtol=0)
     assert min(gaps) < -0.05
     after = t > taut_event.t
     lengths = [np.linalg.norm(states[k, :3] - hook(t[k])) for k in np.flatnonzero(after)]
@@ -481,8 +474,9 @@ def test_a_throw_under_a_moving_hook_flies_and_snaps_taut_where_the_closed_form_
     events = list(plant.events)
     # a hand-made table (a plain array of the same rows) and a view of the table start at t = 0 as documented:
     # the same run to the bit
+    table = plant.stage_table(0.0, H, steps)
     for other in (np.array(table), table[:]):
-        x = plant.initial_state(q0, np.concatenate([[0.0, 0.0, v0], np.zeros(9)]))
+        x = plant.initial_state(states[0, : plant.n], states[0, plant.n : 2 * plant.n])
         for i in range(steps):
             plant.advance(x, np.zeros(1), H, other, i, 1)
         np.testing.assert_array_equal(x, states[-1])
