@@ -4,13 +4,17 @@ mutant of one function by the distribution's oracle tests, and the report counts
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO / "tools"))
 
+import mutation  # noqa: E402
 import mutation_report  # noqa: E402
 
 
@@ -27,12 +31,6 @@ def test_every_mutant_of_within_limits_is_killed(tmp_path):
     judged = {k: v for k, v in row["counts"].items() if k != "not checked"}
     assert judged.get("killed", 0) >= 5, row["counts"]
     assert judged == {"killed": judged["killed"]}, row["survivors"]  # nothing survived, timed out or went untested
-
-
-import json  # noqa: E402
-
-import mutation  # noqa: E402
-import pytest  # noqa: E402
 
 
 def test_a_sample_is_drawn_uniformly_from_the_mutants_mutmut_wrote_and_is_reproducible(tmp_path):
