@@ -38,11 +38,13 @@ generate: $(RUN_STAMP)
 check-generated: $(RUN_STAMP)
 	$(PY) -m acroboter check
 
-# Mutation testing (mutmut, docs/mutation.md) of the runtime core modules in build/mutation/, two workers;
-# MODULES="control/recovery.py sim/sensing.py" restricts it (CPU-heavy: one module takes minutes to an hour).
+# Mutation testing (mutmut, docs/mutation.md) of the runtime core modules, then the generator, in build/mutation/,
+# two workers; MODULES="control/recovery.py sim/sensing.py" restricts it (CPU-heavy: one module takes minutes to
+# an hour), SAMPLE=100 judges that many mutants drawn at random per selection (the report gives the interval).
 MODULES ?=
+SAMPLE ?=
 mutation: $(STAMP) build
-	$(PY) tools/mutation.py $(MODULES)
+	$(PY) tools/mutation.py $(MODULES) $(if $(SAMPLE),--sample $(SAMPLE))
 
 # The paper's scenario: compiles only the default crane's library (in parallel, a bar per file), on first use.
 run: $(RUN_STAMP)

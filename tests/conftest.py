@@ -45,6 +45,7 @@ def _models_from_the_generator() -> None:
 
 if os.environ.get("ACROBOTER_TEST_MODELS") == "casadi":
     _models_from_the_generator()
+
 # A test that needs an optional extra carries its marker (registered in pyproject.toml); without the extra it is
 # skipped, and the reason (which extra, the pip line) shows in the summary (-ra). `make test` installs them all.
 EXTRA_MARKERS = {"needs_mujoco": "mujoco", "needs_animation": "animation", "needs_dask": "dask"}

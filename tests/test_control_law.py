@@ -359,7 +359,8 @@ def test_the_toys_actuators_load_its_constraint_directions(toy):
 @pytest.mark.parametrize("kind", ["projected", "eq12", "eq13", "eq15", "kappa"])
 def test_each_recovery_meets_its_defining_equation(toy, kind, iterations):
     spec, model, path = toy
-    gains = Gains.from_spec(spec, recovery=kind)
+    # κ = 0.3, not the default 0.5: a κ lost on the way to the recovery would give the default's blend
+    gains = Gains.from_spec(spec, recovery=kind, kappa=0.3 if kind == "kappa" else None)
     method = "penalty" if iterations == 1 else f"iterative-{iterations}"
     controller = make_controller(method, model, path, gains)
     for q, qd, t in toy_states(toy):
@@ -371,6 +372,87 @@ def test_each_recovery_meets_its_defining_equation(toy, kind, iterations):
         if kind == "eq13":  # the multiplier term moves u by far more than the tolerance
             shift = np.linalg.pinv(T["input_matrix"]) @ (T["phi_q"].T @ lam)
             assert np.abs(shift).max() > 1e3 * 1e-6 * np.abs(expected).max()
+
+
+@pytest.mark.parametrize("iterations", [1, 3])
+@pytest.mark.parametrize("system", ["toy", "turning_toy"])
+def test_the_projected_recoverys_fallback_meets_its_defining_equation(request, system, iterations, monkeypatch):
+    """Where the generated projected map comes out singular (non-finite: dependent actuators and reactions),
+    recover() solves the same fit by a pivoted QR of M^(-1/2) B (recovery.py). With the map made to fail, u is
+    still the fit in the M⁻¹ metric, solved with numpy from a numpy penalty solve: on the loaded toy, and on the
+    turning toy, whose body has products of inertia, so that its M is not diagonal (the loaded toy's and the
+    crane's are: a wrong M^(-1/2), an upper factor read as a lower one, goes unseen there)."""
+    spec, model, path = request.getfixturevalue(system)
+    gains = Gains.from_spec(spec, recovery="projected")
+    controller = make_controller("penalty" if iterations == 1 else f"iterative-{iterations}", model, path, gains)
+    monkeypatch.setattr(controller.recovery, "projected_fast", lambda *args: None)  # as a singular map returns
+    for q, qd, t in toy_states((spec, model, path)):
+        T = terms(model, path, q, qd, t)
+        mass = T["mass_matrix"]
+        if system == "turning_toy":
+            assert np.abs(mass - np.diag(np.diag(mass))).max() > 1e-2 * np.abs(np.diag(mass)[3:]).min()
+        qdd, lam, lam_hat = penalty_in_numpy(T, gains, iterations)
+        expected = expected_input("projected", T, mass, qdd, lam, lam_hat, gains.kappa)
+        u = controller.compute(q, qd, t)
+        np.testing.assert_allclose(u, expected, rtol=1e-6, atol=1e-6 * np.abs(expected).max())
+
+
+@pytest.fixture(scope="module")
+def turning_toy(tmp_path_factory):
+    """The loaded toy with its thrust along v replaced by a torque about v: that torque's generalized force and
+    thrust_x's both act on the w axis' coordinates, so HᵀH is not diagonal (with thrusters alone, along the
+    body's axes, it is: their generalized forces are orthogonal wherever they act). Three inputs for three
+    servo-constraints, as eq15 and κ need; the task's v direction is not actuated, which no recovery minds.
+    Its body has products of inertia, so its mass matrix is not diagonal either."""
+    root = tmp_path_factory.mktemp("turning_toy")
+    inertia = "inertia = [[0.05, 0.0, 0.0], [0.0, 0.06, 0.0], [0.0, 0.0, 0.08]]"
+    text = TOY.read_text().replace('name = "loaded_toy"', 'name = "turning_toy"')
+    assert inertia in text
+    text = text.replace(inertia, "inertia = [[0.05, 0.012, -0.008], [0.012, 0.06, 0.01], [-0.008, 0.01, 0.08]]")
+    thrust_y = ('name = "thrust_y"\nkind = "body_thrust"\nbody = "box"\naxis = "v"\npoint = [0.0, 0.0, 0.2]\n'
+                'gain = -1.0\n')
+    assert thrust_y in text
+    text = text.replace(thrust_y, 'name = "torque_v"\nkind = "body_torque"\nbody = "box"\naxis = "v"\n')
+    (root / "turning_toy.toml").write_text(text)
+    return build_in(root, load_spec(root / "turning_toy.toml"))
+
+
+@pytest.mark.parametrize("kind", ["eq12", "eq13", "eq15", "kappa"])
+def test_a_bounded_recovery_is_its_own_fit_within_the_limits(turning_toy, kind):
+    """With the limit of the input each asks most of moved 5 % inside it: eq12 and eq13 stay their least squares in
+    H u (scipy's lsq_linear of the step's own λ̂, or q̈ and λ), eq15 and κ, explicit maps, give the input within the
+    limits nearest theirs (the box projection). On the turning toy HᵀH is not diagonal, so the two answers differ
+    by far more than the tolerance and a recovery bounded by the other's rule fails (on the crane and the loaded
+    toy they coincide)."""
+    from scipy.optimize import lsq_linear
+
+    least_squares = kind in ("eq12", "eq13")
+    spec, model, path = turning_toy
+    gains = Gains.from_spec(spec, recovery=kind, kappa=0.3 if kind == "kappa" else None)
+    _, _, preferred = spec.input_limits()
+    for q, qd, t in toy_states((spec, model, path)):
+        free = make_controller("penalty", model, path, gains).compute(q, qd, t).copy()
+        i = int(np.argmax(np.abs(free)))
+        span = 10 * np.abs(free).max()
+        low, high = np.full(free.size, -span), np.full(free.size, span)
+        side = 1 if free[i] > 0 else -1
+        (high if side > 0 else low)[i] = 0.95 * free[i]
+        controller = make_controller("penalty", model, path, gains, limits=(low, high, preferred))
+        u = controller.compute(q, qd, t).copy()
+        lam, lam_hat = (np.array(a, copy=True) for a in controller.multipliers)
+        T = terms(model, path, q, qd, t)
+        H = T["input_matrix"]
+        if kind == "eq13":
+            target = T["mass_matrix"] @ controller.qdd + T["bias_forces"] + T["phi_q"].T @ lam
+        else:
+            target = -(T["sigma_q"].T @ lam_hat)
+        fit = lsq_linear(H, target, bounds=(low, high), tol=1e-14, method="bvls", max_iter=1000).x
+        nearest = np.clip(free, low, high)
+        best, other = (fit, nearest) if least_squares else (nearest, fit)
+        tolerance = 1e-7 * np.abs(best).max()
+        assert u[i] == pytest.approx(0.95 * free[i], abs=1e-9) and controller.limit_state[i] == side
+        np.testing.assert_allclose(u, best, rtol=0, atol=tolerance)
+        assert np.abs(best - other).max() > 100 * tolerance  # the other rule would fail
 
 
 # --- (d) the α-β velocity filter ----------------------------------------------------------------------------
@@ -451,3 +533,34 @@ def test_the_structured_terms_refuse_a_mass_matrix_that_depends_on_the_state():
     constant = SimpleNamespace(inputs=[q, qd, s], mass_matrix=ca.SX(ca.DM([[2.0, 0.5], [0.5, 3.0]])))
     np.testing.assert_allclose(np.array(constant_inverse_mass(constant)) @ [[2.0, 0.5], [0.5, 3.0]], np.eye(2),
                                atol=1e-15)
+
+
+def test_mlm_under_a_binding_limit_is_the_best_servo_fit_within_the_limits(crane, tracking_runs):
+    """With the first winch's max 0.05 N below what it asks, MLM's input is the one within the limits whose
+    servo accelerations come closest to the law: min |σ̈(u) − (−2k_D σ̇ − k_P² σ)| with σ̈(u) = σ_q q̈(u) + γ_s
+    and q̈(u) from a dense solve of the constrained dynamics (numpy), by scipy's bounded least squares. At the
+    recorded positions with q̇ twenty times the recorded one: the velocity terms (γ, γ_s, c) then weigh in the
+    fit as much as the inputs do (on the slow path itself they are below the tolerance)."""
+    from scipy.optimize import lsq_linear
+
+    spec, model, path, _ = crane
+    gains = Gains.from_spec(spec)
+    lower, upper, preferred = (np.array(a, dtype=float) for a in spec.input_limits())
+    r = tracking_runs["mlm"]
+    for k in INSTANTS[1:4]:
+        q, qd, t = r.q[k], 20.0 * r.qd[k], r.t[k]
+        T = terms(model, path, q, qd, t)
+
+        def servo_acceleration(u, T=T):  # T of this instant
+            return T["sigma_q"] @ constrained_acceleration(T, u, -T["gamma"]) + T["gamma_s"]
+
+        free = make_controller("mlm", model, path, gains).compute(q, qd, t).copy()
+        tight = upper.copy()
+        tight[0] = free[0] - 0.05
+        u = make_controller("mlm", model, path, gains, limits=(lower, tight, preferred)).compute(q, qd, t).copy()
+        base = servo_acceleration(np.zeros_like(u))
+        E = np.column_stack([servo_acceleration(e) - base for e in np.eye(u.size)])
+        best = lsq_linear(E, servo_law(T, gains) - base, bounds=(lower, tight), method="bvls", tol=1e-14,
+                          max_iter=1000).x
+        assert u[0] == pytest.approx(tight[0], abs=1e-9)
+        np.testing.assert_allclose(u, best, rtol=0, atol=1e-7 * np.abs(best).max())

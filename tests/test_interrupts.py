@@ -298,3 +298,37 @@ def test_an_interrupt_a_library_turned_into_its_own_error_is_an_interrupt(capsys
     assert capsys.readouterr().err.strip() == "interrupted"
     assert guarded(drawing)(False) == 3
     assert "internal error (ValueError: Invalid bounding box)" in capsys.readouterr().err
+
+
+def test_a_ctrl_c_that_a_weakref_callback_swallows_is_not_lost(capsys):
+    """CI, 2026-12-03: a SIGINT landed while matplotlib's weakref callback ran during garbage collection; Python
+    printed "Exception ignored in" and went on, and `animate` published its video and exited 0. Now the block
+    remembers such a Ctrl-C: nothing is published after it (deferred_interrupt raises first) and nothing is printed."""
+    import weakref
+
+    from acroboter.model.interrupts import deferred_interrupt, remembered_interrupt
+
+    class Node:
+        pass
+
+    published = []
+    with pytest.raises(KeyboardInterrupt):
+        with remembered_interrupt():
+            node = Node()
+            ref = weakref.ref(node, lambda _: signal.raise_signal(signal.SIGINT))  # the handler runs in there
+            del node
+            assert ref() is None
+            with deferred_interrupt():
+                published.append("results")
+    assert published == []
+    assert "Exception ignored" not in capsys.readouterr().err
+    seen, hook = [], sys.unraisablehook
+    sys.unraisablehook = lambda unraisable: seen.append(unraisable.exc_type)
+    try:
+        with remembered_interrupt() as state:  # an exception of another kind goes to the hook that was there
+            node = Node()
+            ref = weakref.ref(node, lambda _: 1 / 0)
+            del node
+    finally:
+        sys.unraisablehook = hook
+    assert not state.received and seen == [ZeroDivisionError]

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -392,3 +393,26 @@ def test_a_heavier_load_sags_by_its_extra_weight_over_the_servo_stiffness(crane,
     assert np.abs(cc_only.run.sigma[last, 2]).max() < 0.02 * predicted
     nominal = crane.simulate(method, trajectory=trajectory, duration=duration, warm_up=0)
     assert np.abs(nominal.run.sigma[:, :3]).max() < 1e-6
+
+
+def test_a_library_whose_plant_parameters_are_not_the_specs_is_refused_by_name(crane, folded_nominal):
+    """The plant reads its parameter vector in the order the library declares. A library that declares other
+    parameters than the spec's (a spec edited after the C was generated) is refused, saying how to fix it; a
+    library with its parameters folded in refuses overrides (it has no input for them)."""
+    from acroboter.runtime.integrity import StaleModelError
+
+    model, path = crane.model, crane.path
+    layout = model.manifest["layout"]
+    names = list(layout["plant_parameters"])
+    try:
+        layout["plant_parameters"] = names[::-1]
+        with pytest.raises(StaleModelError, match="^" + re.escape(
+                f"the plant parameters of {model.source_dir} are not the spec's: regenerate it with `make generate`")
+                + "$"):
+            Plant(model, path, 1.0, 20.0)
+    finally:
+        layout["plant_parameters"] = names
+    Plant(model, path, 1.0, 20.0)  # as it was
+    with pytest.raises(PlantParameterError, match="generated with its physical parameters folded in: it takes no "
+                                                  "plant parameters$"):
+        Plant(folded_nominal, desired_path(folded_nominal), 1.0, 20.0, {names[0]: 1.0})

@@ -6,7 +6,6 @@ its recorded `acroboter run` line gives the same figures; bad input exits 2."""
 from __future__ import annotations
 
 import csv
-import importlib.util
 import json
 import math
 import shlex
@@ -165,7 +164,6 @@ def test_ranges_and_recommended_ki():
     assert math.isfinite(rg.POSITION_BOUND_MM)
 
 
-@pytest.mark.skipif(importlib.util.find_spec("acroboter.sim.sensing") is None, reason="no acroboter.sensing")
 def test_measurement_noise_and_delay_reach_every_run(tmp_path):
     p = run_cli("--spec", str(SPEC), "--samples", "1", "--duration", "0.5", "--methods", "mlm", "--workers", "0",
                 "--sensing-noise", "positions=0.0002", "--sensing-delay", "1", "--sensing-seed", "3", "--no-plots",

@@ -333,8 +333,13 @@ def test_model_terms_matches_the_oracle(shipped):
 # ------------------------------------------------------------------------------------------------
 # A variant spec without generated code: oracle against the CasADi expressions
 # ------------------------------------------------------------------------------------------------
-def test_variant_spec_casadi_derivation_matches_the_oracle():
+@pytest.mark.parametrize("parametric", [False, True])
+def test_variant_spec_casadi_derivation_matches_the_oracle(parametric):
+    """The variant (products of inertia, a yaw via v, a stay cable on a winch) against SymPy: the model with the
+    spec's numbers folded in, and the plant's parametric model (every physical parameter a symbol, evaluated at
+    the spec's values), whose inertia J = ½ tr(I_G) E − I_G is built apart (symbolic._axes_inertia)."""
     from acroboter.codegen.symbolic import build_symbolic_model
+    from acroboter.model.physical import parameter_values
 
     oracle = oracle_for("variant")
     lay = oracle.layout
@@ -342,17 +347,21 @@ def test_variant_spec_casadi_derivation_matches_the_oracle():
     assert lay.m == 6 + 3 + 6 + 3 + 5
     assert any("yaw via v" in name for name in lay.servo_constraints)
     assert lay.l == 10 and lay.k == 8
+    su = next(b for b in oracle.spec.bodies if b.name == "SU")
+    assert su.inertia[0][1] != 0 and su.inertia[0][2] != 0 and su.inertia[1][2] != 0
 
-    model = build_symbolic_model(oracle.spec)
+    model = build_symbolic_model(oracle.spec, parametric=parametric)
     qd = model.inputs[1]
     exprs = [getattr(model, t) for t in TERMS]
     exprs += [model.kinetic, model.potential, ca.dot(qd, ca.gradient(model.dissipation, qd))]
-    fn = ca.Function("variant_all", model.inputs, [ca.densify(ca.SX(e)) for e in exprs])
+    arguments = [*model.inputs, model.parameters] if parametric else model.inputs
+    fn = ca.Function("variant_all", arguments, [ca.densify(ca.SX(e)) for e in exprs])
+    theta = [ca.DM(parameter_values(oracle.spec))] if parametric else []
     rng = np.random.default_rng(99)
     for k in range(N_STATES):
         inputs = random_inputs(oracle.spec, lay, rng, noise=0.05 if k < 3 else 0.3)
         expected = oracle.evaluate(*inputs)
-        got = fn.call([ca.DM(x) for x in inputs])
+        got = fn.call([ca.DM(x) for x in inputs] + theta)
         for term, value in zip(TERMS + ENERGY_TERMS, got, strict=True):
             value = np.array(value.full(), dtype=float)
             value = value[:, 0] if value.shape[1] == 1 else value

@@ -19,11 +19,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import load_with_start, rigid_plant_rhs
+from conftest import build_in, load_with_start, rigid_plant_rhs
 from scipy.integrate import quad, solve_ivp
 from scipy.optimize import brentq
 
-from acroboter.codegen.generate import generate
 from acroboter.control.controllers import Gains, make_controller
 from acroboter.model.spec import load_spec, parse_spec
 from acroboter.runtime.cache import load_model
@@ -211,33 +210,43 @@ GRAVITY = np.array([0.0, 0.0, -G])
 H = 0.002
 
 
+def ball_on_a_string(tmp_path_factory, data: dict):
+    """(model, path, plant) of a ball spec (BALL or a variant), generated and compiled into a temporary folder."""
+    spec = parse_spec(data, f"{data['name']} (test)")
+    _, model, path = build_in(tmp_path_factory.mktemp(data["name"]), spec)
+    sim = spec.simulation
+    return model, path, Plant(model, path, sim.baumgarte_zeta, sim.baumgarte_omega)
+
+
 @pytest.fixture(scope="module")
 def ball(tmp_path_factory):
     """The ball is a test spec: generated and compiled into a temporary folder."""
-    spec = parse_spec(BALL, "cable_ball (test)")
-    root = tmp_path_factory.mktemp("cable_ball")
-    generate(spec, root / "generated")
-    model = load_model(spec, generated_dir=root / "generated", cache_dir=root / "build")
-    path = desired_path(model)
-    sim = spec.simulation
-    return model, Plant(model, path, sim.baumgarte_zeta, sim.baumgarte_omega)
+    model, _, plant = ball_on_a_string(tmp_path_factory, BALL)
+    return model, plant
 
 
-def throw(ball, velocity, seconds):
-    """The ball from the bottom of the string (at rest on its sphere) with a velocity; unforced.
-    Returns times, states after every step, the start-of-step tensions and the plant."""
-    model, plant = ball
-    q0 = np.concatenate([HOOK - [0.0, 0.0, LENGTH], np.eye(3).reshape(-1)])
-    qd0 = np.concatenate([velocity, np.zeros(9)])
-    x = plant.initial_state(q0, qd0)
-    steps = round(seconds / H)
+def unforced_flight(plant, velocity, steps, length=LENGTH):
+    """The ball from the bottom of its string (at rest on its sphere, under the hook at its start) with a velocity;
+    unforced, `steps` steps of H. Returns the times, the states, the start-of-step tensions and the end-of-step
+    gaps (the first: the start's)."""
+    q0 = np.concatenate([HOOK - [0.0, 0.0, length], np.eye(3).reshape(-1)])
+    x = plant.initial_state(q0, np.concatenate([velocity, np.zeros(9)]))
     table = plant.stage_table(0.0, H, steps)
-    states, tensions = [x.copy()], []
+    states, tensions, gaps = [x.copy()], [], [plant.cable_gap[0]]
     for i in range(steps):
         plant.advance(x, np.zeros(1), H, table, i, 1)
         states.append(x.copy())
         tensions.append(plant.start_tension[0])
-    return H * np.arange(steps + 1), np.array(states), np.array(tensions), plant
+        gaps.append(plant.cable_gap[0])
+    return H * np.arange(steps + 1), np.array(states), np.array(tensions), np.array(gaps)
+
+
+def throw(ball, velocity, seconds):
+    """The ball from the bottom of the string with a velocity, unforced, for `seconds`. Returns times, states
+    after every step, the start-of-step tensions and the plant."""
+    _, plant = ball
+    t, states, tensions, _ = unforced_flight(plant, velocity, round(seconds / H))
+    return t, states, tensions, plant
 
 
 def energy_balance(plant, states):
@@ -310,6 +319,7 @@ def test_a_pendulum_whirled_too_slowly_goes_slack_flies_and_snaps_taut(ball):
     assert taut_event.delta_kinetic < 0
     assert taut_event.delta_kinetic == pytest.approx(-0.5 * MASS * (v_hit @ normal) ** 2, rel=1e-6)
     assert plant.impact_energy == taut_event.delta_kinetic
+    assert_event_log_consistent(plant, [True])
     # after it, taut again: the string pulls and the ball stays on the sphere
     after = t > taut_event.t + H
     np.testing.assert_allclose(np.linalg.norm(p[after] - HOOK, axis=1), LENGTH, atol=1e-9)
@@ -336,6 +346,7 @@ def test_a_radial_throw_loses_all_its_radial_velocity(ball):
     assert taut_event.kind == "taut"
     assert taut_event.t == pytest.approx(2 * v0 / G, abs=1e-9)
     assert taut_event.delta_kinetic == pytest.approx(-0.5 * MASS * v0**2, rel=1e-9)
+    assert_event_log_consistent(plant, [True])
     flying = t <= taut_event.t
     np.testing.assert_allclose(states[flying, 2], HOOK[2] - LENGTH + v0 * t[flying] - 0.5 * G * t[flying] ** 2,
                                atol=1e-9, rtol=0)
@@ -343,6 +354,133 @@ def test_a_radial_throw_loses_all_its_radial_velocity(ball):
     assert np.abs(states[after, n : 2 * n]).max() < 1e-9  # at rest: no radial velocity left, nothing else
     assert np.abs(states[after, :3] - (HOOK - [0.0, 0.0, LENGTH])).max() < 1e-9
     np.testing.assert_allclose(tensions[after[:-1]][1:], MASS * G, rtol=1e-9)
+
+
+def assert_event_log_consistent(plant, started_taut):
+    """The plant's event log against its own bookkeeping: every event is "slack" or "taut"; each cable's events
+    alternate, from the opposite of how it started; `transitions` counts them; the kinetic energy the events
+    carry adds up to `impact_energy`; times do not go back (beyond rounding: an event's time is the substep's start
+    plus a fraction of it, and two events microseconds apart get it by different sums)."""
+    assert all(e.kind in ("slack", "taut") for e in plant.events), {e.kind for e in plant.events}
+    for c, taut in enumerate(started_taut):
+        kinds = [e.kind for e in plant.events if e.cable == c]
+        expected = ["slack", "taut"] if taut else ["taut", "slack"]
+        assert kinds == [expected[i % 2] for i in range(len(kinds))], (c, kinds)
+        assert plant.transitions[c] == len(kinds)
+    assert sum(e.delta_kinetic for e in plant.events) == pytest.approx(plant.impact_energy, rel=1e-12, abs=1e-15)
+    times = np.array([e.t for e in plant.events])
+    assert (np.diff(times) >= -1e-12 * np.maximum(1.0, np.abs(times[1:]))).all()
+
+
+@pytest.mark.parametrize("degrees", [0.0, 60.0, 89.0, 91.0, 120.0, 175.0])
+def test_probe_gives_the_strings_closed_form_tension_and_never_a_pushing_one(ball, degrees):
+    """The ball at rest on its sphere at θ from the bottom: the string's tension is m g cos θ while that pulls
+    (θ < 90°); beyond, a string would push, so probe marks it slack, says so in the event log, and reports 0.
+    The state is kept as it was."""
+    model, plant = ball
+    theta = math.radians(degrees)
+    q0 = np.concatenate([HOOK + LENGTH * np.array([math.sin(theta), 0.0, -math.cos(theta)]), np.eye(3).reshape(-1)])
+    x = plant.initial_state(q0)
+    assert plant.start_active[0] == 1.0  # at the string's length: starts taut
+    kept = x.copy()
+    plant.probe(x, np.zeros(1), 0.25)
+    np.testing.assert_array_equal(x, kept)
+    if degrees < 90.0:
+        assert plant.start_active[0] == 1.0 and plant.events == []
+        assert plant.start_tension[0] == pytest.approx(MASS * G * math.cos(theta), rel=1e-9, abs=1e-9 * MASS * G)
+    else:
+        assert plant.start_active[0] == 0.0 and plant.start_tension[0] == 0.0
+        assert [(e.t, e.cable, e.kind, e.delta_kinetic) for e in plant.events] == [(0.25, 0, "slack", 0.0)]
+        assert_event_log_consistent(plant, [True])
+
+
+@pytest.mark.parametrize("steps", [200, 137])
+def test_a_return_to_contact_exactly_at_a_step_boundary_is_still_the_impact(ball, steps):
+    """Thrown up at v0 = g·steps·H/2, the ball is back at the bottom exactly at the end of a step (RK4 is exact on
+    the parabola): it ends that step at contact without stretch, and starts the next one stretching the slack
+    string at once, the rare case of an impact at the start of a step. The answer is the radial throw's: taut at
+    2 v0/g, ΔT = −½ m v0², then at rest."""
+    v0 = G * steps * H / 2
+    t, states, tensions, plant = throw(ball, np.array([0.0, 0.0, v0]), (steps + 20) * H)
+    n = plant.n
+    slack_event, taut_event = plant.events
+    assert (slack_event.kind, slack_event.t, taut_event.kind) == ("slack", 0.0, "taut")
+    assert taut_event.t == pytest.approx(2 * v0 / G, abs=1e-9)
+    assert taut_event.delta_kinetic == pytest.approx(-0.5 * MASS * v0**2, rel=1e-9)
+    after = t > taut_event.t + 1e-9
+    assert np.abs(states[after, n : 2 * n]).max() < 1e-9
+    assert np.abs(states[after, :3] - (HOOK - [0.0, 0.0, LENGTH])).max() < 1e-9
+    assert_event_log_consistent(plant, [True])
+
+
+MOVING_LENGTH = 1.3  # m: not 1, where L², L³ and L·2... would coincide (the generated gap φ/(√(φ + L²) + L))
+
+
+@pytest.fixture(scope="module")
+def moving_hook(tmp_path_factory):
+    """The ball on its string from a hook that moves along x with the path (0.3 m in about a second, from rest to
+    rest): the plant's stage signals then matter inside a step, at the fractions of it where events are located
+    and resolved."""
+    ball = {**BALL["bodies"][0], "initial_position": [0.0, 0.0, 2.0 - MOVING_LENGTH]}
+    return ball_on_a_string(tmp_path_factory, {
+        **BALL, "name": "cable_ball_moving_hook", "bodies": [ball],
+        "anchors": [{"name": "hook", "position": [0.0, 0.0, 2.0], "follows_path": ["x"]}],
+        "cables": [{**BALL["cables"][0], "length": MOVING_LENGTH}],
+        "path": {"waypoints": [[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]], "mean_speed": 0.3}})
+
+
+def test_a_throw_under_a_moving_hook_flies_and_snaps_taut_where_the_closed_form_says(moving_hook):
+    """Thrown straight up from under the hook at rest: slack at once, the ball flies on its parabola (the hook's
+    motion does not touch it) until |p(t) − hook(t)| = L, with hook(t) from the path's own formula (brentq). The
+    inelastic impact with a hook moving at v_h removes the relative velocity along the string:
+    v⁺ = v⁻ − ((v⁻ − v_h)·n) n. Afterwards the string stays at its length from the moving hook. A step that
+    located or finished an event with the hook's signals of other instants fails all three."""
+    model, path, plant = moving_hook
+    start = path.position(0.0)[0]
+
+    def hook(t):
+        return HOOK + np.array([path.position(t)[0][0] - start[0], 0.0, 0.0])
+
+    v0, length, steps = 2.0, MOVING_LENGTH, 300
+    t, states, _, gaps = unforced_flight(plant, np.array([0.0, 0.0, v0]), steps, length)
+    slack_event, taut_event = plant.events
+    assert (slack_event.kind, slack_event.t, taut_event.kind) == ("slack", 0.0, "taut")
+    p0, vel0 = HOOK - [0.0, 0.0, length], np.array([0.0, 0.0, v0])
+
+    def ball(tau):
+        return p0 + vel0 * tau + 0.5 * GRAVITY * tau**2
+
+    def gap(tau):
+        return np.linalg.norm(ball(tau) - hook(tau)) - length
+
+    t_taut = brentq(gap, 0.3, 0.5, xtol=1e-15, rtol=1e-15)
+    assert abs(hook(t_taut)[0] - HOOK[0]) > 0.05  # the hook has moved by then, and is moving
+    v_hook = np.array([path.position(t_taut)[1][0], 0.0, 0.0])
+    assert abs(v_hook[0]) > 0.1
+    assert taut_event.t == pytest.approx(t_taut, abs=1e-9)
+    v_minus = vel0 + GRAVITY * t_taut
+    normal = (ball(t_taut) - hook(t_taut)) / length
+    v_plus = v_minus - ((v_minus - v_hook) @ normal) * normal
+    assert taut_event.delta_kinetic == pytest.approx(0.5 * MASS * (v_plus @ v_plus - v_minus @ v_minus), rel=1e-6)
+    flying = t <= taut_event.t
+    np.testing.assert_allclose(states[flying, :3], [ball(tau) for tau in t[flying]], atol=1e-9, rtol=0)
+    # the plant's reported gap |p − hook| − L, while the string is slack: centimetres below contact
+    np.testing.assert_allclose(gaps[flying], [gap(tau) for tau in t[flying]], atol=1e-9, rtol=0)
+    assert min(gaps) < -0.05
+    after = t > taut_event.t
+    lengths = [np.linalg.norm(states[k, :3] - hook(t[k])) for k in np.flatnonzero(after)]
+    np.testing.assert_allclose(lengths, length, atol=1e-9, rtol=0)
+    assert_event_log_consistent(plant, [True])
+    events = list(plant.events)
+    # a hand-made table (a plain array of the same rows) and a view of the table start at t = 0 as documented:
+    # the same run to the bit
+    table = plant.stage_table(0.0, H, steps)
+    for other in (np.array(table), table[:]):
+        x = plant.initial_state(states[0, : plant.n], states[0, plant.n : 2 * plant.n])
+        for i in range(steps):
+            plant.advance(x, np.zeros(1), H, other, i, 1)
+        np.testing.assert_array_equal(x, states[-1])
+        assert plant.events == events
 
 
 # --- (c) the taut crane under MLM is the rigid plant ---------------------------------------------------
@@ -414,6 +552,7 @@ def test_energy_balance_across_slack_and_taut_transitions(crane):
     assert all(e.delta_kinetic <= 0 for e in plant.events)
     assert total == pytest.approx(plant.impact_energy, rel=1e-12)
     assert plant.impact_energy < -50.0
+    assert_event_log_consistent(plant, [True] * len(plant.cable_names))
     # the balance holds to the integrator's accuracy: its drift shrinks as h⁴ (RK4), so it is
     # truncation error, not a term left out (which would not shrink, and is ≥ 0.2 J here)
     drift = np.abs(balance - balance[0]).max()
@@ -442,12 +581,15 @@ def test_the_non_collocated_crane_under_mlm_keeps_its_cables_consistent():
         controller = make_controller("mlm", model, path, Gains.from_spec(spec))
         result = simulate(model, path, controller, plant, start.q, 28.5, spec.controller.rate_hz, h, energy=True)
         assert result.cable_transitions.sum() > 10
+        assert np.abs(result.cable_gap[0]).max() < 1e-12  # the start's gaps, recorded before any step: at length
+        assert np.isfinite(result.cable_gap).all()
         taut = result.cable_active == 1
         assert result.cable_tension[taut].min() >= -plant.tension_tol
         assert (result.cable_tension[~taut] == 0).all()
         phi = result.phi[:, rows]  # |d|² − L²: > 0 stretched
         assert phi[~taut].max() < 1e-9 and np.abs(phi[taut]).max() < 1e-8
         assert max(e.delta_kinetic for e in plant.events) < 1e-9
+        assert_event_log_consistent(plant, [True] * len(plant.cable_names))
         e = result.energy
         balance = e["mechanical"] - (e["work_inputs"] + e["work_anchors"] - e["dissipated"] + e["impacts"])
         drifts.append(np.abs(balance - balance[0]).max())

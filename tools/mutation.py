@@ -1,6 +1,7 @@
 """`make mutation`: mutmut 3 over the core modules, in a scratch copy of the checkout per selection (docs/mutation.md).
 
     python tools/mutation.py [MODULE ...] [--tests TEST_FILE ...] [--max-children N] [--only GLOB ...] [--work DIR]
+                             [--sample N [--seed S]]
 
 MODULE is a path under acroboter/ (default: every module of CORE). The checkout's acroboter/, tests/,
 generated/ and model_spec/ are copied into build/mutation/<modules>/ with a [tool.mutmut] section that mutates
@@ -17,13 +18,19 @@ is out of reach on a shared 2-core machine. Their selection runs with ACROBOTER_
 the test process (acroboter.runtime.casadi_backend.CasadiModel, no C), so a mutant acts at once, and the
 tests judge it against their oracles (the SymPy derivation, the control laws in numpy, closed-form
 physics). Without modules, `make mutation` runs the runtime core and then the generator, two selections.
+
+--sample N judges N of the selection's mutants drawn uniformly at random (seeded): a module whose every mutant
+costs the whole test selection (the generator on CasADi's VM, the plant's step) is then measured in minutes,
+and tools/mutation_report.py gives the kill rate of the sample with its 95 % interval (Wilson).
 """
 
 from __future__ import annotations
 
 import argparse
+import fnmatch
 import json
 import os
+import random
 import shutil
 import subprocess
 import sys
@@ -67,7 +74,13 @@ def main(argv=None) -> int:
     parser.add_argument("--only", nargs="+", help="mutants whose names match these globs, e.g. "
                         "'acroboter.control.distribution.xǁBoundedInputsǁaccept*' (default: all)")
     parser.add_argument("--work", type=Path, help="the scratch folder (default build/mutation/<modules>/)")
+    parser.add_argument("--sample", type=int, metavar="N", help="judge N mutants drawn at random from the selection's "
+                        "(or from those --only matches); the report gives the sample's kill rate with its 95 %% "
+                        "interval (default: every mutant)")
+    parser.add_argument("--seed", type=int, default=2026, help="the seed of --sample's draw (default 2026)")
     args = parser.parse_args(argv)
+    if args.sample is not None and args.sample < 1:
+        parser.error(f"--sample {args.sample}: give the number of mutants to judge, 1 or more")
     if not args.modules:
         if args.work or args.only:
             parser.error("--work and --only need the modules named")
@@ -104,6 +117,9 @@ def select(modules: list[str], tests: list[str], args, name: str) -> int:
         f"do_not_mutate = {toml_list(others)}\n"
         f"tests_dir = {toml_list(tests)}\n"
         'also_copy = ["generated/", "model_spec/"]\n'
+        # mutmut's CPU-time limit per mutant is this times its tests' measured time; its default, 15, killed
+        # mutants by the limit alone when survivors were run again after tests were added (docs/mutation.md)
+        "timeout_multiplier = 50.0\n"
     )
     (WORK / "pyproject.toml").write_text(pyproject)
     env = dict(os.environ)
@@ -114,23 +130,40 @@ def select(modules: list[str], tests: list[str], args, name: str) -> int:
     mutmut = [str(Path(sys.executable).parent / "mutmut")]
     print(f"mutating {', '.join(sorted(keep))} with {len(tests)} test files in {WORK}", flush=True)
     chosen = list(args.only or [])
-    if any(m.startswith("codegen/") for m in modules):
-        widen_generator_coverage(mutmut, WORK, env, args.max_children)
+    generator = any(m.startswith("codegen/") for m in modules)
+    if generator or args.sample:
+        # mutmut writes its mutants and its statistics, and stops: a filter that matches no mutant
+        subprocess.run([*mutmut, "run", "--max-children", str(args.max_children), "acroboter.no_such_mutant"],
+                       cwd=WORK, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    if generator:
+        widen_generator_coverage(WORK)
+    if args.sample:
+        chosen = draw(WORK, chosen, args.sample, args.seed)
+        print(f"judging {len(chosen)} mutants drawn at random (seed {args.seed})", flush=True)
     done = subprocess.run([*mutmut, "run", "--max-children", str(args.max_children), *chosen], cwd=WORK, env=env)
     subprocess.run([*mutmut, "results"], cwd=WORK, env=env)
     return done.returncode
 
 
-def widen_generator_coverage(mutmut: list[str], work: Path, env: dict, children: int) -> None:
+def draw(work: Path, only: list[str], n: int, seed: int) -> list[str]:
+    """n names drawn uniformly from the mutants mutmut wrote in `work` (those matching `only`, if given)."""
+    names = sorted(key for meta in (work / "mutants").glob("acroboter/**/*.py.meta")
+                   for key in json.loads(meta.read_text())["exit_code_by_key"])
+    if only:
+        names = [k for k in names if any(fnmatch.fnmatchcase(k, g) for g in only)]
+    if not names:
+        raise SystemExit(f"no mutants to draw from in {work}: run `mutmut run` there to see why")
+    return sorted(random.Random(seed).sample(names, min(n, len(names))))
+
+
+def widen_generator_coverage(work: Path) -> None:
     """Judge every generator mutant by every test of the selection.
 
     mutmut runs a mutant against the tests that called its function in its statistics run, but the generator
     runs when a model is loaded, and the tests share their models through fixtures: only the first test to load
-    each spec is recorded, while the tests that judge the terms are the others. So: mutmut's statistics run alone
-    (a filter that matches no mutant stops it right after), then every generator function it saw called is
-    given every test, and the mutation run that follows reads those statistics."""
-    subprocess.run([*mutmut, "run", "--max-children", str(children), "acroboter.codegen.no_such_mutant"], cwd=work,
-                   env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    each spec is recorded, while the tests that judge the terms are the others. So, after mutmut's statistics run
+    alone, every generator function it saw called is given every test, and the mutation run that follows reads
+    those statistics."""
     path = work / "mutants" / "mutmut-stats.json"
     if not path.is_file():
         raise SystemExit(f"mutmut's statistics run wrote no {path}: run `mutmut run` in {work} to see why")

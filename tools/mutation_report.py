@@ -11,6 +11,8 @@ entries match by content, not by mutmut's mutant number, so they outlive edits e
 Kill rate = (killed + timeout) / (mutants the tests reach − equivalent − numerically equivalent); a reached
 mutant that ended otherwise (suspicious, segfault, interrupted) is column `other` and counts as not killed.
 Mutants that no test of the selection reaches are reported apart (`no tests`): not killed and not excused.
+A run of `tools/mutation.py --sample N` leaves the mutants it did not draw `not checked`; its kill rate is then the
+sample's, given with its 95 % Wilson score interval for the rate over all the module's mutants.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import argparse
 import ast
 import difflib
 import json
+import math
 import sys
 import tomllib
 from collections import Counter
@@ -102,6 +105,25 @@ def lapack_flag_equivalent(old: str, new: str) -> str | None:
     return f"LAPACK flag {flag}: {why}"
 
 
+def wilson_interval(killed: int, judged: int, z: float = 1.959964) -> tuple[float, float]:
+    """The 95 % Wilson score interval of a rate seen as `killed` of `judged` mutants drawn at random."""
+    if judged == 0:
+        return float("nan"), float("nan")
+    p = killed / judged
+    centre = (p + z * z / (2 * judged)) / (1 + z * z / judged)
+    half = z * math.sqrt(p * (1 - p) / judged + z * z / (4 * judged * judged)) / (1 + z * z / judged)
+    return centre - half, centre + half
+
+
+def rate_text(row: dict) -> str:
+    """The kill rate, with the interval when the run judged a random sample of the module's mutants."""
+    text = f"{100 * row['kill_rate']:.1f} %"
+    if row["counts"].get("not checked"):
+        low, high = wilson_interval(row["counts"].get("killed", 0) + row["counts"].get("timeout", 0), row["judged"])
+        text += f" (a sample; 95 %: {100 * low:.1f}–{100 * high:.1f} %)"
+    return text
+
+
 def equivalents() -> list[dict]:
     return tomllib.loads(EQUIVALENT.read_text()).get("equivalent", []) if EQUIVALENT.is_file() else []
 
@@ -145,7 +167,7 @@ def collect(root: Path = ROOT) -> list[dict]:
         if other:
             counts["other"] = other
         rate = (counts["killed"] + counts["timeout"]) / judged if judged else float("nan")
-        rows.append({"selection": mutants.parent.name,
+        rows.append({"selection": mutants.parent.name, "judged": judged,
                      "module": module, "counts": dict(counts), "total": len(verdicts), "kill_rate": rate,
                      "survivors": survivors})
     return rows
@@ -182,10 +204,10 @@ def main(argv=None) -> int:
         c = r["counts"]
         if args.markdown:
             print(f"| {r['module']} | {r['total']} | " + " | ".join(str(c.get(k, 0)) for k in cols)
-                  + f" | {100 * r['kill_rate']:.1f} % |")
+                  + f" | {rate_text(r)} |")
         else:
             print(f"{r['module']:28s} {r['total']:4d} mutants  " + "  ".join(f"{k} {c.get(k, 0)}" for k in cols)
-                  + f"  kill rate {100 * r['kill_rate']:.1f} %")
+                  + f"  kill rate {rate_text(r)}")
         for s in r["survivors"]:
             if (args.survivors and not s["equivalent"]) or (args.equivalent and s["equivalent"]):
                 print(f"    {s['mutant']}\n        - {s['old']}\n        + {s['new']}")

@@ -330,7 +330,7 @@ class Penalty(Controller):
         self._qdd_sum = np.zeros(n)
         self._qdd_last = np.zeros(n)
         self._potrf, self._potrs = lapack.get_lapack_funcs(("potrf", "potrs"), (self.mass,))
-        self.recovery = InputRecovery(gains.recovery, self.mass, self.m, self.k, self.l, gains.kappa)
+        self.recovery = InputRecovery(gains.recovery, self.mass, self.k, self.l, gains.kappa)
         self.u = self.recovery.u  # the recovery writes the input in place: one buffer, no copy
         if iterations > 1:
             # Iterations 2..N: two bindings of the generated update read each other's outputs, so the

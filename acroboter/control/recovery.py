@@ -35,7 +35,7 @@ class RecoveryError(ValueError):
 
 
 class InputRecovery:
-    def __init__(self, kind: str, mass: np.ndarray, m: int, k: int, l: int, kappa: float = 0.5):
+    def __init__(self, kind: str, mass: np.ndarray, k: int, l: int, kappa: float):
         if kind not in RECOVERIES:
             raise RecoveryError(f"unknown input recovery '{kind}': choose one of {', '.join(RECOVERIES)}")
         if kind in ("eq15", "kappa") and k != l:

@@ -6,7 +6,10 @@ folders; docs/errors.md).
 - `remembered_interrupt`: for work that calls CasADi. Its SWIG layer swallows a KeyboardInterrupt raised inside
   one of its calls (the call then goes on as if nothing happened), so inside CasADi a Ctrl-C is remembered and
   raised as soon as CasADi returns to our code; anywhere else in the block (our own code between CasADi calls, a
-  compiler being waited for) it is raised at once.
+  compiler being waited for) it is raised at once. Raised while a finalizer or a weakref callback runs (matplotlib's
+  transforms clean up that way during garbage collection), Python cannot propagate it and prints "Exception
+  ignored in"; the block's hook for such exceptions remembers it instead, and it is raised at the next
+  `check()`, before any `deferred_interrupt` block (publishing a command's results), or at the block's end.
 """
 
 from __future__ import annotations
@@ -16,13 +19,19 @@ import signal
 import sys
 import threading
 
+# the remembered_interrupt blocks open now (innermost last): deferred_interrupt raises a Ctrl-C they remember
+_ACTIVE: list[_Remembered] = []
+
 
 @contextlib.contextmanager
 def deferred_interrupt():
-    """SIGINT during the block is remembered and raised as KeyboardInterrupt right after it."""
+    """SIGINT during the block is remembered and raised as KeyboardInterrupt right after it. A Ctrl-C that an open
+    remembered_interrupt block still holds is raised before the block starts."""
     if threading.current_thread() is not threading.main_thread():
         yield  # signals reach the main thread only
         return
+    for state in _ACTIVE:
+        state.check()
     caught = []
     previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
     try:
@@ -82,10 +91,20 @@ def remembered_interrupt():
         state.caught = False
         raise KeyboardInterrupt
 
+    def on_unraisable(unraisable):
+        if isinstance(unraisable.exc_value, KeyboardInterrupt):  # ours, where Python could not propagate it
+            state.caught = True
+            return
+        previous_hook(unraisable)
+
     previous = signal.signal(signal.SIGINT, on_interrupt)
+    previous_hook, sys.unraisablehook = sys.unraisablehook, on_unraisable
+    _ACTIVE.append(state)
     try:
         yield state
     finally:
+        _ACTIVE.remove(state)
         signal.signal(signal.SIGINT, previous)
+        sys.unraisablehook = previous_hook
         sys.setprofile(profile)
     state.check()

@@ -49,14 +49,12 @@ class CasadiModel(SharedInputs):
     """The spec's functions as casadi.Function objects behind CompiledModel's interface: built from the
     generator in this process (no C, no compiler), so a change to the generator acts at once."""
 
-    def __init__(self, spec: Spec, context=None):
-        """context: the spec's GenerationContext with every function registered, if the caller has one
-        (building it is most of the cost); each CasadiModel has buffers of its own either way."""
+    def __init__(self, spec: Spec):
         from acroboter.codegen.generate import GenerationContext  # CasADi symbolics: only this backend needs them
 
         self.spec = spec
         self.layout = build_layout(spec)
-        context = context or GenerationContext(spec).register_all()
+        context = GenerationContext(spec).register_all()
         self.manifest = context.manifest()  # the generated folder's manifest.json, as CompiledModel reads it
         self.source_dir = self.library_path = self.cache_root = None  # nothing on disk
         ns = self.layout.n_signals
