@@ -290,15 +290,16 @@ class Crane:
 
     def plan(self, margin: float = 0.05, max_speed: float | None = None, max_accel: float | None = None,
              trajectory: Trajectory | None = None, duration: float | None = None, intervals: int = 120,
-             certify: bool = True, verbose: bool = False, window: int | None = None):
+             certify: bool = True, verbose: bool = False, window: int | None = None, corners: str = "rest"):
         """The fastest timing of the path's geometry (the spec's waypoints, or `trajectory`'s) whose ideal motion
         keeps every input within its limits less `margin` (a fraction of each limit span, docs/planning.md),
         optionally with the tracked point's speed ≤ `max_speed` (m/s) and acceleration ≤ `max_accel` (m/s²).
         Returns a Plan: `plan.trajectory` for `simulate(trajectory=...)`, `plan.to_csv(path)` for `acroboter run
         --trajectory FILE`, `plan.summary()`. A need at rest beyond the limits anywhere on the path (no timing can
         help) is a StaticLimitError naming the place and the input; other failures a PlanningError (ValueErrors).
-        `window`: phases optimised together in a receding window (default 2; 0: the whole path in one solve, slow
-        on long paths; docs/planning.md)."""
+        `corners` on a waypoint path: "rest" (default), every edge from rest to rest with the swing included, the
+        edges solved one by one; "swing", the swing carried over the corners, `window` phases optimised together in
+        a receding window (default 2; 0: the whole path in one solve, slow on long paths; docs/planning.md)."""
         from ..model.ranges import MARGIN, PLAN_ACCEL, PLAN_INTERVALS, PLAN_SPEED, PLAN_WINDOW
         from ..planning.plan import plan
 
@@ -312,7 +313,7 @@ class Crane:
         path = self.desired(trajectory, duration)
         start = self.equilibrium(trajectory, duration)
         return plan(self.model, path, start.q, float(margin), max_speed, max_accel, int(intervals), certify, verbose,
-                    window)
+                    window, corners)
 
     def simulate(self, method: str = "penalty", duration: float | None = None,
                  trajectory: Trajectory | None = None, iterations: int | None = None,

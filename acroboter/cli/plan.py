@@ -56,10 +56,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         "of docs/planning.md: t_s, x_m, y_m, z_m, vx_m_s, ...)")
     p.add_argument("--intervals", type=ranged(PLAN_INTERVALS), default=120,
                    help="the optimiser's grid: intervals over the whole path, 4..5000 (default: %(default)s)")
+    p.add_argument("--corners", choices=("rest", "swing"), default="rest",
+                   help="a waypoint path's corners: rest, every edge from rest to rest with the connector's swing "
+                        "(solved edge by edge); swing, the swing carried over the corners (edges optimised together, "
+                        "see --window) (default: %(default)s)")
     p.add_argument("--window", type=ranged(PLAN_WINDOW), default=None,
-                   help="phases (edges) optimised together in a receding window, each window from the state the "
-                        "phases before it leave; 0 solves the whole path at once (slow on long paths), 0..1000 "
-                        "(default: 2)")
+                   help="with --corners swing: phases (edges) optimised together in a receding window, each window "
+                        "from the state the phases before it leave; 0 solves the whole path at once (slow on long "
+                        "paths), 0..1000 (default: 2)")
     p.add_argument("--no-certificate", action="store_true",
                    help="skip flying the plan with MLM on the own plant (the certificate)")
     p.add_argument("--out", type=out_path, default=Path("results/plan"), help="output folder (default: %(default)s)")
@@ -114,7 +118,7 @@ def _plan(args: argparse.Namespace, folder) -> int:
     try:
         plan = crane.plan(margin=args.margin, max_speed=args.max_speed, max_accel=args.max_accel,
                           trajectory=trajectory, intervals=args.intervals, certify=not args.no_certificate,
-                          window=args.window)
+                          window=args.window, corners=args.corners)
     except StaticLimitError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

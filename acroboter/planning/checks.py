@@ -99,13 +99,24 @@ class Certificate:
 
 
 def certify(model, path: DesiredPath, q0: np.ndarray, duration: float, lower, upper, low, high) -> Certificate:
+    """With more inputs than servo-constraints the controller needs the limits to choose its internal force (the
+    bounded distribution; unbounded, its least-squares choice can make a cable push): they are then applied, and
+    a control step whose task the limits did not let it meet (saturated) fails the certificate as an excess would."""
     spec, lay = model.spec, model.layout
-    controller = make_controller("mlm", model, path, Gains.from_spec(spec), limits=unbounded(spec))
+    spare = lay.l > lay.k
+    limits = spec.input_limits() if spare else unbounded(spec)
+    controller = make_controller("mlm", model, path, Gains.from_spec(spec), limits=limits)
     run = simulate(model, path, controller, setup_default(model, path), q0, duration, spec.controller.rate_hz,
                    spec.simulation.step, allow_divergence=True)
     if run.diverged_at is not None:
         raise PlanningError(f"the certificate failed: the planned trajectory flown by MLM diverged at t = "
                             f"{run.diverged_at:.2f} s ({run.divergence})")
+    held = np.flatnonzero(run.saturated) if spare else []
+    if len(held):
+        on = [lay.inputs[i] for i in np.flatnonzero(run.limit_state[held[0]] != 0)]
+        raise PlanningError(f"the certificate failed: flown by MLM, the limits did not let the controller meet its "
+                            f"task at t = {run.t[held[0]]:.3f} s (on a limit: {', '.join(on) or 'none'}); give a "
+                            "larger --margin (the closed loop's deviations from the ideal inputs need it)")
     achieved, i = margin_achieved(run.u, lower, upper)
     span = np.where(np.isfinite(high - low), high - low, 1.0)
     over = np.maximum(run.u - high, low - run.u) / span

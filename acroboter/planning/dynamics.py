@@ -8,6 +8,14 @@ solved for (q̈, λ, u) at a state (q, q̇) and the path's signals. It is square
 as servo-constraints; the unactuated part of q (the connector's swing) is then internal dynamics, known only
 by integrating q̈. ρ and ρ_s carry Baumgarte terms (the spec's Ω, μ and k_P, k_D) that keep an integrated
 state on the constraints; on the exact motion they are zero.
+
+With more inputs than servo-constraints (the four-cable crane: seven inputs, six servo-constraints) the
+motion is still unique but the inputs are not: l − k of them (the spare inputs) are an internal force, the
+cables pulling against each other. They are then inputs of the function: the system is solved for the
+other inputs with the spare ones given (moved to the right-hand side), and the retiming chooses them as
+decision variables, one set per place it bounds the inputs. The spare inputs are the ones the null space of
+the system moves most, picked one by one at the static start (`spare_inputs`), so that the rest stays square
+and regular there.
 """
 
 from __future__ import annotations
@@ -30,15 +38,15 @@ class PlanningError(ValueError):
 
 
 class IdealDynamics:
-    """`function(q, qd, s, sd, sdd) -> (qdd, u)`: the ideal motion's accelerations and inputs (casadi.Function)."""
+    """`function(q, qd, s, sd, sdd, spare) -> (qdd, u)`: the ideal motion's accelerations and inputs
+    (casadi.Function); `spare` (l − k values, empty for a square system) are the inputs `spare_index` names."""
 
-    def __init__(self, spec: Spec):
+    def __init__(self, spec: Spec, q0: np.ndarray | None = None):
         model = build_symbolic_model(spec)
         lay = model.layout
-        if lay.k != lay.l:
+        if lay.l < lay.k:
             raise PlanningError(f"spec '{spec.name}': {lay.l} inputs for {lay.k} servo-constraints; the retiming "
-                                "needs as many inputs as servo-constraints (the inverse dynamics then have one "
-                                "solution)")
+                                "needs at least as many inputs as servo-constraints (the ideal motion then exists)")
         self.layout = lay
         q, qd, s, sd, sdd = model.inputs
         c = spec.controller
@@ -55,20 +63,69 @@ class IdealDynamics:
         # further solves with the same matrix, not a symbolic QR of 22 x 22 expressions differentiated twice
         terms = ca.Function("ideal_terms", [q, qd, s, sd, sdd],
                             [schur, rhs, ca.mtimes(minv, model.bias_forces), ca.mtimes(minv, w)])
+        m = len(rows)
+        self.spare_index: list[int] = []
+        self.spare_signs = np.zeros(lay.l)
+        if lay.l > lay.k:
+            if lay.l - lay.k > 1:
+                raise PlanningError(f"spec '{spec.name}': {lay.l - lay.k} inputs beyond the servo-constraints; the "
+                                    "retiming handles one (an internal force such as the four-cable crane's)")
+            if q0 is None:
+                raise PlanningError(f"spec '{spec.name}' has a spare input: the static start q0 is needed to choose it")
+            zero = np.zeros(lay.n_signals)
+            at_rest = np.asarray(terms(q0, np.zeros(lay.n), zero, zero, zero)[0])
+            self.spare_index = spare_inputs(at_rest, m, lay.l - lay.k)
+        spare_cols = [m + i for i in self.spare_index]
+        free = [j for j in range(m + lay.l) if j not in spare_cols]
         mq, mqd = ca.MX.sym("q", lay.n), ca.MX.sym("qd", lay.n)
         ms, msd, msdd = (ca.MX.sym(name, lay.n_signals) for name in ("s", "sd", "sdd"))
         a, b, minv_c, minv_w = terms(mq, mqd, ms, msd, msdd)
-        y = ca.solve(a, b)
+        direction = ca.MX.zeros(lay.l, len(spare_cols))
+        if spare_cols:
+            # the spare input at 0 (its value then shifts u along `direction`, and q̈ not at all)
+            solved = ca.solve(a[:, free], ca.horzcat(b, -a[:, spare_cols]))
+            y, dy = ca.MX.zeros(m + lay.l), ca.MX.zeros(m + lay.l, len(spare_cols))
+            y[free], dy[free, :] = solved[:, 0], solved[:, 1:]
+            dy[spare_cols, :] = ca.MX.eye(len(spare_cols))
+            direction = dy[m:, :]
+        else:
+            y = ca.solve(a, b)
         qdd = -minv_c - ca.mtimes(minv_w, y)
-        self.function = ca.Function("ideal", [mq, mqd, ms, msd, msdd], [qdd, y[len(rows):]],
-                                    ["q", "qd", "s", "sd", "sdd"], ["qdd", "u"])
+        self.function = ca.Function("ideal", [mq, mqd, ms, msd, msdd], [qdd, y[m:], direction],
+                                    ["q", "qd", "s", "sd", "sdd"], ["qdd", "u", "direction"])
+        self.spares = len(spare_cols)
+        if spare_cols:  # the signs of u's change per unit of the spare input, at rest (kept by the retiming)
+            d0 = np.asarray(self.function(q0, np.zeros(lay.n), zero, zero, zero)[2]).ravel()
+            self.spare_signs = np.where(np.abs(d0) > 1e-9 * np.abs(d0).max(), np.sign(d0), 0.0)
+            self.spare_at_rest = np.abs(d0)
         self.servo = ca.Function("servo", [q, s], [model.sigma])
         self.constraints = ca.Function("constraints", [q, s], [model.phi])
 
 
+def spare_inputs(system: np.ndarray, m: int, count: int) -> list[int]:
+    """The `count` inputs to give (the spare ones) for the system [multipliers (m) | inputs] at rest: one by one,
+    the input the system's null space moves most (the internal force's direction), among those left; the
+    remaining columns must then be regular (else PlanningError: the extra inputs are not an internal force)."""
+    chosen: list[int] = []
+    a = np.asarray(system, float)
+    for _ in range(count):
+        cols = [j for j in range(a.shape[1]) if j - m not in chosen]
+        _, _, vt = np.linalg.svd(a[:, cols])
+        null = vt[-1]  # the null direction of the reduced system (it has one more column than rows ... count)
+        weights = [abs(null[cols.index(m + i)]) if m + i in cols else 0.0 for i in range(a.shape[1] - m)]
+        best = max(range(len(weights)), key=lambda i: (round(weights[i], 12), i))
+        chosen.append(best)
+    rest = a[:, [j for j in range(a.shape[1]) if j - m not in chosen]]
+    if np.linalg.cond(rest) > 1e10:
+        raise PlanningError(f"the inputs beyond the servo-constraints ({count}) are not an internal force at the "
+                            "static start (the rest of the system is singular): the retiming cannot choose them")
+    return sorted(chosen)
+
+
 def rk4_step(dynamics: IdealDynamics, geometry, substeps: int) -> ca.Function:
     """One interval of h seconds with the path acceleration τ̈ held: state x = (q, q̇, τ, τ̇), `substeps`
-    RK4 steps. Returns the end state and the inputs at the start of each substep (n_inputs x substeps)."""
+    RK4 steps. Returns the end state, the inputs at the start of each substep (n_inputs x substeps; with a spare
+    input, at its value 0) and their change per unit of the spare input (n_inputs x substeps, 0 without one)."""
     n = dynamics.layout.n
     x = ca.MX.sym("x", 2 * n + 2)
     a = ca.MX.sym("tau_dd")
@@ -77,24 +134,28 @@ def rk4_step(dynamics: IdealDynamics, geometry, substeps: int) -> ca.Function:
     def rate(state):
         q, qd, tau, tau_d = state[:n], state[n : 2 * n], state[2 * n], state[2 * n + 1]
         g, d1, d2 = geometry.function(tau)
-        qdd, u = dynamics.function(q, qd, g, d1 * tau_d, d2 * tau_d**2 + d1 * a)
-        return ca.vertcat(qd, qdd, tau_d, a), u
+        qdd, u, direction = dynamics.function(q, qd, g, d1 * tau_d, d2 * tau_d**2 + d1 * a)
+        return ca.vertcat(qd, qdd, tau_d, a), u, direction
 
     dt = h / substeps
-    state, inputs = x, []
+    state, inputs, directions = x, [], []
     for _ in range(substeps):
-        k1, u = rate(state)
+        k1, u, direction = rate(state)
         inputs.append(u)
-        k2, _ = rate(state + dt / 2 * k1)
-        k3, _ = rate(state + dt / 2 * k2)
-        k4, _ = rate(state + dt * k3)
+        directions.append(direction if dynamics.spares else ca.MX.zeros(u.shape))
+        k2 = rate(state + dt / 2 * k1)[0]
+        k3 = rate(state + dt / 2 * k2)[0]
+        k4 = rate(state + dt * k3)[0]
         state = state + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    return ca.Function("interval", [x, a, h], [state, ca.horzcat(*inputs)], ["x", "tau_dd", "h"], ["x_end", "u"])
+    return ca.Function("interval", [x, a, h], [state, ca.horzcat(*inputs), ca.horzcat(*directions)],
+                       ["x", "tau_dd", "h"], ["x_end", "u", "direction"])
 
 
-def inputs_at(dynamics: IdealDynamics, geometry, x, a) -> ca.Function | ca.MX:
-    """The ideal inputs at a state x = (q, q̇, τ, τ̇) with path acceleration a (symbolic or numeric)."""
+def inputs_at(dynamics: IdealDynamics, geometry, x, a):
+    """The ideal inputs at a state x = (q, q̇, τ, τ̇) with path acceleration a (symbolic or numeric), and their
+    change per unit of the spare input: (u, direction)."""
     n = dynamics.layout.n
     q, qd, tau, tau_d = x[:n], x[n : 2 * n], x[2 * n], x[2 * n + 1]
     g, d1, d2 = geometry.function(tau)
-    return dynamics.function(q, qd, g, d1 * tau_d, d2 * tau_d**2 + d1 * a)[1]
+    _, u, direction = dynamics.function(q, qd, g, d1 * tau_d, d2 * tau_d**2 + d1 * a)
+    return u, direction if dynamics.spares else ca.DM.zeros(u.shape)

@@ -60,3 +60,67 @@ def active_intervals(times: np.ndarray, inputs: np.ndarray, low: np.ndarray, hig
                                  "to_s": float(times[stop - 1]), "_stop": stop})
             found += [{k: v for k, v in a.items() if k != "_stop"} for a in mine]
     return sorted(found, key=lambda a: a["from_s"])
+
+
+def best_spare(base: np.ndarray, directions: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """The inputs u = base + directions·z with the spare inputs z chosen per sample to keep every input as far
+    inside [low, high] as it can (the smallest largest excess, relative to each input's span): the retiming's
+    choice of an internal force (acroboter.planning.dynamics). `base`: samples x l (z = 0); `directions`:
+    samples x l x spares (u's change per unit of each spare input). One spare input: exact, the minimum of a
+    convex piecewise-linear function is at a crossing of two of its lines; more: a linear program per sample."""
+    base, directions = np.asarray(base, float), np.asarray(directions, float)
+    if directions.shape[2] == 0:
+        return base
+    span = np.where(np.isfinite(high - low), high - low, 1.0)
+    sides = [(i, sign) for i in range(base.shape[1]) for sign, bound in ((1.0, high[i]), (-1.0, low[i]))
+             if np.isfinite(bound)]
+    if not sides:
+        return base
+    bound = np.array([high[i] if sign > 0 else low[i] for i, sign in sides])
+    rows, signs = np.array([i for i, _ in sides]), np.array([s for _, s in sides])
+    # each side is a line in z: sign·(base + d·z − bound) / span
+    offset = signs * (base[:, rows] - bound) / span[rows]  # samples x sides
+    if directions.shape[2] == 1:
+        slope = signs * directions[:, rows, 0] / span[rows]
+        ds = slope[:, :, None] - slope[:, None, :]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cross = (offset[:, None, :] - offset[:, :, None]) / ds
+        cross = np.where(np.isfinite(cross), cross, 0.0).reshape(base.shape[0], -1)
+        value = (slope[:, None, :] * cross[:, :, None] + offset[:, None, :]).max(axis=2)
+        z = np.take_along_axis(cross, value.argmin(axis=1)[:, None], axis=1)
+        return base + directions[:, :, 0] * z
+    from scipy.optimize import linprog
+
+    out = base.copy()
+    k = directions.shape[2]
+    for s in range(base.shape[0]):  # minimise t with every side's line ≤ t
+        slope = signs[:, None] * directions[s, rows, :] / span[rows][:, None]
+        res = linprog(np.r_[np.zeros(k), 1.0], A_ub=np.hstack([slope, -np.ones((len(sides), 1))]),
+                      b_ub=-offset[s], bounds=[(None, None)] * (k + 1), method="highs")
+        if res.status == 0:
+            out[s] = base[s] + directions[s] @ res.x[:k]
+    return out
+
+
+def spare_constraints(inputs, directions, lower: np.ndarray, upper: np.ndarray, signs: np.ndarray,
+                      at_rest: np.ndarray) -> list:
+    """[(expression, lower bound), ...]: the conditions, at every column of `inputs` (l x places, symbolic, the
+    spare input at 0) with `directions` (u's change per unit of the spare input), that some value z of the one
+    spare input keeps every input within [lower, upper]: each bounded side is a line a·z ≤ c in z, and lines of
+    opposite slope must leave an interval, c_k·(−a_j) + c_j·a_k ≥ 0; a side whose slope is 0 needs c ≥ 0. The
+    slopes' signs are those at rest (`signs`), kept by sign·direction ≥ half its value at rest."""
+    rising, falling, flat, out = [], [], [], []
+    for i in range(len(signs)):
+        for bound, side in ((upper[i], 1.0), (lower[i], -1.0)):
+            if not np.isfinite(bound):
+                continue
+            slope, room = side * directions[i, :], side * (bound - inputs[i, :])
+            {1.0: rising, -1.0: falling, 0.0: flat}[float(side * signs[i])].append((slope, room))
+        if signs[i] != 0 and (np.isfinite(upper[i]) or np.isfinite(lower[i])):
+            out.append((signs[i] * directions[i, :], 0.5 * float(at_rest[i])))
+    for _slope, room in flat:
+        out.append((room, 0.0))
+    for slope_k, room_k in rising:
+        for slope_j, room_j in falling:
+            out.append((room_k * (-slope_j) + room_j * slope_k, 0.0))
+    return out

@@ -21,6 +21,7 @@ from ..control.path import DesiredPath, SampledTrajectory, TrajectoryPath
 from ..control.trajectory_file import write_trajectory_csv
 from .checks import Certificate, certify, check_statics
 from .dynamics import IdealDynamics, PlanningError
+from .edges import EdgeRetiming
 from .geometry import PathGeometry
 from .limits import active_intervals, margin_achieved, tightened
 from .retiming import Retiming, Solution
@@ -37,6 +38,9 @@ DEFAULT_INTERVALS = 120
 # The receding window (acroboter.planning.windows): phases solved together; paths with more phases than this are
 # planned by the window unless the caller asks for the whole path (window = 0).
 DEFAULT_WINDOW = 2
+# What a waypoint path's corners are: "rest" (every edge rest to rest, the swing included: acroboter.planning.edges)
+# or "swing" (the swing carried over, the edges optimised together).
+CORNERS = ("rest", "swing")
 # The two samples at a node of the grid, one on each side (s).
 NODE_GAP_S = 1e-6
 
@@ -73,6 +77,7 @@ class Plan:
     solve_s: float
     iterations: int
     intervals: int
+    corners: str = "rest"  # a waypoint path's corners: "rest" (edges rest to rest) or "swing" (docs/planning.md)
     window: int = 0  # phases per window (0: the whole path in one solve)
     phase_duration: float | None = None  # the phase-wise slowdown's duration (the window's warm start)
     solves: list[dict] = field(default_factory=list)  # per solve: phases, intervals, RK4 steps, iterations, s
@@ -119,6 +124,7 @@ class Plan:
                            self.input_names, self.input_units, *self.limits, *self.bounds, strict=True))},
             "active_limits": self.active,
             "intervals": self.intervals,
+            "corners": self.corners,
             "window": self.window,
             "phase_slowdown_duration_s": self.phase_duration,
             "solves": self.solves,
@@ -137,9 +143,13 @@ class Plan:
 
 def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_speed: float | None = None,
          max_accel: float | None = None, intervals: int = DEFAULT_INTERVALS, certify_plan: bool = True,
-         verbose: bool = False, window: int | None = None) -> Plan:
-    """`window`: phases per receding window (acroboter.planning.windows), 0 the whole path in one solve, None
-    DEFAULT_WINDOW (a path of at most DEFAULT_WINDOW phases is then one solve anyway)."""
+         verbose: bool = False, window: int | None = None, corners: str = "rest") -> Plan:
+    """`corners` (a waypoint path): "rest", every edge from rest to rest, the swing included (acroboter.planning.
+    edges); "swing", the swing carried over the corners, the edges optimised together: `window` phases per
+    receding window (acroboter.planning.windows), 0 the whole path in one solve, None DEFAULT_WINDOW (a path of at
+    most DEFAULT_WINDOW phases is then one solve anyway)."""
+    if corners not in CORNERS:
+        raise PlanningError(f"corners: expected one of {', '.join(CORNERS)}, found {corners!r}")
     spec, lay = model.spec, model.layout
     if not (isinstance(margin, (int, float)) and 0.0 <= margin < 0.5):
         raise PlanningError(f"margin: expected a fraction from 0 to below 0.5 (0 to 50 %), found {margin!r}")
@@ -148,11 +158,14 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
     geometry = PathGeometry(path)
     needs = check_statics(model, geometry, lower, upper, low, high, margin)
     static_margin, _ = margin_achieved(needs, lower, upper)
-    dynamics = IdealDynamics(spec)
+    dynamics = IdealDynamics(spec, q0)
     window = DEFAULT_WINDOW if window is None else int(window)
     if window >= len(geometry.phases):
         window = 0  # the window would be the whole path
-    if window:
+    if corners == "rest" and geometry.edges:
+        window = 0
+        problem = EdgeRetiming(dynamics, geometry, q0, low, high, max_speed=max_speed, max_accel=max_accel)
+    elif window:
         problem = WindowedRetiming(dynamics, geometry, q0, low, high, max_speed=max_speed, max_accel=max_accel,
                                    window=window)
     else:
@@ -170,7 +183,8 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
         active=active_intervals(solution.input_times, solution.inputs, low, high, list(lay.inputs)),
         uniform_duration=solution.uniform_duration, uniform_slowdown=solution.uniform_slowdown,
         static_margin=static_margin, solve_s=solution.solve_s, iterations=solution.iterations, intervals=intervals,
-        window=window, phase_duration=None if problem.phase_slowdown is None else problem.phase_slowdown[1],
+        corners=corners if geometry.edges else "swing", window=window,
+        phase_duration=None if problem.phase_slowdown is None else problem.phase_slowdown[1],
         solves=solution.windows)
     if certify_plan:
         # what is certified is the written trajectory (its samples, interpolated), as `run --trajectory` flies it

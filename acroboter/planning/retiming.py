@@ -31,6 +31,7 @@ import numpy as np
 
 from .dynamics import IdealDynamics, PlanningError, inputs_at, rk4_step
 from .geometry import PathGeometry
+from .limits import best_spare, spare_constraints
 
 # The uniform slowdown's check: interval of the integration (s) and RK4 steps per interval.
 CHECK_INTERVAL_S = 0.1
@@ -46,6 +47,10 @@ ACCEPTABLE = {"acceptable_tol": 1e3, "acceptable_iter": 5, "acceptable_constr_vi
               "acceptable_compl_inf_tol": 1e-6, "acceptable_obj_change_tol": 1e-7}
 # The longest RK4 step of the problem's integration (s).
 MAX_STEP_S = 0.1
+# An edge planned to end at rest (acroboter.planning.edges) ends with every coordinate within this of the static
+# configuration there and every rate within this per second (m and unit vectors: a centimetre, a centimetre per
+# second).
+REST_TOL = 1e-2
 # The fewest intervals a phase (an edge of a waypoint path) gets.
 MIN_PHASE_INTERVALS = 6
 
@@ -113,18 +118,26 @@ class Retiming:
         step start (steps x l) and their times (σ̈ held per interval at its value mid-interval)."""
         duration = factor * self.geo.path_duration
         count = max(2, int(math.ceil(duration / CHECK_INTERVAL_S)))
-        if count not in self._check_cache:
-            step = rk4_step(self.dyn, self.geo, CHECK_SUBSTEPS)
-            self._check_cache[count] = step.mapaccum(count)
         h = duration / count
         _, rate0, _ = self.geo.own_timing([0.0])
         _, _, acc = self.geo.own_timing((np.arange(count) + 0.5) * h / factor)
         x0 = np.concatenate([self.x0, [0.0, rate0[0] / factor]])
-        xs, us = self._check_cache[count](x0, acc[None, :] / factor**2, h)
-        states = np.hstack([x0[:, None], np.asarray(xs)]).T
-        inputs = np.asarray(us).T
+        xs, inputs = self.integrate(x0, acc / factor**2, h)
+        states = np.hstack([x0[:, None], xs]).T
         times = np.arange(inputs.shape[0]) * h / CHECK_SUBSTEPS
         return states, inputs, times
+
+    def integrate(self, x0: np.ndarray, acc: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+        """The ideal motion from x0 over len(acc) intervals of h seconds (σ̈ = acc[i] held, CHECK_SUBSTEPS RK4
+        steps each): (the states at the interval ends, (2n + 2) x count; the inputs at every step start,
+        steps x l, with the spare inputs chosen to keep them inside the bounds: limits.best_spare)."""
+        count = len(acc)
+        if count not in self._check_cache:
+            self._check_cache[count] = self.stepper(CHECK_SUBSTEPS).mapaccum(count)
+        xs, us, ds = self._check_cache[count](x0, np.asarray(acc, float)[None, :], h)
+        base = np.asarray(us).T
+        return np.asarray(xs), best_spare(base, np.asarray(ds).T[:, :, None][:, :, : self.dyn.spares], self.lower,
+                                          self.upper)
 
     def excess(self, inputs: np.ndarray) -> float:
         """The largest step of any input beyond its (tightened) limits, relative to the limits' span (≤ 0: within)."""
@@ -200,12 +213,14 @@ class Retiming:
 
     def solve_phases(self, x_start: np.ndarray, which: list[int], counts: list[int], guess_a: np.ndarray,
                      guess_T, uniform_duration: float, max_iter: int = 400, verbose: bool = False,
-                     substeps: int | None = None, tail_s: float = 0.0) -> Part:
+                     substeps: int | None = None, tail_s: float = 0.0, rest_at: np.ndarray | None = None) -> Part:
         """The time-optimal problem over the consecutive phases `which` (indices into the path's phases), from the
         state x_start at the first one's start (σ there, σ̇ = 0 unless the path starts there). The inputs are kept
         at the start of every RK4 step, and at the end of the last phase. `tail_s` > 0: the path then held at rest
         at its corner for tail_s seconds with the inputs within the bounds too (the swing the phases leave must
-        not take an input beyond them while the next phase starts: acroboter.planning.windows)."""
+        not take an input beyond them while the next phase starts: acroboter.planning.windows). `rest_at` (a
+        configuration q): the last phase ends there at rest, |q − rest_at|∞ ≤ REST_TOL and |q̇|∞ ≤ REST_TOL / s
+        (acroboter.planning.edges)."""
         n, phases = self.n, self.geo.phases
         substeps = self.substeps if substeps is None else substeps
         step = self.stepper(substeps)
@@ -220,7 +235,7 @@ class Retiming:
         # it solves reliably, where multiple shooting's many redundant states of the natural coordinates made it
         # wander)
         x0 = ca.DM(x_start)
-        x_end, inputs = step.mapaccum(N)(x0, A, steps)
+        x_end, inputs, directions = step.mapaccum(N)(x0, A, steps)
         X = ca.horzcat(x0, x_end)
         boundaries = np.concatenate([[0], np.cumsum(sub)])
         for i, j in enumerate(which):  # each phase from its start to its end
@@ -234,18 +249,29 @@ class Retiming:
         final = which[-1] == len(phases) - 1
         if final and self.rest_end:
             opti.subject_to(X[2 * n + 1, N] == 0)
-        last = inputs_at(self.dyn, self.geo, X[:, N], A[N - 1])
-        u_all = ca.horzcat(inputs, last)
-        bounded = u_all
+        last, last_direction = inputs_at(self.dyn, self.geo, X[:, N], A[N - 1])
+        u_all, d_all = ca.horzcat(inputs, last), ca.horzcat(directions, last_direction)
+        bounded, d_bounded = u_all, d_all
         if tail_s > 0:
             count = max(1, int(math.ceil(tail_s / (substeps * MAX_STEP_S))))
-            _, held = step.mapaccum(count)(X[:, N], ca.DM.zeros(1, count), ca.DM.ones(1, count) * (tail_s / count))
-            bounded = ca.horzcat(u_all, held)
-        for i in range(self.lower.size):
-            if math.isfinite(self.upper[i]):
-                opti.subject_to(bounded[i, :] <= self.upper[i])
-            if math.isfinite(self.lower[i]):
-                opti.subject_to(bounded[i, :] >= self.lower[i])
+            _, held, d_held = step.mapaccum(count)(X[:, N], ca.DM.zeros(1, count),
+                                                   ca.DM.ones(1, count) * (tail_s / count))
+            bounded, d_bounded = ca.horzcat(u_all, held), ca.horzcat(d_all, d_held)
+        if self.dyn.spares:  # some internal force keeps the inputs within the bounds (limits.spare_constraints)
+            for expr, low in spare_constraints(bounded, d_bounded, self.lower, self.upper, self.dyn.spare_signs,
+                                               self.dyn.spare_at_rest):
+                opti.subject_to(expr >= low)
+        else:
+            for i in range(self.lower.size):
+                if math.isfinite(self.upper[i]):
+                    opti.subject_to(bounded[i, :] <= self.upper[i])
+                if math.isfinite(self.lower[i]):
+                    opti.subject_to(bounded[i, :] >= self.lower[i])
+        if rest_at is not None:
+            # a box on every coordinate and its rate, not one sum of squares: its gradient vanishes at rest, and
+            # IPOPT then crawls
+            opti.subject_to(opti.bounded(-REST_TOL, X[:n, N] - rest_at, REST_TOL))
+            opti.subject_to(opti.bounded(-REST_TOL, X[n : 2 * n, N], REST_TOL))
         self._path_bounds(opti, X, A, N)
         opti.subject_to(durations >= 1e-3 * uniform_duration / len(phases))
         total = ca.sum1(durations)
@@ -274,8 +300,10 @@ class Retiming:
         record = {"phases": [int(j) for j in which], "intervals": N, "rk4_steps": N * substeps, "substeps": substeps,
                   "iterations": int(stats["iter_count"]), "solve_s": time.perf_counter() - started,
                   "status": stats.get("return_status", "")}
+        chosen = best_spare(np.asarray(value(u_all)).T, np.asarray(value(d_all)).T[:, :, None][:, :, : self.dyn.spares],
+                            self.lower, self.upper)
         return Part(np.asarray(value(durations)).ravel(), np.asarray(value(A)).ravel(), np.asarray(value(X)).T,
-                    np.asarray(value(u_all)).T, record["status"], record["iterations"], [record],
+                    chosen, record["status"], record["iterations"], [record],
                     [substeps] * len(which))
 
     def stepper(self, substeps: int) -> ca.Function:

@@ -28,8 +28,9 @@ import math
 
 import numpy as np
 
-from .dynamics import PlanningError
-from .retiming import CHECK_INTERVAL_S, CHECK_SUBSTEPS, MAX_SLOWDOWN, MAX_STEP_S, Part, Retiming
+from .dynamics import PlanningError, inputs_at
+from .limits import best_spare
+from .retiming import CHECK_INTERVAL_S, MAX_SLOWDOWN, MAX_STEP_S, Part, Retiming
 
 # The phase-wise slowdown's bisection: relative resolution of each edge's factor.
 PHASE_BISECTION = 1e-2
@@ -37,6 +38,9 @@ PHASE_BISECTION = 1e-2
 # long with the inputs within the bounds: the connector's swing, barely damped (the default crane's period is
 # about 2.8 s, its decay time about a minute), would otherwise leave the next phase no feasible start.
 WINDOW_TAIL_S = 3.0
+# IPOPT's iterations per window: a window that needs more (it crawls near feasibility, as a barely damped swing
+# makes it) keeps its first phase's own timing slowed (quintic_part) instead: feasible, and said in the summary.
+WINDOW_MAX_ITER = 60
 
 
 def phase_uniform(problem, x_start: np.ndarray, j: int, factor: float) -> tuple[np.ndarray, np.ndarray]:
@@ -45,15 +49,13 @@ def phase_uniform(problem, x_start: np.ndarray, j: int, factor: float) -> tuple[
     start, _, T = geo.phases[j]
     duration = factor * T
     count = max(2, int(math.ceil(duration / CHECK_INTERVAL_S)))
-    if count not in problem._check_cache:
-        problem._check_cache[count] = problem.stepper(CHECK_SUBSTEPS).mapaccum(count)
     h = duration / count
     t0 = geo.path.edge_t0[j] if geo.edges else 0.0
     _, _, acc = geo.own_timing(t0 + (np.arange(count) + 0.5) * h / factor)
     x = np.array(x_start, float)
     x[-2:] = start, 0.0
-    xs, us = problem._check_cache[count](x, acc[None, :] / factor**2, h)
-    return np.asarray(xs)[:, -1], np.asarray(us).T
+    xs, inputs = problem.integrate(x, acc / factor**2, h)
+    return xs[:, -1], inputs
 
 
 def phase_factor(problem, x: np.ndarray, j: int, high: float) -> float:
@@ -92,12 +94,42 @@ def phase_slowdown(problem, high: float) -> tuple[list[float], float]:
 
 
 def _warm(problem, j: int, count: int, factor: float) -> tuple[np.ndarray, float]:
-    """Phase j slowed by `factor` on its `count` intervals: σ̈ per interval (mid-interval) and its duration."""
+    """Phase j slowed by `factor` on its `count` intervals: σ̈ per interval and its duration. σ̈ is the own
+    timing's at each interval's middle, scaled so that σ, held per interval, ends exactly at the phase's end
+    (the midpoints of a quintic's antisymmetric acceleration sum to 0, so σ̇ ends at 0 too)."""
     geo = problem.geo
-    T = geo.phases[j][2]
+    start, stop, T = geo.phases[j]
     t0 = geo.path.edge_t0[j] if geo.edges else 0.0
     _, _, acc = geo.own_timing(t0 + (np.arange(count) + 0.5) * T / count)
-    return acc / factor**2, factor * T
+    acc, h = acc / factor**2, factor * T / count
+    reached = float(np.sum(acc * h * h * (count - np.arange(count) - 0.5)))
+    return acc * ((stop - start) / reached) if reached > 0 else acc, factor * T
+
+
+def quintic_part(problem, x: np.ndarray, j: int, count: int, factor: float, final: bool) -> Part:
+    """Phase j's own timing slowed by `factor`, from x, on its `count` intervals, as a committed part: what a
+    window commits when IPOPT does not solve it (the phase-wise slowdown, feasible by its bisection). σ̈ is the
+    quintic's at each interval's middle, scaled so that σ ends exactly at the corner (_warm)."""
+    start = problem.geo.phases[j][0]
+    acc, T = _warm(problem, j, count, factor)
+    h = T / count
+    m = _substeps([T], [count])
+    x = np.array(x, float)
+    x[-2:] = start, 0.0
+    xs, us, ds = problem.stepper(m).mapaccum(count)(x, acc[None, :], h)
+    states = np.vstack([x[None, :], np.asarray(xs).T])
+    base, directions = np.asarray(us).T, np.asarray(ds).T
+    if final:
+        u_end, d_end = inputs_at(problem.dyn, problem.geo, states[-1], acc[-1])
+        base = np.vstack([base, np.asarray(u_end).T])
+        directions = np.vstack([directions, np.asarray(d_end).T])
+    inputs = best_spare(base, directions[:, :, None][:, :, : problem.dyn.spares], problem.lower, problem.upper)
+    if problem.excess(inputs) > 1e-9:
+        raise PlanningError(f"phase {j + 1}: IPOPT did not solve its window and its own timing slowed {factor:.4g}x "
+                            "is not feasible on the problem's grid either: try more --intervals or a larger margin")
+    record = {"phases": [int(j)], "intervals": count, "rk4_steps": count * m, "substeps": m, "iterations": 0,
+              "solve_s": 0.0, "status": "quintic_slowdown_kept"}
+    return Part(np.array([T]), acc, states, inputs, record["status"], 0, [record], [m])
 
 
 def _substeps(durations, counts) -> int:
@@ -131,19 +163,38 @@ def receding(problem, x0: np.ndarray, counts: list[int], factor: float, uniform_
         which = list(range(j, min(j + window, K)))
         mine = [counts[i] for i in which]
         m = _substeps([warm_T[i] for i in which], mine)
-        while True:
-            part = problem.solve_phases(x, which, counts, np.concatenate([warm_a[i] for i in which]),
-                                        [warm_T[i] for i in which], uniform_duration, max_iter, verbose, m,
-                                        0.0 if which[-1] == K - 1 else WINDOW_TAIL_S)
+        try:
+            while True:
+                part = problem.solve_phases(x, which, counts, np.concatenate([warm_a[i] for i in which]),
+                                            [warm_T[i] for i in which], uniform_duration,
+                                            min(max_iter, WINDOW_MAX_ITER), verbose, m,
+                                            0.0 if which[-1] == K - 1 else WINDOW_TAIL_S)
+                records += part.windows
+                iterations += part.iterations
+                needed = _substeps(part.durations, mine)
+                if needed <= m:
+                    break
+                m = needed  # the solution's steps are longer than MAX_STEP_S: again with more, from the answer
+                local = np.concatenate([[0], np.cumsum(mine)])
+                for i, p in enumerate(which):
+                    warm_a[p], warm_T[p] = part.tau_dd[local[i]:local[i + 1]], float(part.durations[i])
+        except PlanningError as unsolved:
+            # IPOPT gave no answer for this window: its first phase keeps its own timing, slowed from the state
+            # it starts in (feasible by the bisection), and the next window starts from there
+            factor_j = phase_factor(problem, x, j, factors[j])
+            part = quintic_part(problem, x, j, counts[j], factor_j, final=j == K - 1)
+            part.windows[0]["reason"] = str(unsolved)
             records += part.windows
-            iterations += part.iterations
-            needed = _substeps(part.durations, mine)
-            if needed <= m:
-                break
-            m = needed  # the solution's steps are longer than MAX_STEP_S: again with more, from the answer
-            local = np.concatenate([[0], np.cumsum(mine)])
-            for i, p in enumerate(which):
-                warm_a[p], warm_T[p] = part.tau_dd[local[i]:local[i + 1]], float(part.durations[i])
+            if not status or status == "Solve_Succeeded":
+                status = part.status
+            durations.append(part.durations)
+            tau_dd.append(part.tau_dd)
+            states.append(part.states[1:])
+            substeps += part.substeps
+            inputs.append(part.inputs)
+            x = part.states[-1]
+            j += 1
+            continue
         if not status or status == "Solve_Succeeded":  # the first that is not a success, else success
             status = part.status
         commit = which if which[-1] == K - 1 else which[:1]  # the last window commits all of its phases
