@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed
 # .venv/bin/acroboter finds it by itself, the export only makes it explicit for the tools run here.
 export ACROBOTER_CACHE_DIR := $(CURDIR)/build/cache
 
-.PHONY: run test setup build generate check-generated mutation bench study sweep robustness plant-fuzz docs clean
+.PHONY: run test setup build generate check-generated mutation bench retiming-study study sweep robustness plant-fuzz docs clean
 
 $(RUN_STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
@@ -59,6 +59,12 @@ bench: build
 	$(PY) -m acroboter bench
 
 # The redundancy / non-collocation study and the penalty-number sweep (Dask, local cluster).
+# How fast the paper's path can be flown (docs/planning.md): both cranes, three winch limit sets, every method
+# (two processes; about an hour on the shared 2-core VM).
+retiming-study: build
+	$(PY) tools/retiming_study.py --cases 0,1,2 & $(PY) tools/retiming_study.py --cases 3,4,5; wait
+	$(PY) tools/retiming_study.py --assemble
+
 study: build
 	$(PY) -m acroboter study
 

@@ -4,7 +4,7 @@ Penalty (3) flying it. Writes into docs/planning/ (or --out): results.csv (one r
 results.json (the cases with the date, machine and versions) and speed.png (the planned path fraction s(t)
 against the path's own timing, and the tracked point's planned speed).
 
-    .venv/bin/python tools/retiming_study.py [--out docs/planning] [--cases 0,1,2] [--intervals 120]
+    .venv/bin/python tools/retiming_study.py [--out docs/planning] [--cases 0,1,2] [--intervals 120] [--assemble]
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ def main(argv=None) -> int:
     parser.add_argument("--cases", default="", help="indices into CASES, comma-separated (default: all)")
     parser.add_argument("--intervals", type=int, default=120)
     parser.add_argument("--margin", type=float, default=0.05)
+    parser.add_argument("--assemble", action="store_true", help="only gather the case files already in --out")
     args = parser.parse_args(argv)
     import matplotlib
 
@@ -39,6 +40,8 @@ def main(argv=None) -> int:
     from acroboter.studies.retiming import CASES, run_case
 
     chosen = [CASES[int(i)] for i in args.cases.split(",") if i.strip()] or list(CASES)
+    if args.assemble:
+        chosen = []
     args.out.mkdir(parents=True, exist_ok=True)
     for case in chosen:  # each case into its own file: cases can run in parallel processes (--cases)
         print(f"{case.name}: planning ...", file=sys.stderr, flush=True)

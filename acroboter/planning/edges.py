@@ -19,8 +19,11 @@ the next edge, as the plant will), and those inputs are the plan's, checked agai
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 
+from ..runtime.progress import progress_disabled
 from .dynamics import PlanningError, inputs_at
 from .limits import best_spare
 from .retiming import MAX_SLOWDOWN, MAX_STEP_S, MIN_PHASE_INTERVALS, REST_TOL, Part, Retiming
@@ -65,6 +68,9 @@ class EdgeRetiming(Retiming):
                                                                                 strict=True))))
         durations, tau_dd, records = [], [], []
         status, iterations = "", 0
+        from tqdm import tqdm
+
+        bar = tqdm(total=K, unit="edge", desc="planning", file=sys.stderr, disable=progress_disabled(), leave=False)
         for j in range(K):
             start = self.at_rest(j)
             guess_a, guess_T = _warm(self, j, counts[j], factors[j])
@@ -82,6 +88,9 @@ class EdgeRetiming(Retiming):
                 status = part.status
             durations.append(part.durations)
             tau_dd.append(part.tau_dd)
+            bar.set_postfix_str(f"edge {j + 1}: {float(part.durations[0]):.3g} s, {part.iterations} iterations")
+            bar.update()
+        bar.close()
         return self.chain(x0, counts, np.concatenate(durations), np.concatenate(tau_dd), status, iterations, records)
 
     def grid_motion(self, j: int, count: int, factor: float, q: np.ndarray | None = None):
