@@ -140,12 +140,15 @@ def test_measure_reports_each_episode_and_the_last_as_before():
     period = 0.1
     fake = SimpleNamespace(
         time=T, position_error_mm=ERR, yaw_error_deg=np.zeros(101), tilt_deg=np.zeros(101), method="mlm",
-        u=np.full((101, 1), 3.0), q=np.zeros((101, 2)), diverged_at=None,
-        run=SimpleNamespace(limit_state=ON[:, None].astype(np.int8), control_period=period))
-    m = measure(fake, np.array([0.0]), np.array([3.0]), "constructed", "qp", 0.0, path_end=6.0)
+        u=np.column_stack([np.full(101, 3.0), np.linspace(2.0, -7.0, 101)]), q=np.zeros((101, 2)), diverged_at=None,
+        layout=SimpleNamespace(inputs=["tension", "torque"]),
+        run=SimpleNamespace(limit_state=np.column_stack([ON, ON]).astype(np.int8), control_period=period))
+    lower, upper = np.array([0.0, -np.inf]), np.array([3.0, np.inf])
+    m = measure(fake, lower, upper, "constructed", "qp", 0.0, path_end=6.0)
+    assert m.max_unbounded_input == 7.0 and m.max_unbounded_input_name == "torque"
     assert m.limit_episodes == 4 and m.episodes_not_recovered == 1
     assert m.episodes_on_path == 3 and m.path_end_s == 6.0  # episode C starts at t = 6.0, on the path
-    early = measure(fake, np.array([0.0]), np.array([3.0]), "constructed", "qp", 0.0, path_end=0.5)
+    early = measure(fake, lower, upper, "constructed", "qp", 0.0, path_end=0.5)
     assert early.episodes_on_path == 0 and early.max_position_error_on_path_mm == 0.2
     assert early.max_position_error_mm == 5.0
     assert m.recovery_s == pytest.approx(0.1) and m.last_on_limit_s == pytest.approx(9.4)

@@ -154,8 +154,11 @@ class Measures:
     episodes_not_recovered: int
     episode_recoveries_s: list
     worst_beyond_limits: float
+    max_unbounded_input: float  # the largest |u| of an input without limits (N or N·m)
+    max_unbounded_input_name: str | None
     finite: bool
     diverged_at: float | None
+    divergence: str | None  # why the run was stopped, if it was
     wall_s: float
 
     def row(self) -> dict:
@@ -216,6 +219,9 @@ def measure(result, lower: np.ndarray, upper: np.ndarray, scenario: str, strateg
     median, worst, not_recovered = recovery_figures(recoveries)
     u = result.u
     beyond = float(np.maximum(np.maximum(u - upper, lower - u), 0.0).max()) if u.size else 0.0
+    free = np.flatnonzero(~np.isfinite(lower) & ~np.isfinite(upper))
+    size = np.abs(u[:, free]).max(axis=0) if free.size and u.size else np.zeros(0)
+    names = getattr(getattr(result, "layout", None), "inputs", None)
     return Measures(
         scenario=scenario, method=result.method, strategy=strategy, duration_s=float(t[-1]), path_end_s=path_end,
         max_position_error_mm=float(err.max()), max_position_error_on_path_mm=float(err[t <= path_end].max()),
@@ -226,33 +232,32 @@ def measure(result, lower: np.ndarray, upper: np.ndarray, scenario: str, strateg
         episodes_on_path=sum(1 for first, _ in limit_episodes(on) if t[first] <= path_end),
         last_on_limit_s=last, recovery_s=recoveries[-1] if recoveries else None, recovery_median_s=median,
         recovery_worst_s=worst, episodes_not_recovered=not_recovered, episode_recoveries_s=recoveries,
-        worst_beyond_limits=beyond, finite=bool(np.isfinite(u).all() and np.isfinite(result.q).all()),
-        diverged_at=result.diverged_at, wall_s=wall,
+        worst_beyond_limits=beyond, max_unbounded_input=float(size.max()) if size.size else 0.0,
+        max_unbounded_input_name=(names[free[size.argmax()]] if names is not None and size.size else None),
+        finite=bool(np.isfinite(u).all() and np.isfinite(result.q).all()),
+        diverged_at=result.diverged_at, divergence=getattr(result.run, "divergence", None), wall_s=wall,
     )
 
 
 def run_scenario(scenario: Scenario, methods=("mlm", "penalty", "iterative-3"), strategies=STRATEGIES,
                  folder=None, duration: float | None = None, plans: Path | None = None
                  ) -> tuple[list[Measures], dict, dict | None]:
-    """Every method under every strategy on one scenario: (measures, {(method, strategy): Result}, the plan's
-    summary or None). `plans`: where planned trajectories are cached (planned_trajectory)."""
-    from tempfile import TemporaryDirectory
-
-    from ..api.crane import Crane
+    """Every method under every strategy on one scenario: (measures, {(method, strategy): Result}, for a planned
+    scenario {"plan": the plan's summary, "unlimited": unlimited_reference(...)}, else None). `plans`: where planned
+    trajectories are cached (planned_trajectory)."""
     from ..control.path import sped_up
 
     text = scenario_spec_text(scenario)
-    with TemporaryDirectory() as tmp:
-        path = Path(folder or tmp) / f"{scenario.spec}_limited.toml"
-        path.write_text(text)
-        crane = Crane.from_toml(path)
+    crane = _crane(text, scenario.spec, folder)
     lower, upper, _ = crane.spec.input_limits()
-    trajectory, summary, path_end = None, None, None
+    trajectory, extra, path_end = None, None, None
     if scenario.speedup is not None:
         planned, summary = planned_trajectory(crane, text, plans)
         trajectory = sped_up(planned, scenario.speedup)
         duration = trajectory.duration + SETTLE_S if duration is None else duration
         path_end = trajectory.duration
+        reference = unlimited_reference(text, scenario, trajectory, duration, path_end, methods, folder)
+        extra = {"plan": summary, "unlimited": reference}
     measures, results = [], {}
     for method in methods:
         for strategy in strategies:
@@ -261,4 +266,38 @@ def run_scenario(scenario: Scenario, methods=("mlm", "penalty", "iterative-3"), 
             wall = time.perf_counter() - start
             results[(method, strategy)] = result
             measures.append(measure(result, lower, upper, scenario.name, strategy, wall, path_end))
-    return measures, results, summary
+    return measures, results, extra
+
+
+def _crane(text: str, name: str, folder=None):
+    from tempfile import TemporaryDirectory
+
+    from ..api.crane import Crane
+
+    with TemporaryDirectory() as tmp:
+        path = Path(folder or tmp) / f"{name}_limited.toml"
+        path.write_text(text)
+        return Crane.from_toml(path)
+
+
+def unlimited_reference(text: str, scenario: Scenario, trajectory, duration: float, path_end: float, methods,
+                        folder=None) -> list[dict]:
+    """The same flights with every input limit removed from the spec: what they ask of the winches on the path
+    (t ≤ path_end) and after it, the first instant a winch would go beyond the scenario's upper limit, and the
+    position error, on the path, after it and at the end."""
+    crane = _crane(re.sub(r"^limits\s*=.*\n", "", text, flags=re.M), scenario.spec, folder)
+    winches = [k for k, name in enumerate(crane.layout.inputs) if name.startswith("tension")]
+    rows = []
+    for method in methods:
+        r = crane.simulate(method, duration=duration, trajectory=trajectory, warm_up=0)
+        t, u, err = r.time, r.u[:, winches], r.position_error_mm
+        on, after = t <= path_end, t > path_end
+        beyond = np.flatnonzero((u > scenario.upper).any(axis=1))
+        rows.append({"scenario": scenario.name, "method": method, "diverged_at": r.diverged_at,
+                     "max_winch_on_path_n": float(u[on].max()), "min_winch_on_path_n": float(u[on].min()),
+                     "max_winch_after_n": float(u[after].max()) if after.any() else None,
+                     "first_beyond_upper_s": float(t[beyond[0]]) if beyond.size else None,
+                     "max_position_error_on_path_mm": float(err[on].max()),
+                     "max_position_error_after_mm": float(err[after].max()) if after.any() else None,
+                     "end_position_error_mm": float(err[-1])})
+    return rows
