@@ -110,7 +110,8 @@ _PLANS: dict = {}  # key -> (trajectory, summary): one plan per process for the 
 
 def planned_trajectory(crane, text: str, cache: Path | None = None):
     """(trajectory, summary) of `crane.plan(margin=PLAN_MARGIN, intervals=PLAN_INTERVALS, corners="swing")` (as
-    measured: the swing carried over its one corner) for the crane built from `text`: computed here, or read back from `cache`/plan-<key>.csv and .json (written when computed)."""
+    measured: the swing carried over its one corner) for the crane built from `text`: computed here, or read back
+    from `cache`/plan-<key>.csv and .json (written when computed)."""
     from ..control.trajectory_file import read_trajectory_csv, write_trajectory_csv
 
     key = plan_key(text)
