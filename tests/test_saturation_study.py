@@ -172,3 +172,20 @@ def test_planned_scenarios_state_their_limits_and_waypoints():
     assert len({plan_key(scenario_spec_text(s)) for s in planned}) == 1
     assert plan_key(text) != plan_key(text, margin=0.1) != plan_key(text, intervals=48)
     assert plan_key(text) != plan_key(text.replace("30.0]", "31.0]"))
+
+
+def test_underactuation_on_the_plan_flown_faster_does_not_spend_a_released_yaw_on_the_position():
+    """Regression (2026-12-03): at a rank tolerance of 1 % the yaw torque, once the yaw was released, was forced
+    onto the position and level through its weak coupling and ran away to 1374–7300 N·m, and MLM diverged at
+    1.64 s on the two-edge plan flown 1.3 times faster. The plan is the study's cached file (docs/saturation)."""
+    from pathlib import Path
+
+    from acroboter.studies.saturation import run_scenario
+
+    scenario = next(s for s in SCENARIOS if s.speedup == 1.3)
+    docs = Path(__file__).resolve().parents[1] / "docs" / "saturation"
+    measures, results, _ = run_scenario(scenario, methods=("mlm",), strategies=("underactuation",), plans=docs)
+    result = results[("mlm", "underactuation")]
+    assert result.diverged_at is None and measures[0].finite
+    yaw_torque = result.u[:, list(result.layout.inputs).index("yaw_torque")]
+    assert np.abs(yaw_torque).max() < 100.0  # N·m: 30.6 at the 10 % tolerance, 1374 and rising at 1 %
