@@ -139,8 +139,9 @@ def _plan(args: argparse.Namespace, folder) -> int:
         plan_figure(plan, out / "plan.png")
     folder.publish()
     active = sorted({a["input"] for a in plan.active})
-    print(f"spec {crane.name}: planned {plan.duration:.4g} s (the path's own timing {plan.path_duration:.4g} s, its "
-          f"best uniform slowdown {plan.uniform_duration:.4g} s); margin {100 * plan.margin:.3g} %, achieved "
+    corners = {"rest": ", every edge rest to rest", "swing": ""}[plan.corners]
+    print(f"spec {crane.name}: planned {plan.duration:.4g} s{corners} (the path's own timing {plan.path_duration:.4g} "
+          f"s, its best uniform slowdown {plan.uniform_duration:.4g} s); margin {100 * plan.margin:.3g} %, achieved "
           f"{100 * plan.margin_achieved:.3g} % planned" + (
               f", {100 * plan.certificate.margin_achieved:.3g} % flown (MLM, max position error "
               f"{plan.certificate.max_position_error_mm:.3g} mm)" if plan.certificate is not None else "")
