@@ -75,20 +75,28 @@ class EdgeRetiming(Retiming):
             start = self.at_rest(j)
             guess_a, guess_T = _warm(self, j, counts[j], factors[j])
             m = _substeps([guess_T], [counts[j]])
-            while True:
-                part = self.solve_phases(start, [j], counts, guess_a, [guess_T], uniform_duration, max_iter, verbose,
-                                         m, rest_at=self.corner(j + 1, MIN_PHASE_INTERVALS))
-                records += part.windows
-                iterations += part.iterations
-                needed = _substeps(part.durations, [counts[j]])
-                if needed <= m:
-                    break
-                m, guess_a, guess_T = needed, part.tau_dd, float(part.durations[0])
+            try:
+                while True:
+                    part = self.solve_phases(start, [j], counts, guess_a, [guess_T], uniform_duration, max_iter,
+                                             verbose, m, rest_at=self.corner(j + 1, MIN_PHASE_INTERVALS))
+                    records += part.windows
+                    iterations += part.iterations
+                    needed = _substeps(part.durations, [counts[j]])
+                    if needed <= m:
+                        break
+                    m, guess_a, guess_T = needed, part.tau_dd, float(part.durations[0])
+                edge_T, edge_a, edge_status = part.durations, part.tau_dd, part.status
+            except PlanningError as unsolved:
+                # IPOPT gave no answer: the edge keeps its warm start, its own timing slowed from rest (feasible and
+                # ending at rest by rest_factor's bisection), and the summary says so
+                edge_T, edge_a, edge_status = np.array([guess_T]), guess_a, "quintic_slowdown_kept"
+                records.append({"phases": [j], "intervals": counts[j], "status": edge_status, "iterations": 0,
+                                "reason": str(unsolved)})
             if not status or status == "Solve_Succeeded":
-                status = part.status
-            durations.append(part.durations)
-            tau_dd.append(part.tau_dd)
-            bar.set_postfix_str(f"edge {j + 1}: {float(part.durations[0]):.3g} s, {part.iterations} iterations")
+                status = edge_status
+            durations.append(edge_T)
+            tau_dd.append(edge_a)
+            bar.set_postfix_str(f"edge {j + 1}: {float(edge_T[0]):.3g} s ({edge_status})")
             bar.update()
         bar.close()
         return self.chain(x0, counts, np.concatenate(durations), np.concatenate(tau_dd), status, iterations, records)

@@ -40,7 +40,7 @@ PHASE_BISECTION = 1e-2
 WINDOW_TAIL_S = 3.0
 # IPOPT's iterations per window: a window that needs more (it crawls near feasibility, as a barely damped swing
 # makes it) keeps its first phase's own timing slowed (quintic_part) instead: feasible, and said in the summary.
-WINDOW_MAX_ITER = 60
+WINDOW_MAX_ITER = 150
 
 
 def phase_uniform(problem, x_start: np.ndarray, j: int, factor: float) -> tuple[np.ndarray, np.ndarray]:

@@ -48,6 +48,7 @@ class CaseResult:
     uniform_s: float  # the best uniform slowdown of the path's own timing (an upper bound the plan must meet)
     edge_wise_s: float | None  # each edge's own timing slowed on its own from rest (the solves' warm start)
     edges_solved: int
+    edges_kept_quintic: int  # edges IPOPT did not solve: their own timing slowed from rest is kept (feasible)
     margin_planned: float
     plan_solve_s: float
     certificate_error_mm: float | None
@@ -77,6 +78,7 @@ def run_case(case: Case, folder: Path, margin: float = 0.05, intervals: int = 12
         planned_s=float(plan.duration), path_own_s=float(plan.path_duration), uniform_s=float(plan.uniform_duration),
         edge_wise_s=None if plan.phase_duration is None else float(plan.phase_duration),
         edges_solved=sum(1 for w in plan.solves if w.get("status") == "Solve_Succeeded"),
+        edges_kept_quintic=sum(1 for w in plan.solves if w.get("status") == "quintic_slowdown_kept"),
         margin_planned=float(plan.margin_achieved),
         plan_solve_s=solve_s, certificate_error_mm=None if cert is None else float(cert.max_position_error_mm),
         certificate_margin=None if cert is None else float(cert.margin_achieved))
