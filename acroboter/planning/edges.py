@@ -27,7 +27,7 @@ from ..runtime.progress import progress_disabled
 from .dynamics import PlanningError, inputs_at
 from .limits import best_spare
 from .retiming import MAX_SLOWDOWN, MAX_STEP_S, MIN_PHASE_INTERVALS, REST_TOL, Part, Retiming
-from .windows import _substeps, _warm, phase_factor
+from .windows import PHASE_BISECTION, _substeps, _warm, bisect_factor, phase_factor
 
 # The quasi-static motion that finds the configuration at rest at a corner lasts at least this long (s).
 QUASI_STATIC_S = 120.0
@@ -131,13 +131,7 @@ class EdgeRetiming(Retiming):
             if good > MAX_SLOWDOWN:
                 raise PlanningError(f"edge {j + 1}: no slowdown of its own timing up to {MAX_SLOWDOWN:g}x ends at "
                                     f"rest within {REST_TOL:g} on a grid of {count} intervals: give more --intervals")
-        while good - bad > 1e-2 * good:
-            mid = 0.5 * (bad + good)
-            if serves(mid):
-                good = mid
-            else:
-                bad = mid
-        return good
+        return bisect_factor(serves, bad, good, PHASE_BISECTION)
 
     def chain(self, x0: np.ndarray, counts: list[int], durations: np.ndarray, tau_dd: np.ndarray, status: str,
               iterations: int, records: list[dict]) -> Part:

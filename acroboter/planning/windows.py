@@ -73,13 +73,18 @@ def phase_factor(problem, x: np.ndarray, j: int, high: float) -> float:
     lo = hi / 2.0
     while lo > 1e-3 and feasible(lo):
         hi, lo = lo, lo / 2.0
-    while hi - lo > PHASE_BISECTION * hi:
-        mid = 0.5 * (lo + hi)
-        if feasible(mid):
-            hi = mid
+    return bisect_factor(feasible, lo, hi, PHASE_BISECTION)
+
+
+def bisect_factor(serves, bad: float, good: float, relative: float) -> float:
+    """A factor between `bad` (does not serve) and `good` (serves) that serves, within `relative` of the boundary."""
+    while good - bad > relative * good:
+        mid = 0.5 * (bad + good)
+        if serves(mid):
+            good = mid
         else:
-            lo = mid
-    return hi
+            bad = mid
+    return good
 
 
 def phase_slowdown(problem, high: float) -> tuple[list[float], float]:
