@@ -82,15 +82,16 @@ def assemble(args, plt) -> None:
             writer.writerows(rows)
     meta = {"date": datetime.date.today().isoformat(), "machine": platform.node(), "cpu": cpu_name(),
             "python": platform.python_version(), "numpy": np.__version__, "scipy": scipy.__version__,
-            "casadi": casadi.__version__, "margin": args.margin, "intervals": args.intervals,
+            "casadi": casadi.__version__, "intervals": args.intervals,
             "cases": [{k: v for k, v in c.items() if k != "series"} for c in cases]}
     (args.out / "results.json").write_text(json.dumps(meta, indent=1) + "\n")
     planned = [c for c in cases if "series" in c]
     if planned:
         fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
         for c in planned:
-            axes[0].plot(c["series"]["times"], c["series"]["s"], lw=1.0, label=c["case"])
-            axes[1].plot(c["series"]["trajectory_t"], c["series"]["speed"], lw=0.8, label=c["case"])
+            label = f"{c['case']}, margin {100 * c['margin']:g} %"
+            axes[0].plot(c["series"]["times"], c["series"]["s"], lw=1.0, label=label)
+            axes[1].plot(c["series"]["trajectory_t"], c["series"]["speed"], lw=0.8, label=label)
         own = planned[0]["path_own_s"]
         axes[0].plot([0, own], [0, 1], "k:", lw=0.8, label=f"the path's own timing ({own:.0f} s), as a line")
         axes[0].set_xlabel("t (s)")
@@ -98,8 +99,7 @@ def assemble(args, plt) -> None:
         axes[1].set_xlabel("t (s)")
         axes[1].set_ylabel("planned speed of the tracked point (m/s)")
         axes[0].legend(fontsize=7)
-        fig.suptitle(f"planned timings, margin {100 * args.margin:g} %, {meta['date']}, {meta['machine']}",
-                     fontsize=10)
+        fig.suptitle(f"planned timings, every edge rest to rest, {meta['date']}, {meta['machine']}", fontsize=10)
         fig.tight_layout()
         fig.savefig(args.out / "speed.png", dpi=110)
     print(f"wrote {args.out}/results.csv, results.json, speed.png", file=sys.stderr)
