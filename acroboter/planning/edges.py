@@ -73,7 +73,8 @@ class EdgeRetiming(Retiming):
         bar = tqdm(total=K, unit="edge", desc="planning", file=sys.stderr, disable=progress_disabled(), leave=False)
         for j in range(K):
             start = self.at_rest(j)
-            guess_a, guess_T = _warm(self, j, counts[j], factors[j])
+            warm_a, warm_T = _warm(self, j, counts[j], factors[j])
+            guess_a, guess_T = warm_a, warm_T
             m = _substeps([guess_T], [counts[j]])
             try:
                 while True:
@@ -89,7 +90,7 @@ class EdgeRetiming(Retiming):
             except PlanningError as unsolved:
                 # IPOPT gave no answer: the edge keeps its warm start, its own timing slowed from rest (feasible and
                 # ending at rest by rest_factor's bisection), and the summary says so
-                edge_T, edge_a, edge_status = np.array([guess_T]), guess_a, "quintic_slowdown_kept"
+                edge_T, edge_a, edge_status = np.array([warm_T]), warm_a, "quintic_slowdown_kept"
                 records.append({"phases": [j], "intervals": counts[j], "status": edge_status, "iterations": 0,
                                 "reason": str(unsolved)})
             if not status or status == "Solve_Succeeded":
