@@ -111,7 +111,7 @@ def spare_inputs(system: np.ndarray, m: int, count: int) -> list[int]:
     for _ in range(count):
         cols = [j for j in range(a.shape[1]) if j - m not in chosen]
         _, _, vt = np.linalg.svd(a[:, cols])
-        null = vt[-1]  # the null direction of the reduced system (it has one more column than rows ... count)
+        null = vt[-1]  # the null direction: the reduced system has one column more than it has rows
         weights = [abs(null[cols.index(m + i)]) if m + i in cols else 0.0 for i in range(a.shape[1] - m)]
         best = max(range(len(weights)), key=lambda i: (round(weights[i], 12), i))
         chosen.append(best)
