@@ -81,6 +81,7 @@ class Plan:
     window: int = 0  # phases per window (0: the whole path in one solve)
     phase_duration: float | None = None  # the phase-wise slowdown's duration (the window's warm start)
     solves: list[dict] = field(default_factory=list)  # per solve: phases, intervals, RK4 steps, iterations, s
+    end_state: np.ndarray | None = None  # the ideal motion's last state (q, q̇, σ, σ̇): the swing a plan leaves
     certificate: Certificate | None = None
     warnings: list[str] = field(default_factory=list)
 
@@ -185,7 +186,7 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
         static_margin=static_margin, solve_s=solution.solve_s, iterations=solution.iterations, intervals=intervals,
         corners=corners if geometry.edges else "swing", window=window,
         phase_duration=None if problem.phase_slowdown is None else problem.phase_slowdown[1],
-        solves=solution.windows)
+        solves=solution.windows, end_state=solution.states[-1].copy())
     if certify_plan:
         # what is certified is the written trajectory (its samples, interpolated), as `run --trajectory` flies it
         flown_path = TrajectoryPath(spec, lay, trajectory, trajectory.duration, float(path.start_yaw))
