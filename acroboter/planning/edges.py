@@ -24,9 +24,8 @@ import sys
 import numpy as np
 
 from ..runtime.progress import progress_disabled
-from .dynamics import PlanningError, inputs_at
-from .limits import best_spare
-from .retiming import MAX_SLOWDOWN, MAX_STEP_S, MIN_PHASE_INTERVALS, REST_TOL, Part, Retiming
+from .dynamics import PlanningError
+from .retiming import MAX_SLOWDOWN, MIN_PHASE_INTERVALS, REST_TOL, Part, Retiming
 from .windows import PHASE_BISECTION, _substeps, _warm, bisect_factor, phase_factor
 
 # The quasi-static motion that finds the configuration at rest at a corner lasts at least this long (s).
@@ -106,11 +105,8 @@ class EdgeRetiming(Retiming):
         """Edge j's own timing slowed by `factor` from rest (at q, else at corner j), σ̈ held per interval on `count`
         intervals (the problem's grid): (the end state, the inputs at every RK4 step start)."""
         acc, T = _warm(self, j, count, factor)
-        h = T / count
-        m = _substeps([T], [count])
-        xs, us, ds = self.stepper(m).mapaccum(count)(self.at_rest(j, q), acc[None, :], h)
-        directions = np.asarray(ds).T[:, :, None][:, :, : self.dyn.spares]
-        return np.asarray(xs)[:, -1], best_spare(np.asarray(us).T, directions, self.lower, self.upper)
+        states, inputs = self.run_grid(self.at_rest(j, q), acc, T / count, _substeps([T], [count]))
+        return states[-1], inputs
 
     def rest_factor(self, j: int, count: int, low: float) -> float:
         """A slowdown of edge j's own timing from rest, at least `low` (the smallest that keeps the inputs within
@@ -142,16 +138,10 @@ class EdgeRetiming(Retiming):
         states, inputs, substeps = [np.asarray(x0, float)[None, :]], [], []
         x, k = np.asarray(x0, float), 0
         for j in range(K):
-            h = durations[j] / counts[j]
-            m = max(2, int(np.ceil(h / MAX_STEP_S)))
-            xs, us, ds = self.stepper(m).mapaccum(counts[j])(x, tau_dd[k : k + counts[j]][None, :], h)
-            xs, base, directions = np.asarray(xs).T, np.asarray(us).T, np.asarray(ds).T
-            if j == K - 1:
-                u_end, d_end = inputs_at(self.dyn, self.geo, xs[-1], tau_dd[-1])
-                base = np.vstack([base, np.asarray(u_end).T])
-                directions = np.vstack([directions, np.asarray(d_end).T])
-            inputs.append(best_spare(base, directions[:, :, None][:, :, : self.dyn.spares], self.lower, self.upper))
-            states.append(xs)
+            m = _substeps([durations[j]], [counts[j]])
+            xs, u = self.run_grid(x, tau_dd[k : k + counts[j]], durations[j] / counts[j], m, final=j == K - 1)
+            inputs.append(u)
+            states.append(xs[1:])
             substeps.append(m)
             x = xs[-1].copy()
             x[-2:] = self.geo.phases[j][1], 0.0  # the corner exactly (σ ends there to the solver's tolerance)

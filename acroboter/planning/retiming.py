@@ -107,7 +107,7 @@ class Retiming:
         # must τ̇ be 0 at an end? only where the path's own timing moves there
         self.rest_start = bool(np.abs(d_start).max() > 1e-9)
         self.rest_end = bool(np.abs(d_end).max() > 1e-9)
-        self._check_cache: dict[int, ca.Function] = {}
+        self._check_cache: dict[tuple[int, int], ca.Function] = {}  # (intervals, RK4 steps each) -> mapaccum
         self._steps: dict[int, ca.Function] = {}
         self.phase_slowdown: tuple[list[float], float] | None = None  # set by a windowed solve
         self.ipopt: dict = {}  # extra IPOPT options (exact Hessian: L-BFGS stalls short of the bang-bang optimum)
@@ -122,22 +122,31 @@ class Retiming:
         _, rate0, _ = self.geo.own_timing([0.0])
         _, _, acc = self.geo.own_timing((np.arange(count) + 0.5) * h / factor)
         x0 = np.concatenate([self.x0, [0.0, rate0[0] / factor]])
-        xs, inputs = self.integrate(x0, acc / factor**2, h)
-        states = np.hstack([x0[:, None], xs]).T
+        states, inputs = self.run_grid(x0, acc / factor**2, h, CHECK_SUBSTEPS)
         times = np.arange(inputs.shape[0]) * h / CHECK_SUBSTEPS
         return states, inputs, times
 
-    def integrate(self, x0: np.ndarray, acc: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-        """The ideal motion from x0 over len(acc) intervals of h seconds (σ̈ = acc[i] held, CHECK_SUBSTEPS RK4
-        steps each): (the states at the interval ends, (2n + 2) x count; the inputs at every step start,
-        steps x l, with the spare inputs chosen to keep them inside the bounds: limits.best_spare)."""
-        count = len(acc)
-        if count not in self._check_cache:
-            self._check_cache[count] = self.stepper(CHECK_SUBSTEPS).mapaccum(count)
-        xs, us, ds = self._check_cache[count](x0, np.asarray(acc, float)[None, :], h)
-        base = np.asarray(us).T
-        return np.asarray(xs), best_spare(base, np.asarray(ds).T[:, :, None][:, :, : self.dyn.spares], self.lower,
-                                          self.upper)
+    def run_grid(self, x0: np.ndarray, acc: np.ndarray, h: float, substeps: int,
+                 final: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """The ideal motion from x0 with σ̈ = acc[i] held over interval i of h seconds, `substeps` RK4 steps each:
+        (the node states, (count + 1) x (2n + 2); the inputs at every RK4 step start, and at the end if `final`,
+        steps x l, with the spare input chosen inside the bounds: fit_spare)."""
+        acc = np.asarray(acc, float)
+        key = (acc.size, substeps)
+        if key not in self._check_cache:
+            self._check_cache[key] = self.stepper(substeps).mapaccum(acc.size)
+        xs, us, ds = self._check_cache[key](x0, acc[None, :], h)
+        states = np.vstack([np.asarray(x0, float)[None, :], np.asarray(xs).T])
+        base, directions = np.asarray(us).T, np.asarray(ds).T
+        if final:
+            u_end, d_end = inputs_at(self.dyn, self.geo, states[-1], acc[-1])
+            base, directions = np.vstack([base, np.asarray(u_end).T]), np.vstack([directions, np.asarray(d_end).T])
+        return states, self.fit_spare(base, directions)
+
+    def fit_spare(self, base: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """The inputs (steps x l, the spare input at 0 in `base`) with the spare input chosen to keep them inside the
+        bounds (limits.best_spare); `directions`: their change per unit of the spare input (steps x l)."""
+        return best_spare(base, np.asarray(directions)[:, :, None][:, :, : self.dyn.spares], self.lower, self.upper)
 
     def excess(self, inputs: np.ndarray) -> float:
         """The largest step of any input beyond its (tightened) limits, relative to the limits' span (≤ 0: within)."""
@@ -300,8 +309,7 @@ class Retiming:
         record = {"phases": [int(j) for j in which], "intervals": N, "rk4_steps": N * substeps, "substeps": substeps,
                   "iterations": int(stats["iter_count"]), "solve_s": time.perf_counter() - started,
                   "status": stats.get("return_status", "")}
-        chosen = best_spare(np.asarray(value(u_all)).T, np.asarray(value(d_all)).T[:, :, None][:, :, : self.dyn.spares],
-                            self.lower, self.upper)
+        chosen = self.fit_spare(np.asarray(value(u_all)).T, np.asarray(value(d_all)).T)
         return Part(np.asarray(value(durations)).ravel(), np.asarray(value(A)).ravel(), np.asarray(value(X)).T,
                     chosen, record["status"], record["iterations"], [record],
                     [substeps] * len(which))

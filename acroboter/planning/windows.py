@@ -28,9 +28,8 @@ import math
 
 import numpy as np
 
-from .dynamics import PlanningError, inputs_at
-from .limits import best_spare
-from .retiming import CHECK_INTERVAL_S, MAX_SLOWDOWN, MAX_STEP_S, Part, Retiming
+from .dynamics import PlanningError
+from .retiming import CHECK_INTERVAL_S, CHECK_SUBSTEPS, MAX_SLOWDOWN, MAX_STEP_S, Part, Retiming
 
 # The phase-wise slowdown's bisection: relative resolution of each edge's factor.
 PHASE_BISECTION = 1e-2
@@ -54,8 +53,8 @@ def phase_uniform(problem, x_start: np.ndarray, j: int, factor: float) -> tuple[
     _, _, acc = geo.own_timing(t0 + (np.arange(count) + 0.5) * h / factor)
     x = np.array(x_start, float)
     x[-2:] = start, 0.0
-    xs, inputs = problem.integrate(x, acc / factor**2, h)
-    return xs[:, -1], inputs
+    states, inputs = problem.run_grid(x, acc / factor**2, h, CHECK_SUBSTEPS)
+    return states[-1], inputs
 
 
 def phase_factor(problem, x: np.ndarray, j: int, high: float) -> float:
@@ -121,14 +120,7 @@ def quintic_part(problem, x: np.ndarray, j: int, count: int, factor: float, fina
     m = _substeps([T], [count])
     x = np.array(x, float)
     x[-2:] = start, 0.0
-    xs, us, ds = problem.stepper(m).mapaccum(count)(x, acc[None, :], h)
-    states = np.vstack([x[None, :], np.asarray(xs).T])
-    base, directions = np.asarray(us).T, np.asarray(ds).T
-    if final:
-        u_end, d_end = inputs_at(problem.dyn, problem.geo, states[-1], acc[-1])
-        base = np.vstack([base, np.asarray(u_end).T])
-        directions = np.vstack([directions, np.asarray(d_end).T])
-    inputs = best_spare(base, directions[:, :, None][:, :, : problem.dyn.spares], problem.lower, problem.upper)
+    states, inputs = problem.run_grid(x, acc, h, m, final)
     if problem.excess(inputs) > 1e-9:
         raise PlanningError(f"phase {j + 1}: IPOPT did not solve its window and its own timing slowed {factor:.4g}x "
                             "is not feasible on the problem's grid either: try more --intervals or a larger margin")
