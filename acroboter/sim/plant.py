@@ -28,6 +28,9 @@ the difference there, and Baumgarte stabilisation closes them (critically damped
 
 from __future__ import annotations
 
+import ctypes
+import logging
+
 import numpy as np
 
 from ..control.path import DesiredPath
@@ -44,6 +47,8 @@ from .cable_events import (  # noqa: F401 - the plant's errors, events and toler
     InvariantError,
     SimulationError,
 )
+
+log = logging.getLogger(__name__)
 
 # |energy balance residual| allowed: ENERGY_TOL_REL × (weight × longest cable + peak kinetic energy), see
 # Plant.energy_bound (2.6e-3 J at rest on the default crane; what runs reach: docs/plant.md, plant-fuzz.md).
@@ -148,6 +153,40 @@ class Plant(CableEvents):
         self._energy_start, self._potential_scale, self._peak_kinetic = 0.0, 1.0, 0.0
         self.closing = False  # started off its constraints, Baumgarte still closing them (_check_energy)
         self.energy_checked_from: float | None = 0.0
+        self._loop = self._compiled_loop(model)
+
+    def _compiled_loop(self, model):
+        """(the C substep loop, its buffers) over this plant's bound step (acroboter.runtime.plant_loop), or
+        None: another backend's step, or no library (Python's loop then runs: the same numbers, slower)."""
+        from ..runtime.build import BuildError
+        from ..runtime.compiled import BoundFunction
+        from ..runtime.plant_loop import LoopBuffers, load_plant_loop
+
+        if not isinstance(self._step, BoundFunction) or getattr(model, "cache_root", None) is None:
+            return None
+        try:
+            advance = load_plant_loop(model.cache_root)
+        except (BuildError, OSError) as err:
+            log.warning("the plant's substep loop runs in Python: %s", err)
+            return None
+        step = self._step
+        buffers = LoopBuffers(
+            step=ctypes.cast(step._fn, ctypes.c_void_p).value, arg=step._call_args[0], res=step._call_args[1],
+            iw=step._call_args[2], w=step._call_args[3], stage_slot=self._stage_input, nx=self.state_size,
+            nc=len(self.cable_names), state=self._x.ctypes.data, x_next=self._x_next.ctypes.data,
+            events=self._events.ctypes.data, tension=self._tension.ctypes.data, active=self._active.ctypes.data,
+            start_tension=self.start_tension.ctypes.data, start_active=self.start_active.ctypes.data)
+        return advance, buffers, ctypes.addressof(buffers)
+
+    def use_compiled_loop(self, on: bool = True) -> bool:
+        """Run the substeps in C (the default where the library builds) or in Python's loop (the reference the
+        tests compare it with, bit for bit); whether the C loop is now used."""
+        if not on:
+            self._loop_off = self._loop or getattr(self, "_loop_off", None)
+            self._loop = None
+        elif self._loop is None:
+            self._loop = getattr(self, "_loop_off", None)
+        return self._loop is not None
 
     def _parameter_vector(self, model) -> np.ndarray:
         """The `plant_params` input: the physical spec's values in the order the library takes them
@@ -233,11 +272,35 @@ class Plant(CableEvents):
         self._x[:] = x
         self._u[:] = u
         self._settings[:] = (h, self.zeta, self.omega)
+        row_bytes = table.strides[0]
+        base = table.ctypes.data
+        if self._loop is not None and table.flags.c_contiguous:
+            self._advance_compiled(t0, h, base, row_bytes, first_step, steps)
+        else:
+            self._advance_python(t0, h, base, row_bytes, first_step, steps)
+        self._step.point_input(self._stage_input, self._stage.ctypes.data)  # never leave a pointer into `table`
+        x[:] = self._x
+        self.cable_gap[:] = self._gap
+        self._check_energy(x, t0 + (first_step + steps) * h)
+
+    def _advance_compiled(self, t0: float, h: float, base: int, row_bytes: int, first_step: int, steps: int) -> None:
+        """The substeps in C (acroboter.runtime.plant_loop) up to each event, the events resolved here."""
+        advance, buffers, address = self._loop
+        buffers.tension_tol, buffers.gap_tol = self.tension_tol, self.gap_tol
+        i, end = first_step, first_step + steps
+        while i < end:
+            i = advance(address, base, row_bytes, i, end, first_step)
+            if i < 0:
+                raise RuntimeError(f"{self._step.name} failed")
+            if i < end:
+                self._resolve(t0 + i * h, h, i == first_step, base + 2 * i * row_bytes)
+                i += 1
+
+    def _advance_python(self, t0: float, h: float, base: int, row_bytes: int, first_step: int, steps: int) -> None:
+        """The substeps in Python: the reference the C loop is tested against."""
         step, point, stage_input = self._step.call, self._step.point_input, self._stage_input
         out, events, state = self._x_next, self._events, self._x
         tol, gap_tol = self.tension_tol, self.gap_tol
-        row_bytes = table.strides[0]
-        base = table.ctypes.data
         for i in range(first_step, first_step + steps):
             point(stage_input, base + 2 * i * row_bytes)  # rows 2i..2i+2 are contiguous
             step()
@@ -248,10 +311,6 @@ class Plant(CableEvents):
                 self.start_tension[:] = self._tension
                 self.start_active[:] = self._active
             state[:] = out
-        point(stage_input, self._stage.ctypes.data)  # never leave a pointer into `table` behind
-        x[:] = state
-        self.cable_gap[:] = self._gap
-        self._check_energy(x, t0 + (first_step + steps) * h)
 
     def energy_balance(self, x: np.ndarray) -> float:
         """The residual of the energy balance at x (J): T + U − (T + U)₀ − (W_u + W_anchor − E_d +
