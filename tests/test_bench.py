@@ -59,3 +59,19 @@ def test_compiled_path_makes_no_casadi_call_and_agrees(backends, method, monkeyp
     for q, qd, t in states:
         fast.compute(q, qd, t)
     assert calls == [], f"the compiled control step called casadi.Function: {sorted(set(calls))}"
+
+
+def test_bench_times_the_stateful_exported_controller_beside_the_python_step(backends):
+    """The issue's ratio with sensing: (fast step + compiled estimator) / the exported controller with its estimator,
+    from the same interleaved passes (bench.json's steps.methods.<m>). Only its presence and sanity are checked here,
+    never a time."""
+    from acroboter import Crane
+    from acroboter.cli.bench_steps import bench_steps
+
+    _, _, _, states = backends
+    out = bench_steps(Crane.from_example("acroboter"), ["penalty"], states[:8], 1)
+    r = out["methods"]["penalty"]
+    for key in ("reference", "fast", "c", "c_estimator"):
+        assert 0.0 < r[key]["p50"] <= r[key]["max"]
+    expected = (r["fast"]["p50"] + out["estimator_fast"]["p50"]) / r["c_estimator"]["p50"]
+    assert r["ratio_fast_with_estimator_to_c_with_estimator"] == pytest.approx(expected)

@@ -59,6 +59,48 @@ def exported_step(crane, method: str, gains, folder: Path):
                          [("u", [crane.layout.l, 1])])
 
 
+def exported_controller(crane, method: str, gains, sensing, folder: Path):
+    """The stateful exported controller of `method` with the estimator of `sensing` (acroboter.codegen.controller_c,
+    as `acroboter export-step --stateful` writes it) compiled into `folder`: step(y, t, signals) -> rc, its u."""
+    from ..codegen.controller_c import build_controller, write_controller
+    from ..runtime.build import CFLAGS
+
+    export = build_controller(crane.spec, method, gains, sensing)
+    write_controller(export, folder)
+    name = export.name
+    (folder / "state_size.c").write_text(f'#include <stddef.h>\n#include "{name}.h"\n'
+                                         f"size_t {name}_state_size(void) {{ return sizeof({name}_state); }}\n")
+    lib_path = folder / f"lib{name}.so"
+    sources = [str(folder / f) for f in (f"{name}.c", f"{name}_functions.c", "state_size.c")]
+    done = subprocess.run([os.environ.get("CC", "cc"), *CFLAGS, "-shared", "-I", str(folder), *sources, "-o",
+                           str(lib_path), "-lm"], capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"compiling the exported controller {name} failed:\n{done.stderr}")
+    lib = ctypes.CDLL(str(lib_path))
+    size = getattr(lib, f"{name}_state_size")
+    size.restype = ctypes.c_size_t
+    state = np.zeros(int(size()) // 8 + 1)
+    init, step = getattr(lib, f"{name}_init"), getattr(lib, f"{name}_step")
+    init.restype, step.restype = None, ctypes.c_int
+    init.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+    step.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p]
+    u = np.zeros(crane.layout.l)
+    return ExportedController(init, step, state, u, export.measured.size if export.estimator else 2 * crane.layout.n)
+
+
+class ExportedController:
+    """A compiled stateful controller bound with ctypes: init(q0), then step(y, t, signals) per period."""
+
+    def __init__(self, init, step, state: np.ndarray, u: np.ndarray, ny: int):
+        self._init, self._step, self.state, self.u, self.ny = init, step, state, u, ny
+
+    def init(self, q0: np.ndarray) -> None:
+        self._init(self.state.ctypes.data, np.ascontiguousarray(q0, dtype=float).ctypes.data)
+
+    def step(self, y: np.ndarray, t: float, signals: np.ndarray) -> int:
+        return self._step(self.state.ctypes.data, y.ctypes.data, t, signals.ctypes.data, self.u.ctypes.data)
+
+
 def bench_steps(crane, methods: list[str], states, repeats: int) -> dict:
     """Interleaved passes: per method the reference, fast and exported C steps, and the estimator, timed."""
     from ..control.controllers import make_controller
@@ -75,8 +117,22 @@ def bench_steps(crane, methods: list[str], states, repeats: int) -> dict:
     times = {(m, kind): [] for m in methods for kind in ("reference", "fast", "c")}
     times[("estimator", "estimator")], times[("estimator", "estimator_fast")] = [], []
     times[("path", "path")] = []  # the path's signals at t: part of both Python steps, not of the C step's timing
+    # The measurements the stateful C controller reads: the Python sensor's (noise, quantisation; one row per state)
+    sensor = estimators["estimator"]
+    measurements = []
+    if sensor is not None:
+        sensor.reset(states[0][0])
+        for q, _, _ in states:
+            y = np.zeros(sensor.index.size)
+            sensor._sample(q, y)
+            measurements.append(y)
+    signal_arrays = [np.array(row) for row in signals]
+    for m in methods:
+        times[(m, "c_estimator")] = []
     with tempfile.TemporaryDirectory(prefix="acroboter-bench-") as tmp:
         exported = {m: exported_step(crane, m, gains, Path(tmp) / m) for m in methods}
+        stateful = {m: exported_controller(crane, m, gains, sensing, Path(tmp) / f"{m}-controller")
+                    for m in methods} if sensor is not None else {}
         for _ in range(repeats):
             for m in methods:
                 for kind, controller in (("reference", reference[m]), ("fast", fast[m])):
@@ -94,6 +150,18 @@ def bench_steps(crane, methods: list[str], states, repeats: int) -> dict:
                     call()
                     row[i] = clock() - t0
                 times[(m, "c")].append(row)
+                if m in stateful:  # the stateful exported controller: estimator and step, one C call
+                    row, controller = np.empty(len(states)), stateful[m]
+                    controller.init(states[0][0])
+                    step = controller.step
+                    for i, (_, _, t) in enumerate(states):
+                        y, sig = measurements[i], signal_arrays[i]
+                        t0 = clock()
+                        rc = step(y, t, sig)
+                        row[i] = clock() - t0
+                        if rc != 0:
+                            raise RuntimeError(f"the exported {m} controller returned {rc} at t = {t:g} s")
+                    times[(m, "c_estimator")].append(row)
             row, flat = np.empty(len(states)), path.flat
             for i, (_, _, t) in enumerate(states):
                 t0 = clock()
@@ -124,10 +192,15 @@ def bench_steps(crane, methods: list[str], states, repeats: int) -> dict:
     out["estimator_fast"] = percentiles(est_fast) if est_fast else None
     if est and est_fast:
         out["estimator_ratio_reference_to_fast"] = out["estimator"]["p50"] / out["estimator_fast"]["p50"]
-    for m in methods:  # the issue's target: the fast step with the estimator against the C step
+    for m in methods:  # the issue's target: the fast step with the estimator against the C step with the estimator
         r = out["methods"][m]
+        if times[(m, "c_estimator")]:
+            r["c_estimator"] = percentiles(times[(m, "c_estimator")])
         if est_fast:
             r["ratio_fast_with_estimator_to_c"] = (r["fast"]["p50"] + out["estimator_fast"]["p50"]) / r["c"]["p50"]
+            if "c_estimator" in r:
+                r["ratio_fast_with_estimator_to_c_with_estimator"] = (
+                    (r["fast"]["p50"] + out["estimator_fast"]["p50"]) / r["c_estimator"]["p50"])
     out["path_evaluation"] = percentiles(times[("path", "path")])
     out["sensing"] = "the spec's [sensing]" if crane.sensing(None) is not None else f"{DEFAULT_SENSING}"
     return out
@@ -198,6 +271,14 @@ def format_steps(steps: dict, loops: dict, mc: dict | None) -> str:
         lines.append(f"estimator, compiled (the fast path's): p50 {fast['p50']:.2f} us, p99 {fast['p99']:.1f} us, "
                      f"max {fast['max']:.0f} us; fast step + estimator / C step: "
                      + ", ".join(f"{m} {r['ratio_fast_with_estimator_to_c']:.2f}" for m, r in steps["methods"].items()))
+    with_estimator = [(m, r) for m, r in steps["methods"].items() if "c_estimator" in r]
+    if with_estimator and (fast := steps.get("estimator_fast")) is not None:
+        lines.append("exported stateful controller (estimator, integral state and step in one C call) p50 / p99 / "
+                     "max us, and (fast step + compiled estimator) / it: "
+                     + "; ".join(f"{m} {r['c_estimator']['p50']:.2f} / {r['c_estimator']['p99']:.1f} / "
+                                 f"{r['c_estimator']['max']:.0f}, "
+                                 f"{r['ratio_fast_with_estimator_to_c_with_estimator']:.2f}"
+                                 for m, r in with_estimator))
     if mc is not None:
         lines.append(
             f"Monte Carlo ({mc['samples']} plants x {len(mc['methods'])} methods x k_I {{0, "
