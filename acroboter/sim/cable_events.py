@@ -124,9 +124,14 @@ class CableEvents:
         self.transitions[cable] += 1
         self.events.append(CableEvent(float(t), cable, kind, float(delta_kinetic)))
 
+    def _path_rows(self, times: tuple) -> np.ndarray:
+        """The path's [s, ṡ, s̈] at a few instants: its `rows` (the table's numbers, cheaper), else its table."""
+        rows = getattr(self.path, "rows", None)
+        return rows(times) if rows is not None else self.path.table(np.array(times, dtype=float))
+
     def _set_stage(self, t: float, h: float) -> None:
         """Point the step at the path's signals at t, t + h/2, t + h and set its step to h."""
-        self._stage_scratch[:] = self.path.rows((t, t + 0.5 * h, t + h)).reshape(-1)
+        self._stage_scratch[:] = self._path_rows((t, t + 0.5 * h, t + h)).reshape(-1)
         self._step.point_input(self._stage_input, self._stage_scratch.ctypes.data)
         self._settings[0] = h
 
@@ -195,7 +200,7 @@ class CableEvents:
 
     def _terms_at(self, x: np.ndarray, t: float) -> dict[str, np.ndarray]:
         n, ns = self.n, self.ns
-        s = self.path.rows((t,))[0]
+        s = self._path_rows((t,))[0]
         self.model.set_inputs(q=x[:n], qd=x[n : 2 * n], s=s[:ns], sd=s[ns : 2 * ns], sdd=s[2 * ns :])
         self._terms.call()
         return {k: v.copy() for k, v in self._terms.outputs.items()}

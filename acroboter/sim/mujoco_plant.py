@@ -184,7 +184,7 @@ class MujocoPlant:
         for index, qpos, dof, _ in self._winches:
             d.qpos[qpos], d.qvel[dof] = q[index], qd[index]
         if self._anchors:
-            row = self.path.rows((t,))[0]
+            row = self.path.table(np.array([t]))[0]
             self._prescribe(row)
         mj.mj_forward(m, d)
 

@@ -154,6 +154,8 @@ class Plant(CableEvents):
         self.closing = False  # started off its constraints, Baumgarte still closing them (_check_energy)
         self.energy_checked_from: float | None = 0.0
         self._loop = self._compiled_loop(model)
+        self._stage_at = self._stage.ctypes.data
+        self._table, self._table_at = None, (0, 0, False)  # the last advance's table (held: its address stays valid)
 
     def _compiled_loop(self, model):
         """(the C substep loop, its buffers) over this plant's bound step (acroboter.runtime.plant_loop), or
@@ -271,14 +273,16 @@ class Plant(CableEvents):
             t0 = 0.0 if t0 is None else t0
         self._x[:] = x
         self._u[:] = u
-        self._settings[:] = (h, self.zeta, self.omega)
-        row_bytes = table.strides[0]
-        base = table.ctypes.data
-        if self._loop is not None and table.flags.c_contiguous:
+        settings = self._settings
+        settings[0], settings[1], settings[2] = h, self.zeta, self.omega
+        if table is not self._table:  # a new table (every STAGE_CHUNK periods of a run): its address, once
+            self._table, self._table_at = table, (table.ctypes.data, table.strides[0], table.flags.c_contiguous)
+        base, row_bytes, contiguous = self._table_at
+        if self._loop is not None and contiguous:
             self._advance_compiled(t0, h, base, row_bytes, first_step, steps)
         else:
             self._advance_python(t0, h, base, row_bytes, first_step, steps)
-        self._step.point_input(self._stage_input, self._stage.ctypes.data)  # never leave a pointer into `table`
+        self._step.point_input(self._stage_input, self._stage_at)  # never leave a pointer into `table`
         x[:] = self._x
         self.cable_gap[:] = self._gap
         self._check_energy(x, t0 + (first_step + steps) * h)
