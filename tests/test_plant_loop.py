@@ -94,12 +94,32 @@ def test_a_closed_loop_run_is_the_same_with_the_c_loop(cranes, monkeypatch):
     assert np.array_equal(python.cable_tension, compiled.cable_tension)
 
 
-def test_the_loop_falls_back_to_python_where_it_cannot_be_had(cranes):
+def test_the_loop_falls_back_to_python_where_it_cannot_be_had(cranes, monkeypatch, caplog):
+    """No compiler on a worker (the model's library found in the cache, the loop's not built): Python's loop runs,
+    with the same numbers, and the warning is said once per process, not once per plant of a study."""
+    from acroboter.runtime import plant_loop
+    from acroboter.runtime.build import BuildError
+    from acroboter.sim import plant as plant_module
+
     crane = cranes["acroboter"]
     plant = Plant(crane.model, crane.path, 1.0, 20.0)
     assert plant.use_compiled_loop(True)
     assert not plant.use_compiled_loop(False)
     assert plant.use_compiled_loop(True)
+
+    def no_compiler(cache_root):
+        raise BuildError("no C compiler 'cc' found: install gcc (or set CC) and run `make build`")
+
+    monkeypatch.setattr(plant_loop, "load_plant_loop", no_compiler)
+    monkeypatch.setattr(plant_loop, "_loaded", {})
+    monkeypatch.setattr(plant_module, "_LOOP_REFUSED", set())
+    with caplog.at_level("WARNING", logger="acroboter.sim.plant"):
+        plants = [Plant(crane.model, crane.path, 1.0, 20.0) for _ in range(3)]
+    assert not any(p.use_compiled_loop(True) for p in plants)
+    assert sum("substep loop runs in Python" in r.getMessage() for r in caplog.records) == 1
+    python = crane.simulate("penalty", duration=1.0).run
+    monkeypatch.undo()
+    assert np.array_equal(python.q, crane.simulate("penalty", duration=1.0).run.q)
 
 
 @settings(max_examples=40, deadline=None)

@@ -88,12 +88,15 @@ class LoopBuffers(ctypes.Structure):
                 ("active", _P), ("start_tension", _P), ("start_active", _P)]
 
 
-_loaded: dict[Path, ctypes.CDLL] = {}
+_loaded: dict[Path, object] = {}  # per cache root: the bound function, once per process
 
 
 def load_plant_loop(cache_root: Path):
     """The compiled loop function `acroboter_plant_advance` (ctypes, argument types set), built on first use
-    (its folder's name carries the hash of SOURCE: another version of the text is another folder)."""
+    (its folder's name carries the hash of SOURCE: another version of the text is another folder) and bound once
+    per process and cache."""
+    if (fn := _loaded.get(cache_root)) is not None:
+        return fn
     name = f"{NAME}_{hashlib.sha256(SOURCE.encode()).hexdigest()[:12]}"
     folder = cache_root / "generated" / f"fast-{name}"
     source = folder / name
@@ -105,11 +108,9 @@ def load_plant_loop(cache_root: Path):
 
     _generated(name, cache_root, folder, source, make, "the plant's substep loop")
     lib_path = ensure_built(name, source, cache_root)
-    lib = _loaded.get(lib_path)
-    if lib is None:
-        lib = _loaded[lib_path] = _open(lib_path, "the plant's substep loop library")
-    fn = lib.acroboter_plant_advance
+    fn = _open(lib_path, "the plant's substep loop library").acroboter_plant_advance
     fn.restype = ctypes.c_longlong
     fn.argtypes = [_P, _P, ctypes.c_longlong, ctypes.c_longlong, ctypes.c_longlong, ctypes.c_longlong]
+    _loaded[cache_root] = fn
     return fn
 

@@ -49,6 +49,7 @@ from .cable_events import (  # noqa: F401 - the plant's errors, events and toler
 )
 
 log = logging.getLogger(__name__)
+_LOOP_REFUSED: set = set()  # cache roots where the C substep loop could not be built (warned once)
 
 # |energy balance residual| allowed: ENERGY_TOL_REL × (weight × longest cable + peak kinetic energy), see
 # Plant.energy_bound (2.6e-3 J at rest on the default crane; what runs reach: docs/plant.md, plant-fuzz.md).
@@ -161,15 +162,17 @@ class Plant(CableEvents):
         """(the C substep loop, its buffers) over this plant's bound step (acroboter.runtime.plant_loop), or
         None: another backend's step, or no library (Python's loop then runs: the same numbers, slower)."""
         from ..runtime.build import BuildError
-        from ..runtime.compiled import BoundFunction
+        from ..runtime.compiled import BoundFunction, DamagedLibraryError
         from ..runtime.plant_loop import LoopBuffers, load_plant_loop
 
         if not isinstance(self._step, BoundFunction) or getattr(model, "cache_root", None) is None:
             return None
         try:
             advance = load_plant_loop(model.cache_root)
-        except (BuildError, OSError) as err:
-            log.warning("the plant's substep loop runs in Python: %s", err)
+        except (BuildError, OSError, DamagedLibraryError) as err:
+            if model.cache_root not in _LOOP_REFUSED:  # said once per process, not once per plant of a study
+                _LOOP_REFUSED.add(model.cache_root)
+                log.warning("the plant's substep loop runs in Python (the same numbers, slower): %s", err)
             return None
         step = self._step
         buffers = LoopBuffers(
