@@ -124,11 +124,6 @@ class CableEvents:
         self.transitions[cable] += 1
         self.events.append(CableEvent(float(t), cable, kind, float(delta_kinetic)))
 
-    def _path_rows(self, times: tuple) -> np.ndarray:
-        """The path's [s, ṡ, s̈] at a few instants: its `rows` (the table's numbers, cheaper), else its table."""
-        rows = getattr(self.path, "rows", None)
-        return rows(times) if rows is not None else self.path.table(np.array(times, dtype=float))
-
     def _set_stage(self, t: float, h: float) -> None:
         """Point the step at the path's signals at t, t + h/2, t + h and set its step to h."""
         self._stage_scratch[:] = self._path_rows((t, t + 0.5 * h, t + h)).reshape(-1)

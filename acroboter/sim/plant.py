@@ -89,6 +89,8 @@ class Plant(CableEvents):
         """The plant of `model`'s crane; `parameters` (name -> value, acroboter.physical) replace the
         spec's physical parameters in it (checked here: PlantParameterError; fixed for its lifetime)."""
         self.model, self.path = model, path
+        # The path's [s, ṡ, s̈] at the few instants of an event: its rows (the table's numbers, cheaper), else its table
+        self._path_rows = getattr(path, "rows", None) or (lambda times: path.table(np.array(times, dtype=float)))
         self.zeta, self.omega = zeta, omega
         # The crane the plant simulates: the spec with its parameters (validated as a spec).
         self.physical_spec = with_parameters(model.spec, parameters or {})
