@@ -75,3 +75,16 @@ def test_bench_times_the_stateful_exported_controller_beside_the_python_step(bac
         assert 0.0 < r[key]["p50"] <= r[key]["max"]
     expected = (r["fast"]["p50"] + out["estimator_fast"]["p50"]) / r["c_estimator"]["p50"]
     assert r["ratio_fast_with_estimator_to_c_with_estimator"] == pytest.approx(expected)
+
+
+def test_the_plant_alone_replays_a_runs_states_to_the_bit():
+    """The bench's `rtf_plant_alone` times the plant through a closed-loop run's recorded inputs: that is the run's
+    plant share only if the replay is the run (same plant, start and inputs: the same states to the bit)."""
+    from acroboter import Crane
+    from acroboter.cli.bench_steps import replay_plant
+
+    crane = Crane.from_example("acroboter")
+    run = crane.simulate("penalty", duration=2.0).run
+    x, wall = replay_plant(crane, run.u)
+    n = run.q.shape[1]
+    assert np.array_equal(x[:n], run.q[-1]) and np.array_equal(x[n : 2 * n], run.qd[-1]) and wall > 0.0

@@ -233,11 +233,6 @@ def _bench(args: argparse.Namespace, methods: list[str], folder: ResultsFolder) 
     print(f"plant RK4 step (one ctypes call): spec's numbers folded in {plant_step['folded_us']:.2f} us, physical "
           f"parameters as an input {plant_step['parametric_us']:.2f} us (x{plant_step['ratio']:.2f}, quietest of "
           f"{plant_step['passes']} interleaved passes)")
-    # What the plant alone allows: its RK4 substeps over the scenario, nothing else (no controller, no records)
-    substeps = round(crane.path.duration / spec.simulation.step)
-    plant_step["rtf_bound"] = crane.path.duration / (substeps * plant_step["folded_us"] * 1e-6)
-    print(f"the plant alone ({substeps} RK4 substeps of {spec.simulation.step:g} s in the {crane.path.duration:g} s "
-          f"scenario) bounds the closed loop's real-time factor at {plant_step['rtf_bound']:.0f}")
     doc = {
         "spec": spec.name,
         "machine": {"processor": _processor(), "machine": platform.machine(),

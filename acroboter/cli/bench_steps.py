@@ -211,6 +211,7 @@ def bench_loops(crane, methods: list[str], passes: int = 2) -> dict:
     (the best of `passes` interleaved runs)."""
     sensing = crane.sensing(None) or crane.sensing(DEFAULT_SENSING)
     out = {m: {} for m in methods}
+    alone = 0.0
     for _ in range(passes):
         for m in methods:
             row = out[m]
@@ -219,7 +220,31 @@ def bench_loops(crane, methods: list[str], passes: int = 2) -> dict:
                     result = crane.simulate(m, fast=fast, sensing=chosen)
                     key = f"rtf_{'fast' if fast else 'reference'}{label}"
                     row[key] = max(row.get(key, 0.0), float(result.run.t[-1] / result.run.sim_wall_s))
+            _, wall = replay_plant(crane, result.run.u)
+            alone = max(alone, float(result.run.t[-1]) / wall)
+    for row in out.values():  # the same for every method: the plant's share of the loop, its ceiling
+        row["rtf_plant_alone"] = alone
     return out
+
+
+def replay_plant(crane, inputs: np.ndarray) -> tuple[np.ndarray, float]:
+    """The plant alone through a run's recorded inputs from the same start: its control periods (RK4 substeps in C,
+    the events, the energy check), no controller, no records. (Its final state, the wall seconds.) The same plant,
+    start and inputs give that run's states to the bit, so the time is the plant's share of the loop."""
+    from ..sim.simulation import setup_default
+
+    spec, model = crane.spec, crane.model
+    period = 1.0 / spec.controller.rate_hz
+    substeps = round(period / spec.simulation.step)
+    h = period / substeps
+    plant = setup_default(model, crane.path)
+    x = plant.initial_state(crane.equilibrium().q)
+    steps = len(inputs) - 1
+    table = plant.stage_rows(h, 0, steps * substeps)
+    t0 = time.perf_counter()
+    for k in range(steps):
+        plant.advance(x, inputs[k], h, table, k * substeps, substeps)
+    return x, time.perf_counter() - t0
 
 
 def bench_monte_carlo(crane, methods: list[str], samples: int) -> dict:
@@ -279,6 +304,9 @@ def format_steps(steps: dict, loops: dict, mc: dict | None) -> str:
                                  f"{r['c_estimator']['max']:.0f}, "
                                  f"{r['ratio_fast_with_estimator_to_c_with_estimator']:.2f}"
                                  for m, r in with_estimator))
+    if loops:
+        lines.append("the plant alone (its substeps, events and energy check over the scenario, a run's inputs "
+                     f"replayed; best of the same passes): RTF {next(iter(loops.values()))['rtf_plant_alone']:.0f}")
     if mc is not None:
         lines.append(
             f"Monte Carlo ({mc['samples']} plants x {len(mc['methods'])} methods x k_I {{0, "
