@@ -179,3 +179,24 @@ def test_measurement_noise_and_delay_reach_every_run(tmp_path):
     # Perfect measurements give other figures: the options reached the runs.
     clean = rb.robustness(SPEC, samples=1, seed=rb.DEFAULT_SEED, duration=0.5, methods=("mlm",), workers=0)
     assert clean.rows[0]["max_position_error_mm"] != float(rows[0]["max_position_error_mm"])
+
+
+@needs_dask
+def test_the_fast_path_study_on_workers_gives_the_reference_figures(study, tmp_path):
+    """--fast: the controllers' fast path in every run, built in the cache before the workers start (they only load
+    it). Its figures are the reference study's within the fast path's agreement (docs/fast-path.md: 1e-9 relative
+    in u; the summaries' maxima within 1e-7), and its re-run lines carry --fast."""
+    result, out = study
+    p = run_cli("--spec", str(SPEC), "--samples", str(SAMPLES), "--seed", str(SEED), "--duration", str(DURATION),
+                "--workers", "2", "--fast", "--no-plots", "-q", "--out", str(tmp_path))
+    assert p.returncode == 0, p.stderr
+    fast, reference = read_csv(tmp_path / "robustness.csv"), read_csv(out / "robustness.csv")
+    assert [(r["sample"], r["method"], r["ki"], r["status"]) for r in fast] == \
+        [(r["sample"], r["method"], r["ki"], r["status"]) for r in reference]
+    for f, r in zip(fast, reference, strict=True):
+        for key in ("max_position_error_mm", "rms_position_error_mm", "max_yaw_error_deg"):
+            assert float(f[key]) == pytest.approx(float(r[key]), rel=1e-7, abs=1e-12), (f["method"], key)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["provenance"]["fast_path"] is True
+    with (tmp_path / "samples.csv").open(newline="") as f:
+        assert " --fast " in next(csv.DictReader(f))["command"]

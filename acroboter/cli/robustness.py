@@ -113,8 +113,8 @@ def robustness(spec_path: Path = DEFAULT_SPEC, *, samples: int = DEFAULT_SAMPLES
                duration: float = DEFAULT_DURATION, ranges: dict | None = None,
                methods: tuple[str, ...] = DEFAULT_METHODS, ki: float | None = None, workers: int = 2,
                scheduler: str | None = None, connect_timeout: float = 10.0, out: Path | None = None,
-               plots: bool = True, progress: bool = False, sensing=None, command_line: list[str] | None = None
-               ) -> RobustnessResult:
+               plots: bool = True, progress: bool = False, sensing=None, command_line: list[str] | None = None,
+               fast: bool = False) -> RobustnessResult:
     """The whole study: draw the samples, run them (workers = 0: in this process), and (with `out`) write
     the CSVs, summary.json and the figures. Raises GridError when it cannot run at all; ValueError for
     bad numbers (samples < 1, a bad range)."""
@@ -149,9 +149,11 @@ def robustness(spec_path: Path = DEFAULT_SPEC, *, samples: int = DEFAULT_SAMPLES
             if chosen is not None and (problem := delay_problem(chosen.delay_periods, spec.controller.rate_hz,
                                                                 duration)) is not None:
                 raise ValueError(f"--sensing-delay: {problem}")
+        if fast:
+            prebuild_fast(spec, methods, sensing)
         drawn = [draw_sample(spec, seed, i, ranges) for i in range(samples)]
         task = functools.partial(run_sample, Path(spec_path).read_text(encoding="utf-8"), str(spec_path),
-                                 duration=duration, methods=tuple(methods), kis=(0.0, ki), sensing=sensing)
+                                 duration=duration, methods=tuple(methods), kis=(0.0, ki), sensing=sensing, fast=fast)
         t0 = time.perf_counter()
         with tqdm(total=samples, unit="sample", desc="robustness", file=sys.stderr, disable=not progress,
                   smoothing=0.0) as bar:
@@ -174,20 +176,43 @@ def robustness(spec_path: Path = DEFAULT_SPEC, *, samples: int = DEFAULT_SAMPLES
         result.summary = summarize(rows, methods, (0.0, ki))
         if folder is not None:
             _write(folder.staging, result, spec, spec_path, seed, duration, ranges, methods, plots, command_line,
-                   sensing)
+                   sensing, fast)
             folder.publish()
             result.files = [folder.out / p.relative_to(folder.staging) for p in result.files]
     return result
 
 
+def prebuild_fast(spec, methods, sensing) -> None:
+    """The fast steps (and the compiled estimator) of `methods` built into the cache here, before any task: the
+    workers only load them, as they load the model's library. A method the fast path cannot have runs on its
+    reference path in the workers too (make_controller says why)."""
+    from ..control.controllers import Gains
+    from ..runtime.cache import load_model
+    from ..runtime.fast_library import FastPathUnavailable, load_fast_estimator, load_fast_step
+
+    model = load_model(spec)
+    gains = Gains.from_spec(spec)
+    for method in methods:
+        try:
+            load_fast_step(model, method, gains)
+        except FastPathUnavailable:
+            continue
+    if sensing is not None:
+        from ..sim.sensing import is_ideal, resolve
+
+        chosen = resolve(spec, sensing, source="--sensing-*")
+        if chosen is not None and not is_ideal(spec, model.layout, chosen):
+            load_fast_estimator(model, chosen)
+
+
 def _write(out: Path, result: RobustnessResult, spec, spec_path, seed, duration, ranges, methods, plots,
-           command_line, sensing) -> None:
+           command_line, sensing, fast) -> None:
     cols = columns(result.samples[0])
     write_rows(out / "robustness.csv", result.rows, cols)
     sample_rows = [{"sample": s.index, "draws": s.draws, "mass_error": s.mass_error,
                     "tracked_mass_error": s.tracked_mass_error, **s.params,
-                    "command": command(spec_path, s, duration, sensing=sensing),
-                    "command_ki": command(spec_path, s, duration, ki=result.ki, sensing=sensing)}
+                    "command": command(spec_path, s, duration, sensing=sensing, fast=fast),
+                    "command_ki": command(spec_path, s, duration, ki=result.ki, sensing=sensing, fast=fast)}
                    for s in result.samples]
     write_rows(out / "samples.csv", sample_rows,
                ["sample", "draws", "mass_error", "tracked_mass_error", *result.samples[0].params, "command",
@@ -197,7 +222,7 @@ def _write(out: Path, result: RobustnessResult, spec, spec_path, seed, duration,
     if plots:
         from ..report.study_figures import robustness_figures
 
-        worst = _rerun_worst(spec_path, result, duration, methods, sensing) if result.rows else None
+        worst = _rerun_worst(spec_path, result, duration, methods, sensing, fast) if result.rows else None
         result.files += robustness_figures(out, result.rows, worst=worst)
     summary = {
         "provenance": {
@@ -210,7 +235,7 @@ def _write(out: Path, result: RobustnessResult, spec, spec_path, seed, duration,
             "ranges": {g: {"low": lo, "high": hi, "unit": GROUPS[g][1], "what": GROUPS[g][0]}
                        for g, (lo, hi) in ranges.items()},
             "methods": list(methods), "ki": [0.0, result.ki], "kp": spec.controller.kp, "kd": spec.controller.kd,
-            "sensing": sensing,
+            "sensing": sensing, "fast_path": fast,
             "bounds": {"position_mm": POSITION_BOUND_MM, "yaw_deg": YAW_BOUND_DEG}, "settled_after_s": SETTLE_S,
             "versions": _versions(), "workers": result.workers, "wall_s": result.wall_s,
         },
@@ -222,7 +247,7 @@ def _write(out: Path, result: RobustnessResult, spec, spec_path, seed, duration,
     result.files.append(out / "summary.json")
 
 
-def _rerun_worst(spec_path, result: RobustnessResult, duration, methods, sensing) -> dict:
+def _rerun_worst(spec_path, result: RobustnessResult, duration, methods, sensing, fast: bool = False) -> dict:
     """The sample with the largest max position error of any of its rows, re-run here, every method and ki."""
     from ..api.crane import Crane
 
@@ -232,7 +257,7 @@ def _rerun_worst(spec_path, result: RobustnessResult, duration, methods, sensing
     index = max((r for r in result.rows if r["method"] is not None), key=badness)["sample"]
     sample = result.samples[index]
     crane = Crane.from_toml(spec_path)
-    extra = {} if sensing is None else {"sensing": sensing}
+    extra = ({} if sensing is None else {"sensing": sensing}) | ({"fast": True} if fast else {})
     results: dict = {}
     for m in methods:
         for ki in (0.0, result.ki):
@@ -242,7 +267,7 @@ def _rerun_worst(spec_path, result: RobustnessResult, duration, methods, sensing
             except Exception:  # noqa: BLE001 - a run that fails here failed in the study too (its row says how)
                 continue
     return {"sample": index, "mass_error": sample.mass_error, "tracked_mass_error": sample.tracked_mass_error,
-            "results": results, "command": command(spec_path, sample, duration, sensing=sensing)}
+            "results": results, "command": command(spec_path, sample, duration, sensing=sensing, fast=fast)}
 
 
 def _versions() -> dict:
@@ -301,6 +326,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="worker processes of the local cluster (0: run in this process, no dask needed)")
     p.add_argument("--connect-timeout", type=ranged(CONNECT_TIMEOUT), default=10.0,
                    help="seconds to wait for --scheduler")
+    p.add_argument("--fast", action="store_true",
+                   help="the controllers' fast path (one compiled function per control step, docs/fast-path.md; the "
+                        "same results within 1e-9 relative, its libraries built in the cache first)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures (and the worst sample's re-run)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar (the same as `acroboter -q robustness`)")
     args = p.parse_args(argv)
@@ -353,7 +381,7 @@ def main(argv: list[str] | None = None) -> int:
                             ranges=args.ranges, methods=args.methods, ki=args.ki, workers=args.workers,
                             scheduler=args.scheduler, connect_timeout=args.connect_timeout, out=args.out,
                             plots=not args.no_plots, progress=not progress_disabled(args.quiet),
-                            sensing=args.sensing, command_line=command_line)
+                            sensing=args.sensing, command_line=command_line, fast=args.fast)
     except (GridError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -371,7 +399,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"worst run: sample {worst['sample']}, {worst['method']}, ki = {worst['ki']:g} ({worst['status']}"
           + ("" if err is None else f", max position error {err:.3f} mm") + "); re-run it with\n  "
           + command(args.spec, result.samples[worst["sample"]], args.duration, worst["method"], worst["ki"],
-                    sensing=args.sensing))
+                    sensing=args.sensing, fast=args.fast))
     print(f"every sample's re-run lines: {args.out}/samples.csv")
     print(f"results in {args.out}/ ({', '.join(p.name for p in result.files)})")
     return 0

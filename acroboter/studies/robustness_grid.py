@@ -169,9 +169,11 @@ def sensing_args(sensing: dict | None) -> list[str]:
 
 
 def command(spec_path: str, sample: Sample, duration: float, method: str | None = None, ki: float | None = None,
-            out: str | None = None, sensing: dict | None = None) -> str:
+            out: str | None = None, sensing: dict | None = None, fast: bool = False) -> str:
     """The `acroboter run` line that re-runs the sample (one method and ki, or every method at ki = 0)."""
     args = ["acroboter", "run", "--spec", str(spec_path), "--duration", repr(float(duration)), *sensing_args(sensing)]
+    if fast:
+        args.append("--fast")
     if method is not None:
         args += ["--method", method]
     if ki:
@@ -239,12 +241,13 @@ def _crane(ctx):
 
 
 def run_sample(spec_text: str, source: str, sample: Sample, duration: float, methods: tuple[str, ...],
-               kis: tuple[float, ...], sensing=None) -> list[dict]:
+               kis: tuple[float, ...], sensing=None, fast: bool = False) -> list[dict]:
     """Every (method, ki) of one sample on its plant: one row each, in (method, ki) order. A run that
     fails numerically is a row whose status says how; only a worker that cannot load the model raises.
 
     `sensing`: passed on as `Crane.simulate(sensing=...)` when given (measurement noise/delay, where
-    the installed package has it); None runs with perfect measurements."""
+    the installed package has it); None runs with perfect measurements. `fast`: the controllers' fast path
+    (docs/fast-path.md; its libraries built in the cache beforehand, robustness.prebuild_fast)."""
     from numpy.linalg import LinAlgError
 
     from ..control.controllers import SingularSystemError
@@ -253,7 +256,7 @@ def run_sample(spec_text: str, source: str, sample: Sample, duration: float, met
 
     ctx = setup_text(spec_text, source)  # never compiles: MissingLibraryError if the worker has no library
     crane, worker = _crane(ctx), worker_name()
-    extra = {} if sensing is None else {"sensing": sensing}
+    extra = ({} if sensing is None else {"sensing": sensing}) | ({"fast": True} if fast else {})
     rows = []
     for method in methods:
         for ki in kis:
