@@ -10,7 +10,9 @@ at events and Python resolves them between its calls.
 
 from __future__ import annotations
 
+import ctypes
 import random
+import types
 
 import numpy as np
 import pytest
@@ -18,6 +20,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from acroboter import Crane
+from acroboter.control.path import DesiredPath
 from acroboter.sim.open_loop import held_path
 from acroboter.sim.plant import InvariantError, Plant, SimulationError
 from acroboter.studies.plant_fuzz import consistent_velocity, experiment_of, input_value
@@ -132,3 +135,37 @@ def test_the_paths_rows_are_its_table_to_the_bit(cranes, name, times):
     rng = random.Random(len(times))
     t = rng.uniform(0.0, path.duration)
     assert np.array_equal(np.array(path.flat(t)), path.table(np.array([t]))[0])
+
+
+@settings(max_examples=25, deadline=None)
+@given(dx=st.floats(-1.0, 1.0), dy=st.floats(-1.0, 1.0), times=st.lists(st.floats(-2.0, 80.0), min_size=1, max_size=3))
+def test_the_rows_are_the_table_with_moving_anchors_off_the_start(cranes, dx, dy, times):
+    """A climbing unit whose anchors and path start are not at x = y = 0 (flat adds the anchors' offset in
+    another order than table: rows must use table's)."""
+    crane = cranes["acroboter"]
+    spec = crane.spec
+    anchors = [types.SimpleNamespace(name=a.name, position=[a.position[0] + dx, a.position[1] + dy, a.position[2]],
+                                     follows_path=a.follows_path) for a in spec.anchors]
+    shifted = types.SimpleNamespace(path=spec.path, anchors=anchors)
+    path = DesiredPath(shifted, crane.layout, crane.path.start_point + np.array([dx, dy, 0.0]), crane.path.start_yaw)
+    assert path._follow, "the spec has moving anchors"
+    assert np.array_equal(path.rows(times), path.table(np.array(times)))
+
+
+def test_a_failing_step_raises_in_either_loop(cranes):
+    """A generated step that returns non-zero (a failed inner call) stops the period with an error, in C as in
+    Python; it is never skipped."""
+    crane = cranes["acroboter"]
+    spec = crane.spec
+    failing = ctypes.CFUNCTYPE(ctypes.c_int, *[ctypes.c_void_p] * 4, ctypes.c_int)(lambda *args: 1)
+    h = spec.simulation.step
+    for compiled in (True, False):
+        plant = Plant(crane.model, crane.path, spec.simulation.baumgarte_zeta, spec.simulation.baumgarte_omega)
+        plant.use_compiled_loop(compiled)
+        x = plant.initial_state(crane.equilibrium().q)
+        if compiled:
+            plant._loop[1].step = ctypes.cast(failing, ctypes.c_void_p).value
+        else:
+            plant._step.call = lambda: (_ for _ in ()).throw(RuntimeError("plant_step failed"))
+        with pytest.raises(RuntimeError, match="failed"):
+            plant.advance(x, crane.equilibrium().inputs, h, plant.stage_table(0.0, h, 10), 0, 10)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 import shlex
 import subprocess
 import sys
@@ -200,3 +201,47 @@ def test_the_fast_path_study_on_workers_gives_the_reference_figures(study, tmp_p
     assert summary["provenance"]["fast_path"] is True
     with (tmp_path / "samples.csv").open(newline="") as f:
         assert " --fast " in next(csv.DictReader(f))["command"]
+
+
+SPY = r"""
+import os, sys
+from pathlib import Path
+from acroboter.cli import robustness as rb
+from acroboter.studies import robustness_grid as grid
+
+built = []
+run_sample = grid.run_sample
+def spy(*args, **kwargs):  # what a task adds to the cache's libraries: nothing, the study built it before
+    lib = Path(os.environ["ACROBOTER_CACHE_DIR"]) / "lib"
+    before = {p.name for p in lib.iterdir()}
+    rows = run_sample(*args, **kwargs)
+    built.extend(sorted({p.name for p in lib.iterdir()} - before))
+    return rows
+rb.run_sample = spy
+result = rb.robustness(Path(sys.argv[1]), samples=1, duration=0.3, methods=("penalty",), workers=0,
+                       fast=sys.argv[2] == "fast", plots=False)
+print("statuses", [r["status"] for r in result.rows])
+print("built in tasks", built)
+"""
+
+
+@pytest.mark.parametrize("fast", ["fast", "reference"])
+def test_the_tasks_compile_nothing(tmp_path, fast):
+    """A study builds, before any task, what its runs load from the cache: the plant's substep loop, and with
+    --fast the fast steps and the compiled estimator of the spec's own [sensing] section (here without --sensing-*
+    options). The workers only load them, as they load the model's library (a remote worker may have no compiler)."""
+    import shutil
+
+    cache = tmp_path / "cache"
+    (cache / "lib").mkdir(parents=True)
+    for folder in (REPO / "build" / "cache" / "lib").glob("acroboter-*"):  # the model's library, already built
+        shutil.copytree(folder, cache / "lib" / folder.name)
+    spec = tmp_path / "acroboter.toml"
+    sensing = (REPO / "docs" / "sensing.md").read_text().split("```toml\n", 1)[1].split("```", 1)[0]
+    assert sensing.startswith("[sensing]")
+    spec.write_text(SPEC.read_text() + "\n" + sensing)
+    p = subprocess.run([sys.executable, "-c", SPY, str(spec), fast], capture_output=True, text=True, cwd=REPO,
+                       timeout=600, env={**os.environ, "ACROBOTER_CACHE_DIR": str(cache)})
+    assert p.returncode == 0, p.stderr
+    assert "statuses ['ok', 'ok']" in p.stdout
+    assert "built in tasks []" in p.stdout, p.stdout

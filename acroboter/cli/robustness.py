@@ -149,8 +149,7 @@ def robustness(spec_path: Path = DEFAULT_SPEC, *, samples: int = DEFAULT_SAMPLES
             if chosen is not None and (problem := delay_problem(chosen.delay_periods, spec.controller.rate_hz,
                                                                 duration)) is not None:
                 raise ValueError(f"--sensing-delay: {problem}")
-        if fast:
-            prebuild_fast(spec, methods, sensing)
+        prebuild(spec, methods, sensing, fast)
         drawn = [draw_sample(spec, seed, i, ranges) for i in range(samples)]
         task = functools.partial(run_sample, Path(spec_path).read_text(encoding="utf-8"), str(spec_path),
                                  duration=duration, methods=tuple(methods), kis=(0.0, ki), sensing=sensing, fast=fast)
@@ -182,27 +181,34 @@ def robustness(spec_path: Path = DEFAULT_SPEC, *, samples: int = DEFAULT_SAMPLES
     return result
 
 
-def prebuild_fast(spec, methods, sensing) -> None:
-    """The fast steps (and the compiled estimator) of `methods` built into the cache here, before any task: the
-    workers only load them, as they load the model's library. A method the fast path cannot have runs on its
-    reference path in the workers too (make_controller says why)."""
+def prebuild(spec, methods, sensing, fast: bool) -> None:
+    """What the runs load from the cache, built here before any task, so that the workers only load it as they load
+    the model's library: the plant's substep loop, and with `fast` the fast steps of `methods` and the compiled
+    estimator of the sensing the runs use (--sensing-*, else the spec's section). A method the fast path cannot have
+    runs on its reference path in the workers too (make_controller says why)."""
     from ..control.controllers import Gains
+    from ..runtime.build import BuildError
     from ..runtime.cache import load_model
     from ..runtime.fast_library import FastPathUnavailable, load_fast_estimator, load_fast_step
+    from ..runtime.plant_loop import load_plant_loop
+    from ..sim.sensing import is_ideal, resolve
 
     model = load_model(spec)
+    try:
+        load_plant_loop(model.cache_root)
+    except BuildError:
+        pass  # each worker's plants then run Python's loop (the same numbers) and say so once
+    if not fast:
+        return
     gains = Gains.from_spec(spec)
     for method in methods:
         try:
             load_fast_step(model, method, gains)
         except FastPathUnavailable:
             continue
-    if sensing is not None:
-        from ..sim.sensing import is_ideal, resolve
-
-        chosen = resolve(spec, sensing, source="--sensing-*")
-        if chosen is not None and not is_ideal(spec, model.layout, chosen):
-            load_fast_estimator(model, chosen)
+    chosen = resolve(spec, sensing, source="--sensing-*")  # None: the spec's section, as Crane.simulate
+    if chosen is not None and not is_ideal(spec, model.layout, chosen):
+        load_fast_estimator(model, chosen)
 
 
 def _write(out: Path, result: RobustnessResult, spec, spec_path, seed, duration, ranges, methods, plots,

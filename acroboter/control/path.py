@@ -78,10 +78,12 @@ class DesiredPath:
         self._last_edge = len(self._dur) - 1
         self._template = [0.0] * (3 * ns)
         self._follow = []
+        self._anchor_start = {}  # signal index -> the moving anchor's start coordinate (rows)
         for j, anchor0, follows in self.anchors:
             for c in range(3):
                 if follows[c]:
                     self._follow.append((j + c, c, anchor0[c] - self.start_point[c]))
+                    self._anchor_start[j + c] = anchor0[c]
                 else:
                     self._template[j + c] = anchor0[c]
 
@@ -116,9 +118,14 @@ class DesiredPath:
         return out
 
     def rows(self, times) -> np.ndarray:
-        """table(times) for a few instants (the plant's cable events): flat per instant, the same numbers to
-        the bit (tests/test_path.py) at a thirtieth of table's cost on three instants."""
-        return np.array([self.flat(t) for t in times])
+        """table(times) for a few instants (the plant's cable events): flat per instant, with the moving anchors'
+        positions in table's order of operations ((a₀ + x) − x₀, where flat has (a₀ − x₀) + x): the same numbers
+        to the bit (tests/test_plant_loop.py) at a thirtieth of table's cost on three instants."""
+        out = np.array([self.flat(t) for t in times])
+        p = self._path_index[0]
+        for i, c, _ in self._follow:
+            out[:, i] = (self._anchor_start[i] + out[:, p + c]) - self.start_point[c]
+        return out
 
     def signal_arrays(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         flat = np.array(self.flat(t))

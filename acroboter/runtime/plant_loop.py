@@ -59,8 +59,8 @@ struct acroboter_plant_loop {
 /* Substeps from .. end - 1 of the period whose stage signals start at `stage` (rows of `row_bytes`
    bytes, substep i reads rows 2i .. 2i + 2). Returns the first substep whose step flags an event
    (its x is not taken: the caller resolves it), `end` when none did, -1 when the step failed. */
-int acroboter_plant_advance(struct acroboter_plant_loop* loop, const char* stage, casadi_int row_bytes,
-                            casadi_int from, casadi_int end, casadi_int record_at) {
+casadi_int acroboter_plant_advance(struct acroboter_plant_loop* loop, const char* stage, casadi_int row_bytes,
+                                   casadi_int from, casadi_int end, casadi_int record_at) {
   casadi_int i;
   for (i = from; i < end; ++i) {
     loop->arg[loop->stage_slot] = (const double*) (stage + 2 * i * row_bytes);
