@@ -156,7 +156,8 @@ class Plant(CableEvents):
         self._energy_start, self._potential_scale, self._peak_kinetic = 0.0, 1.0, 0.0
         self.closing = False  # started off its constraints, Baumgarte still closing them (_check_energy)
         self.energy_checked_from: float | None = 0.0
-        self._loop = self._compiled_loop(model)
+        self._compiled = self._compiled_loop(model)  # None where it cannot be had
+        self._loop = self._compiled  # the loop in use: the compiled one, or None for Python's
         self._stage_at = self._stage.ctypes.data
         self._table, self._table_at = None, (0, 0, False)  # the last advance's table (held: its address stays valid)
 
@@ -188,11 +189,7 @@ class Plant(CableEvents):
     def use_compiled_loop(self, on: bool = True) -> bool:
         """Run the substeps in C (the default where the library builds) or in Python's loop (the reference the
         tests compare it with, bit for bit); whether the C loop is now used."""
-        if not on:
-            self._loop_off = self._loop or getattr(self, "_loop_off", None)
-            self._loop = None
-        elif self._loop is None:
-            self._loop = getattr(self, "_loop_off", None)
+        self._loop = self._compiled if on else None
         return self._loop is not None
 
     def _parameter_vector(self, model) -> np.ndarray:
