@@ -39,22 +39,28 @@ def percentiles(seconds: list[np.ndarray]) -> dict:
             "passes": int(us.shape[0]), "p50_all_passes": float(np.median(us))}
 
 
+def compile_shared(sources: list[Path], lib_path: Path, what: str) -> ctypes.CDLL:
+    """`sources` compiled into the shared library `lib_path` (the project's flags: -O2 -fPIC, no fast-math; headers
+    from the sources' folder), loaded."""
+    from ..runtime.build import CFLAGS
+
+    include = str(sources[0].parent)
+    done = subprocess.run([os.environ.get("CC", "cc"), *CFLAGS, "-shared", "-I", include, *map(str, sources), "-o",
+                           str(lib_path), "-lm"], capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"compiling {what} failed:\n{done.stderr}")
+    return ctypes.CDLL(str(lib_path))
+
+
 def exported_step(crane, method: str, gains, folder: Path):
     """The exported C step of `method` compiled into `folder` and bound to the model's input buffers."""
     from ..codegen.export_step import build_step, write_step
-    from ..runtime.build import CFLAGS
     from ..runtime.compiled import BoundFunction
 
     export = build_step(crane.spec, method, gains)
     (source, _) = write_step(export, folder)
-    lib_path = folder / f"lib{export.name}.so"
-    compiler = os.environ.get("CC", "cc")
-    done = subprocess.run([compiler, *CFLAGS, "-shared", str(source), "-o", str(lib_path), "-lm"],
-                          capture_output=True, text=True)
-    if done.returncode != 0:
-        raise RuntimeError(f"compiling the exported step {source.name} failed:\n{done.stderr}")
+    lib = compile_shared([source], folder / f"lib{export.name}.so", f"the exported step {source.name}")
     model = crane.model
-    lib = ctypes.CDLL(str(lib_path))
     return BoundFunction(lib, export.name, [model.q, model.qd, model.s, model.sd, model.sdd],
                          [("u", [crane.layout.l, 1])])
 
@@ -63,20 +69,14 @@ def exported_controller(crane, method: str, gains, sensing, folder: Path):
     """The stateful exported controller of `method` with the estimator of `sensing` (acroboter.codegen.controller_c,
     as `acroboter export-step --stateful` writes it) compiled into `folder`: step(y, t, signals) -> rc, its u."""
     from ..codegen.controller_c import build_controller, write_controller
-    from ..runtime.build import CFLAGS
 
     export = build_controller(crane.spec, method, gains, sensing)
     write_controller(export, folder)
     name = export.name
     (folder / "state_size.c").write_text(f'#include <stddef.h>\n#include "{name}.h"\n'
                                          f"size_t {name}_state_size(void) {{ return sizeof({name}_state); }}\n")
-    lib_path = folder / f"lib{name}.so"
-    sources = [str(folder / f) for f in (f"{name}.c", f"{name}_functions.c", "state_size.c")]
-    done = subprocess.run([os.environ.get("CC", "cc"), *CFLAGS, "-shared", "-I", str(folder), *sources, "-o",
-                           str(lib_path), "-lm"], capture_output=True, text=True)
-    if done.returncode != 0:
-        raise RuntimeError(f"compiling the exported controller {name} failed:\n{done.stderr}")
-    lib = ctypes.CDLL(str(lib_path))
+    sources = [folder / f for f in (f"{name}.c", f"{name}_functions.c", "state_size.c")]
+    lib = compile_shared(sources, folder / f"lib{name}.so", f"the exported controller {name}")
     size = getattr(lib, f"{name}_state_size")
     size.restype = ctypes.c_size_t
     state = np.zeros(int(size()) // 8 + 1)
@@ -84,15 +84,14 @@ def exported_controller(crane, method: str, gains, sensing, folder: Path):
     init.restype, step.restype = None, ctypes.c_int
     init.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
     step.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p]
-    u = np.zeros(crane.layout.l)
-    return ExportedController(init, step, state, u, export.measured.size if export.estimator else 2 * crane.layout.n)
+    return ExportedController(init, step, state, np.zeros(crane.layout.l))
 
 
 class ExportedController:
     """A compiled stateful controller bound with ctypes: init(q0), then step(y, t, signals) per period."""
 
-    def __init__(self, init, step, state: np.ndarray, u: np.ndarray, ny: int):
-        self._init, self._step, self.state, self.u, self.ny = init, step, state, u, ny
+    def __init__(self, init, step, state: np.ndarray, u: np.ndarray):
+        self._init, self._step, self.state, self.u = init, step, state, u
 
     def init(self, q0: np.ndarray) -> None:
         q0 = np.ascontiguousarray(q0, dtype=float)  # held here: the C reads it during the call

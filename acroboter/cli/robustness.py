@@ -263,13 +263,13 @@ def _rerun_worst(spec_path, result: RobustnessResult, duration, methods, sensing
     index = max((r for r in result.rows if r["method"] is not None), key=badness)["sample"]
     sample = result.samples[index]
     crane = Crane.from_toml(spec_path)
-    extra = ({} if sensing is None else {"sensing": sensing}) | ({"fast": True} if fast else {})
+    extra = {} if sensing is None else {"sensing": sensing}
     results: dict = {}
     for m in methods:
         for ki in (0.0, result.ki):
             try:
                 results.setdefault(m, {})[ki] = crane.simulate(m, duration=duration, plant_params=sample.params,
-                                                               ki=ki, **extra)
+                                                               ki=ki, fast=fast, **extra)
             except Exception:  # noqa: BLE001 - a run that fails here failed in the study too (its row says how)
                 continue
     return {"sample": index, "mass_error": sample.mass_error, "tracked_mass_error": sample.tracked_mass_error,

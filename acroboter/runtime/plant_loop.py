@@ -18,13 +18,10 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
-import logging
 from pathlib import Path
 
 from .build import ensure_built
 from .fast_library import _generated, _open
-
-log = logging.getLogger(__name__)
 
 NAME = "acroboter_plant_loop"
 

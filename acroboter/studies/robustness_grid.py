@@ -247,7 +247,7 @@ def run_sample(spec_text: str, source: str, sample: Sample, duration: float, met
 
     `sensing`: passed on as `Crane.simulate(sensing=...)` when given (measurement noise/delay, where
     the installed package has it); None runs with perfect measurements. `fast`: the controllers' fast path
-    (docs/fast-path.md; its libraries built in the cache beforehand, robustness.prebuild_fast)."""
+    (docs/fast-path.md; its libraries built in the cache beforehand: acroboter.cli.robustness.prebuild)."""
     from numpy.linalg import LinAlgError
 
     from ..control.controllers import SingularSystemError
@@ -256,7 +256,7 @@ def run_sample(spec_text: str, source: str, sample: Sample, duration: float, met
 
     ctx = setup_text(spec_text, source)  # never compiles: MissingLibraryError if the worker has no library
     crane, worker = _crane(ctx), worker_name()
-    extra = ({} if sensing is None else {"sensing": sensing}) | ({"fast": True} if fast else {})
+    extra = {} if sensing is None else {"sensing": sensing}
     rows = []
     for method in methods:
         for ki in kis:
@@ -266,7 +266,8 @@ def run_sample(spec_text: str, source: str, sample: Sample, duration: float, met
                    "worker": worker, **sample.params}
             t0 = time.perf_counter()
             try:
-                result = crane.simulate(method, duration=duration, plant_params=sample.params, ki=ki, **extra)
+                result = crane.simulate(method, duration=duration, plant_params=sample.params, ki=ki, fast=fast,
+                                        **extra)
                 s = result.summary()
                 row.update(max_position_error_mm=s["max_position_error_mm"],
                            rms_position_error_mm=s["rms_position_error_mm"],
