@@ -267,7 +267,8 @@ def test_an_override_names_the_first_unknown_key_and_the_known_ones(crane):
         resolve(spec, {"zeta": 1, "alpha": 2, "seed": 3})
     assert str(err.value) == (
         "invalid model spec sensing:\n  sensing.alpha: expected one of the known keys (noise, quantization, groups, "
-        "delay_periods, seed, velocity_filter_s, projection_iterations, predict_delay), found unknown key 'alpha'")
+        "delay_periods, seed, velocity_filter_s, projection_iterations, predict_delay, max_speed, max_axis_rate, "
+        "max_coast_periods), found unknown key 'alpha'")
 
 
 def test_an_override_starts_from_the_specs_own_section():
@@ -311,7 +312,8 @@ def test_groups_given_as_read_only_mappings_take_overrides(crane):
 def test_the_estimator_is_the_python_one_unless_asked(crane):
     """make_estimator's default is the reference estimator (the compiled one only with fast=True); none for an
     ideal sensing."""
-    from acroboter.sim.sensing import FastEstimator, make_estimator
+    from acroboter.sim.fast_estimator import FastEstimator
+    from acroboter.sim.sensing import make_estimator
 
     spec, model, path, _ = crane
     sensing = resolve(spec, CASES["delay 1, predicted"])

@@ -279,6 +279,22 @@ class Crane:
         path = self.desired(trajectory, duration)
         return Controller(make_controller(name, self.model, path, self.gains(**overrides), fast=fast), self.inputs)
 
+    def stateful_controller(self, method: str = "penalty", sensing=None, iterations: int | None = None,
+                            fast: bool = False, **overrides):
+        """The exported C controller's step in Python (acroboter.sim.stateful.StatefulController): `init(q0)`,
+        `code = step(y, t)` with the command in `.u`, `reset()`, `reinit()`; replays a run's `result.measurements`
+        as the C would (docs/controller.md). `sensing` as in `simulate` (none: y = [q; q̇])."""
+        from .stateful import stateful_controller
+
+        return stateful_controller(self, method, sensing, iterations, fast, overrides)
+
+    def export_controller(self, method: str = "penalty", out: str | PathLike = "build/embedded", sensing=None,
+                          mlm_system: str = "reduced", penalty_system: str = "auto", **overrides) -> list[Path]:
+        """Write the stateful C controller (`acroboter export-step --stateful`) into `out`: its four files."""
+        from .stateful import export_controller
+
+        return export_controller(self, method, out, sensing, mlm_system, penalty_system, overrides)
+
     def check_path(self, duration: float | None = None, trajectory: Trajectory | None = None,
                    **overrides) -> Feasibility:
         """Before a run: can the ideal motion be realised within the input limits (MLM on the plant)?"""

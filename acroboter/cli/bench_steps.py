@@ -16,14 +16,13 @@ of the default robustness study (its plants, 20 s runs, every method with and wi
 
 from __future__ import annotations
 
-import ctypes
-import os
-import subprocess
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+from ..runtime.exported import compile_shared, load_exported_controller
 
 # Sensing for the estimator's cost and the loop with sensing, where the spec has no [sensing] section: trackers
 # with 0.2 mm noise and one period of delay (the Monte Carlo's sensing case, docs/sensing.md).
@@ -37,19 +36,6 @@ def percentiles(seconds: list[np.ndarray]) -> dict:
     best = us[int(np.argmin(np.median(us, axis=1)))]
     return {"p50": float(np.median(best)), "p99": float(np.percentile(best, 99)), "max": float(best.max()),
             "passes": int(us.shape[0]), "p50_all_passes": float(np.median(us))}
-
-
-def compile_shared(sources: list[Path], lib_path: Path, what: str) -> ctypes.CDLL:
-    """`sources` compiled into the shared library `lib_path` (the project's flags: -O2 -fPIC, no fast-math; headers
-    from the sources' folder), loaded."""
-    from ..runtime.build import CFLAGS
-
-    include = str(sources[0].parent)
-    done = subprocess.run([os.environ.get("CC", "cc"), *CFLAGS, "-shared", "-I", include, *map(str, sources), "-o",
-                           str(lib_path), "-lm"], capture_output=True, text=True)
-    if done.returncode != 0:
-        raise RuntimeError(f"compiling {what} failed:\n{done.stderr}")
-    return ctypes.CDLL(str(lib_path))
 
 
 def exported_step(crane, method: str, gains, folder: Path):
@@ -67,38 +53,13 @@ def exported_step(crane, method: str, gains, folder: Path):
 
 def exported_controller(crane, method: str, gains, sensing, folder: Path):
     """The stateful exported controller of `method` with the estimator of `sensing` (acroboter.codegen.controller_c,
-    as `acroboter export-step --stateful` writes it) compiled into `folder`: step(y, t, signals) -> rc, its u."""
+    as `acroboter export-step --stateful` writes it) compiled into `folder` and bound (runtime.exported)."""
+    from ..api.stateful import controller_constants
     from ..codegen.controller_c import build_controller, write_controller
 
-    export = build_controller(crane.spec, method, gains, sensing)
+    export = build_controller(crane.spec, method, gains, sensing, **controller_constants(crane))
     write_controller(export, folder)
-    name = export.name
-    (folder / "state_size.c").write_text(f'#include <stddef.h>\n#include "{name}.h"\n'
-                                         f"size_t {name}_state_size(void) {{ return sizeof({name}_state); }}\n")
-    sources = [folder / f for f in (f"{name}.c", f"{name}_functions.c", "state_size.c")]
-    lib = compile_shared(sources, folder / f"lib{name}.so", f"the exported controller {name}")
-    size = getattr(lib, f"{name}_state_size")
-    size.restype = ctypes.c_size_t
-    state = np.zeros(int(size()) // 8 + 1)
-    init, step = getattr(lib, f"{name}_init"), getattr(lib, f"{name}_step")
-    init.restype, step.restype = None, ctypes.c_int
-    init.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
-    step.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p]
-    return ExportedController(init, step, state, np.zeros(crane.layout.l))
-
-
-class ExportedController:
-    """A compiled stateful controller bound with ctypes: init(q0), then step(y, t, signals) per period."""
-
-    def __init__(self, init, step, state: np.ndarray, u: np.ndarray):
-        self._init, self._step, self.state, self.u = init, step, state, u
-
-    def init(self, q0: np.ndarray) -> None:
-        q0 = np.ascontiguousarray(q0, dtype=float)  # held here: the C reads it during the call
-        self._init(self.state.ctypes.data, q0.ctypes.data)
-
-    def step(self, y: np.ndarray, t: float, signals: np.ndarray) -> int:
-        return self._step(self.state.ctypes.data, y.ctypes.data, t, signals.ctypes.data, self.u.ctypes.data)
+    return load_exported_controller(folder, export.name, crane.layout.l, crane.layout.n_signals)
 
 
 def bench_steps(crane, methods: list[str], states, repeats: int) -> dict:
@@ -158,7 +119,7 @@ def bench_steps(crane, methods: list[str], states, repeats: int) -> dict:
                 times[(m, "c")].append(row)
                 if m in stateful:  # the stateful exported controller: estimator and step, one C call
                     row, controller = np.empty(len(states)), stateful[m]
-                    controller.init(states[0][0])
+                    controller.init(states[0][0], signal_arrays[0])
                     step = controller.step
                     for i, (_, _, t) in enumerate(states):
                         y, sig = measurements[i], signal_arrays[i]

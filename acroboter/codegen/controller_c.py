@@ -11,11 +11,13 @@ writes four files for the robot's real-time computer:
   independent rows, the minimal-norm Gauss–Newton step φ_qᵀ(φ_q φ_qᵀ)⁻¹φ, the unmeasured coordinates'
   least-squares step (a_Uᵀa_U)⁻¹a_Uᵀφ, the rate correction φ_qᵀ(φ_q φ_qᵀ)⁻¹φ̇ and σ (SX Cholesky, as
   codegen.structured.cholesky_solve);
-- <name>.c/.h: a small hand-written wrapper (acroboter.codegen.controller_text) with a state struct and
-  three calls, init(state, q0), step(state, y, t, signals, u) and reset(state): the estimator's loop
-  (fixed iteration counts), the α-β filter, the delay carried over with the commanded accelerations,
-  the integral by the trapezoid rule with its anti-windup, then the core step. All buffers (the work
-  arrays of the generated functions included, sized here) are in the state struct: no heap, no globals.
+- <name>.c/.h: the hand-written wrapper (acroboter/codegen/c/controller.c and .h, the estimator's
+  estimator.c, the path's path.c, filled in by acroboter.codegen.controller_text) with a state struct and
+  init(state, q0, signals), step(state, y, t, signals, u), reset(state), reinit(state) and path(t, signals):
+  the estimator with its sample checks (fixed iteration counts), the α-β filter, the delay carried over with
+  the commanded accelerations, the integral by the trapezoid rule with its anti-windup, the core step and
+  the command's checks (the safe command where it cannot be trusted). All buffers (the work arrays of the
+  generated functions included, sized here) are in the state struct: no heap, no globals.
 
 Without a [sensing] section (or with an ideal one, as acroboter.sim.sensing.make_estimator) the
 measurements are the state itself, y = [q; q̇], and no estimator runs.
@@ -23,7 +25,6 @@ measurements are the state itself, y = [q; q̇], and no estimator runs.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -33,40 +34,60 @@ import numpy as np
 from ..model.layout import nominal_coordinates
 from ..model.schema import Sensing
 from ..model.sensing_layout import is_ideal, measured_groups, measured_indices
-from ..model.settings import Gains
+from ..model.settings import Gains, command_bounds
 from ..model.spec import Spec, load_spec
+from .estimator_c import EstimatorExport, build_estimator
 from .export_step import ExportError, build_step, step_name
 from .generate import INPUT_NAMES
 from .step_graph import StepExport
-from .structured import cholesky_solve, independent_rows
+from .structured import independent_rows
 from .symbolic import build_symbolic_model
 
 RANK_TOLERANCE = 1e-9  # as acroboter.sim.sensing.RANK_TOLERANCE
+# CasADi's generated C under -Wall -Wextra (tests/test_c_templates.py): every function has the same signature
+# (arg, res, iw, w, mem), most leave some unused; and gcc 12's -Warray-bounds flags casadi_copy's zero fill in the
+# bounded QP's Switch branch after constant propagation (a destination it sizes [0, 0]; -Wstringop-overflow says the
+# same), a path the sizes CasADi checked never take (the 55 s closed loops ran clean under ASan and UBSan, docs/controller.md).
+GENERATED_PRAGMAS = """#if defined(__GNUC__)
+#pragma GCC diagnostic ignored "-Wunused-parameter"
+#pragma GCC diagnostic ignored "-Warray-bounds"
+#pragma GCC diagnostic ignored "-Wstringop-overflow"
+#endif
+"""
 
 __all__ = ["ControllerExport", "build_controller", "controller_files", "controller_name", "export_controller"]
 
 
 @dataclass
 class ControllerExport:
-    """Everything the wrapper's text needs: the core step, the estimator's functions and numbers."""
+    """Everything the wrapper's text needs: the core step, the estimator (None: y is the state), the numbers."""
 
     name: str  # C prefix of the API and stem of <name>.c/.h
-    step: StepExport  # the core: (u, qdd) = core(q, qd, s, sd, sdd, z)
+    step: StepExport  # the core: (u, qdd, saturated) = core(q, qd, s, sd, sdd, z)
     sensing: Sensing | None  # None: the measurements are the state [q; qd]
+    estimator: EstimatorExport | None
     coordinates: list[str]  # the layout's coordinate names
-    measured: np.ndarray  # coordinate index per measurement (estimator only)
-    unmeasured: np.ndarray
     groups: list[tuple[str, str, float, float]]  # per measurement: group, unit, noise, quantisation step
-    rows: list[int]  # independent constraint rows (the projection's)
     period: float
-    alpha: float = 0.0
-    beta: float = 0.0
+    start_q: np.ndarray  # the spec's static equilibrium at the path's start: the header's <name>_q0
+    path_numbers: np.ndarray  # the spec's path as acroboter.control.fast.path_table's numbers (<name>_path)
+    command_low: np.ndarray  # the limits intersected with the sanity bound (acroboter.model.settings)
+    command_high: np.ndarray
+    n_constraints: int  # rows of phi (init's check)
     functions: list[ca.Function] = field(default_factory=list)
-    work: tuple[int, int, int, int] = (0, 0, 0, 0)  # max sz_arg, sz_res, sz_iw, sz_w over the functions
+    work: tuple[int, int, int, int] = (0, 0, 0, 0)  # max sz_arg, sz_res, sz_iw, sz_w over the controller's own
 
     @property
-    def estimator(self) -> bool:
-        return self.sensing is not None
+    def measured(self) -> np.ndarray:
+        return self.estimator.measured if self.estimator else np.zeros(0, dtype=np.intp)
+
+    @property
+    def unmeasured(self) -> np.ndarray:
+        return self.estimator.unmeasured if self.estimator else np.zeros(0, dtype=np.intp)
+
+    @property
+    def rows(self) -> list[int]:
+        return self.estimator.rows if self.estimator else []
 
     @property
     def delay(self) -> int:
@@ -88,10 +109,15 @@ def _unit(name: str) -> str:
 
 
 def build_controller(spec: Spec, method: str, gains: Gains, sensing: Sensing | None = None,
-                     spec_path: Path | None = None, mlm_system: str = "reduced",
-                     penalty_system: str = "auto") -> ControllerExport:
-    """Build the core step (with z and q̈) and the estimator's SX functions for `sensing` (resolved,
-    e.g. acroboter.sim.sensing.resolve; None: the state is measured)."""
+                     spec_path: Path | None = None, mlm_system: str = "reduced", penalty_system: str = "auto", *,
+                     start_q: np.ndarray | None = None, path_numbers: np.ndarray | None = None) -> ControllerExport:
+    """Build the core step (with z, q̈ and the saturation judgement), σ, φ and the estimator's SX functions for
+    `sensing` (resolved, e.g. acroboter.sim.sensing.resolve; None: the state is measured). `start_q` (the static
+    equilibrium) and `path_numbers` (acroboter.control.fast.path_table of the spec's path) become the header's
+    constants: the library computes them (acroboter.api.Crane.export_controller)."""
+    if start_q is None or path_numbers is None:
+        raise ExportError("the stateful controller needs its start state and the path's numbers: export it through "
+                          "the library (Crane.export_controller, or `acroboter export-step --stateful`)")
     name = controller_name(spec, method, gains.recovery)
     step = build_step(spec, method, gains, spec_path=spec_path, name=f"{name}_core", mlm_system=mlm_system,
                       penalty_system=penalty_system, stateful=True)
@@ -99,48 +125,31 @@ def build_controller(spec: Spec, method: str, gains: Gains, sensing: Sensing | N
     lay = model.layout
     if sensing is not None and is_ideal(spec, lay, sensing):
         sensing = None  # every coordinate, exactly, no delay: the plant's state, as make_estimator
-    rows = independent_rows(model)
-    period = 1.0 / spec.controller.rate_hz
-    export = ControllerExport(name, step, sensing, list(lay.coordinates), np.zeros(0, dtype=np.intp),
-                              np.zeros(0, dtype=np.intp), [], rows, period)
-    functions = [step.function]
+    low, high = command_bounds(spec)
     q, qd, s, sd, sdd = model.inputs
-    sigma = ca.densify(ca.SX(model.sigma))
-    functions.append(ca.Function(f"{name}_sigma", list(model.inputs), [sigma], list(INPUT_NAMES), ["sigma"],
-                                 {"cse": True}))
+    functions = [step.function,
+                 ca.Function(f"{name}_sigma", list(model.inputs), [ca.densify(ca.SX(model.sigma))], list(INPUT_NAMES),
+                             ["sigma"], {"cse": True}),
+                 ca.Function(f"{name}_phi", [q, s], [ca.densify(ca.SX(model.phi))], ["q", "s"], ["phi"],
+                             {"cse": True})]
+    work = tuple(max(getattr(f, attr)() for f in functions) for attr in ("sz_arg", "sz_res", "sz_iw", "sz_w"))
+    estimator, groups = None, []
     if sensing is not None:
         index, noise, steps = measured_indices(spec, lay, sensing)
         if len(set(index.tolist())) != index.size:
             raise ExportError("a coordinate is measured twice: each coordinate belongs to at most one sensing group")
-        export.measured, export.unmeasured = index, np.setdiff1d(np.arange(lay.n), index)
+        unmeasured = np.setdiff1d(np.arange(lay.n), index)
+        if unmeasured.size:
+            a = ca.SX(model.phi_q)[independent_rows(model), :]
+            _check_measurable(model, a[:, unmeasured.tolist()], [lay.coordinates[i] for i in unmeasured])
+        estimator = build_estimator(spec, sensing, name, model)
         names = measured_groups(spec, sensing)
-        export.groups = [(names[j], _unit(lay.coordinates[i]), float(noise[j]), float(steps[j]))
-                         for j, i in enumerate(index)]
-        pole = math.exp(-period / sensing.velocity_filter_s)
-        export.alpha, export.beta = 1.0 - pole * pole, (1.0 - pole) ** 2  # as Estimator: both poles at `pole`
-        phi = ca.SX(model.phi)[rows, 0]
-        a = ca.SX(model.phi_q)[rows, :]
-        gram = ca.mtimes(a, a.T)
-
-        def min_norm(b):  # aᵀ(a aᵀ)⁻¹ b, as Estimator._min_norm
-            return ca.densify(ca.mtimes(a.T, cholesky_solve(gram, b)))
-
-        functions += [
-            ca.Function(f"{name}_phi_rows", [q, s], [ca.densify(phi)], ["q", "s"], ["phi"], {"cse": True}),
-            ca.Function(f"{name}_projection_step", [q, s], [min_norm(phi)], ["q", "s"], ["dq"], {"cse": True}),
-            ca.Function(f"{name}_rate_correction", [q, qd, s, sd], [min_norm(ca.SX(model.phi_dot)[rows, 0])],
-                        ["q", "qd", "s", "sd"], ["dqd"], {"cse": True}),
-        ]
-        if export.unmeasured.size:
-            au = a[:, export.unmeasured.tolist()]
-            _check_measurable(model, au, [lay.coordinates[i] for i in export.unmeasured])
-            step_u = cholesky_solve(ca.mtimes(au.T, au), ca.mtimes(au.T, phi))  # as Estimator._least_squares
-            functions.append(ca.Function(f"{name}_unmeasured_step", [q, s], [ca.densify(step_u)], ["q", "s"],
-                                         ["dq_unmeasured"], {"cse": True}))
-    export.functions = functions
-    export.work = tuple(max(getattr(f, attr)() for f in functions)  # type: ignore[assignment]
-                        for attr in ("sz_arg", "sz_res", "sz_iw", "sz_w"))
-    return export
+        groups = [(names[j], _unit(lay.coordinates[i]), float(noise[j]), float(steps[j])) for j, i in enumerate(index)]
+        functions += estimator.functions
+    return ControllerExport(name, step, sensing, estimator, list(lay.coordinates), groups,
+                            1.0 / spec.controller.rate_hz, np.asarray(start_q, dtype=float),
+                            np.asarray(path_numbers, dtype=float), low, high, lay.m, functions,
+                            work)  # type: ignore[arg-type]
 
 
 def _check_measurable(model, au: ca.SX, names: list[str]) -> None:
@@ -170,7 +179,7 @@ def controller_files(name: str) -> list[str]:
 
 def write_controller(export: ControllerExport, out_dir: Path) -> list[Path]:
     """Write <name>_functions.c/.h (CasADi) and <name>.c/.h (the wrapper): deterministic bytes."""
-    from .controller_text import header_text, source_text
+    from .controller_text import render_controller
     from .step_c import _comment_block as comment_block
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -179,21 +188,26 @@ def write_controller(export: ControllerExport, out_dir: Path) -> list[Path]:
     for function in export.functions:
         cg.add(function)
     cg.generate(str(out_dir) + "/")
-    step_comment = comment_block(export.step)
+    step_comment = comment_block(export.step, header=f"{stem}.h").replace(
+        "/*\n", f"/*\n * The generated functions of {export.name} (the controller's calls: {export.name}.h): the core "
+        f"step below, {export.name}_sigma, {export.name}_phi and the estimator's.\n *\n", 1)
     for suffix in (".c", ".h"):
         path = out_dir / f"{stem}{suffix}"
-        path.write_text(step_comment + path.read_text())
-    (out_dir / f"{export.name}.h").write_text(header_text(export))
-    (out_dir / f"{export.name}.c").write_text(source_text(export))
+        path.write_text(step_comment + (GENERATED_PRAGMAS if suffix == ".c" else "") + path.read_text())
+    header, source = render_controller(export, (out_dir / f"{stem}.c").read_text())
+    (out_dir / f"{export.name}.h").write_text(header)
+    (out_dir / f"{export.name}.c").write_text(source)
     return [out_dir / f for f in controller_files(export.name)]
 
 
 def export_controller(spec_path: Path, method: str, out_dir: Path, mlm_system: str = "reduced",
-                      penalty_system: str = "auto", sensing: Sensing | None = None, **gain_overrides) -> list[Path]:
+                      penalty_system: str = "auto", sensing: Sensing | None = None, *, start_q: np.ndarray,
+                      path_numbers: np.ndarray, **gain_overrides) -> list[Path]:
     """Load a spec, build the stateful controller with the spec's gains (plus overrides) and sensing
     (default the spec's [sensing] section) and write its four files."""
     spec = load_spec(spec_path)
     gains = Gains.from_spec(spec, **gain_overrides)
     export = build_controller(spec, method, gains, spec.sensing if sensing is None else sensing,
-                              spec_path=Path(spec_path), mlm_system=mlm_system, penalty_system=penalty_system)
+                              spec_path=Path(spec_path), mlm_system=mlm_system, penalty_system=penalty_system,
+                              start_q=start_q, path_numbers=path_numbers)
     return write_controller(export, out_dir)

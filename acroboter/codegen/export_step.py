@@ -1,6 +1,6 @@
 """Export one controller's complete control step as self-contained C (issue "Embedded control step").
 
-    python -m codegen.export_step [--spec model_spec/acroboter.toml] [--method penalty|mlm|iterative-N]
+    acroboter export-step [--spec model_spec/acroboter.toml] [--method penalty|mlm|iterative-N]
                                   [--recovery projected|eq12|eq13|eq15|kappa] [--kp ...] [--out DIR]
 
 The step u = step(q, qd, s, sd, sdd) is one CasADi MX graph: the spec's SX model terms and what is

@@ -37,6 +37,7 @@ from ..model.fingerprint import codegen_hash
 from ..model.settings import Gains
 from ..model.spec import Spec
 from .export_step import FAST_OUTPUTS, build_step
+from .templates import render, templates_digest
 
 __all__ = ["FAST_OUTPUTS", "FastStep", "build_fast_step", "fast_key", "fast_name", "write_fast_step"]
 
@@ -67,6 +68,7 @@ def fast_key(spec: Spec, method: str, gains: Gains, penalty_system: str = "auto"
              f"{penalty_system}\n".encode())
     for name in STEP_SOURCES:
         h.update(name.encode() + b"\n" + (here / name).read_bytes())
+    h.update(templates_digest())
     return h.hexdigest()
 
 
@@ -97,60 +99,13 @@ def path_source(name: str) -> str:
     """<name>_flat(table, t, out): acroboter.control.path.DesiredPath.flat in C, statement for statement (the same
     IEEE operations in the same order: the same bits), from the path's numbers in `table` (control/fast.py
     path_table); <name>_run(table, t, signals, arg, res, iw, w): the signals at t into `signals`, then the step."""
-    return f"""/* {name}_path.c: the desired path's signals and the step in one call (acroboter.codegen.fast_step). */
-int {name}(const double** arg, double** res, long long int* iw, double* w, int mem);
-
-static void quintic(double tau, double* s, double* ds, double* dds) {{
-  double t2;
-  if (tau <= 0.0) {{ *s = 0.0; *ds = 0.0; *dds = 0.0; return; }}
-  if (tau >= 1.0) {{ *s = 1.0; *ds = 0.0; *dds = 0.0; return; }}
-  t2 = tau * tau;
-  *s = t2 * tau * (10.0 - 15.0 * tau + 6.0 * t2);
-  *ds = 30.0 * t2 * (1.0 - 2.0 * tau + t2);
-  *dds = 60.0 * tau * (1.0 - 3.0 * tau + 2.0 * t2);
-}}
-
-/* table: [edges E, signals ns, path index p, followers F, duration D, start yaw, yaw turn, t0[E], dur[E],
-   origin[3E], delta[3E], template[3 ns], (signal index, axis, offset)[F]] */
-void {name}_flat(const double* tab, double t, double* out) {{
-  long long E = (long long)tab[0], ns = (long long)tab[1], p = (long long)tab[2], F = (long long)tab[3];
-  double D = tab[4], start_yaw = tab[5], turn = tab[6];
-  const double *t0 = tab + 7, *dur = t0 + E, *origin = dur + E, *delta = origin + 3 * E;
-  const double *tmpl = delta + 3 * E, *follow = tmpl + 3 * ns;
-  long long lo = 0, hi = E, k, i, j, v = ns + p, a = 2 * ns + p;
-  double T, s, ds, dds, y, yd, ydd;
-  while (lo < hi) {{  /* bisect.bisect_right */
-    long long mid = (lo + hi) / 2;
-    if (t < t0[mid]) hi = mid;
-    else lo = mid + 1;
-  }}
-  k = lo - 1;
-  k = k < 0 ? 0 : (k > E - 1 ? E - 1 : k);
-  T = dur[k];
-  quintic((t - t0[k]) / T, &s, &ds, &dds);
-  ds /= T;
-  dds /= T * T;
-  quintic(t / D, &y, &yd, &ydd);
-  for (i = 0; i < 3 * ns; ++i) out[i] = tmpl[i];
-  for (i = 0; i < 3; ++i) {{
-    out[p + i] = origin[3 * k + i] + s * delta[3 * k + i];
-    out[v + i] = ds * delta[3 * k + i];
-    out[a + i] = dds * delta[3 * k + i];
-  }}
-  out[p + 3] = start_yaw + turn * y;
-  out[v + 3] = turn * yd / D;
-  out[a + 3] = turn * ydd / (D * D);
-  for (j = 0; j < F; ++j) {{
-    long long at = (long long)follow[3 * j], c = (long long)follow[3 * j + 1];
-    out[at] = follow[3 * j + 2] + out[p + c];
-    out[at + v - p] = out[v + c];
-    out[at + a - p] = out[a + c];
-  }}
-}}
-
+    return (f"/* {name}_path.c: the desired path's signals and the step in one call (acroboter.codegen.fast_step). */\n"
+            f"int {name}(const double** arg, double** res, long long int* iw, double* w, int mem);\n\n"
+            + render("path.c", NAME=name, API="")
+            + f"""
 int {name}_run(const double* tab, double t, double* signals, const double** arg, double** res, long long int* iw,
                double* w) {{
   {name}_flat(tab, t, signals);
   return {name}(arg, res, iw, w, 0);
 }}
-"""
+""")

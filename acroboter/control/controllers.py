@@ -107,6 +107,11 @@ class Controller:
         if self.underactuation is not None:
             self.underactuation.reset()
 
+    def hold_integral(self) -> None:
+        """Do not integrate z over the period that ends at the next compute(): the estimate it reads is a
+        prediction, not a measurement (acroboter.sim.stateful; the exported controller does the same)."""
+        self._hold = True
+
     def _integrate(self, t: float) -> None:
         """z += ½ (t − t_prev)(σ_prev + σ) with σ at the state in the buffers, unless the last step
         saturated (anti-windup); then z into p. A time before the last one starts a new run (z = 0)."""

@@ -246,6 +246,15 @@ VELOCITY_FILTER = Range("velocity_filter_s", 0.0, 100.0, "s", low_open=True,
                         why="the velocity estimate's time constant")
 PROJECTION_ITERATIONS = Range("projection_iterations", 1, 50, "", whole=True,
                               why="Gauss–Newton steps onto φ(q) = 0 (3 converge)")
+MAX_SPEED = Range("max_speed", 0.0, 1e3, "m/s", low_open=True,
+                  why="the fastest a measured position or cable length can move away from its prediction: a sample "
+                      "further than max_speed × the control period (plus 10 noise σ and a quantisation step) is not "
+                      "a motion of the crane and is rejected")
+MAX_AXIS_RATE = Range("max_axis_rate", 0.0, 1e4, "1/s", low_open=True,
+                      why="the same for a measured axis component (unitless): the crane's fastest rotation rate")
+MAX_COAST = Range("max_coast_periods", 1, 1000, "control periods", whole=True,
+                  why="rejected samples in a row the estimator coasts on its prediction before it declares the "
+                      "estimate lost (the controller then holds its last good command)")
 
 # The controller settings a run may override (Crane.gains, run's and export-step's options).
 GAIN_RANGES = {"kp": KP, "kd": KD, "alpha_geometric": ALPHA_GEOMETRIC, "alpha_servo": ALPHA_SERVO, "omega": OMEGA,

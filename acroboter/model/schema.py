@@ -44,6 +44,9 @@ from .ranges import (
     KP,
     LIMIT,
     MASS,
+    MAX_AXIS_RATE,
+    MAX_COAST,
+    MAX_SPEED,
     MEAN_SPEED,
     MU,
     NOISE,
@@ -388,6 +391,11 @@ class Sensing(_Strict):
     projection_iterations: PROJECTION_ITERATIONS.field() = 3  # Gauss–Newton steps onto φ(q) = 0
     # Carry the delayed estimate forward to the control instant with the commanded accelerations.
     predict_delay: bool = True
+    # The sample checks (docs/sensing.md, "Bad samples"): how far a sample may lie from its prediction, and how
+    # long the estimator coasts on its prediction through rejected samples.
+    max_speed: MAX_SPEED.field() = 1.0  # m/s
+    max_axis_rate: MAX_AXIS_RATE.field() = 3.0  # 1/s
+    max_coast_periods: MAX_COAST.field() = 10  # control periods
 
 
 def sensing_coordinates(spec: Spec, selector: str) -> list[str] | None:

@@ -48,6 +48,24 @@ PENALTY_SECONDARY_WEIGHT = 1e-5
 UNDERACTUATION_RANK_TOLERANCE = 1e-1
 
 
+# The sanity bound on a command (docs/controller.md, "Fail safe"): besides its limits, a force input (winch tension,
+# thrust) is at most this many times the crane's weight (gravity taken at least 9.81 m/s²) and a torque at most as
+# much times the largest distance of a body point from its body's centre (at least 0.1 m). A command beyond it is
+# never applied: the stateful controller holds its last good command instead and says so.
+COMMAND_BOUND_FACTOR = 5.0
+
+
+def command_bounds(spec: Spec) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) per input in its own unit: the spec's limits intersected with the sanity bound ±B, B = factor ×
+    weight / |gain| (× the largest lever for a torque)."""
+    weight = sum(b.mass for b in spec.bodies) * max(float(np.linalg.norm(spec.gravity)), 9.81)
+    lever = max([0.1, *(float(np.linalg.norm(p)) for b in spec.bodies for p in map(b.point, b.points))])
+    low, high, _ = spec.input_limits()
+    bound = np.array([COMMAND_BOUND_FACTOR * weight * (lever if a.kind == "body_torque" else 1.0) / abs(a.gain)
+                      for a in spec.actuators])
+    return np.maximum(low, -bound), np.minimum(high, bound)
+
+
 @dataclass(frozen=True)
 class Gains:
     kp: float

@@ -144,36 +144,51 @@ def _generated(name: str, root: Path, folder: Path, source: Path, make, what: st
 
 
 class FastEstimatorBinding:
-    """The compiled estimator (acroboter.codegen.estimator_c) with its state block and work arrays, bound once."""
+    """The compiled estimator (acroboter.codegen.estimator_c) with its state struct, bound once: `view(field)` is a
+    numpy view of a field (its offset from the library's <name>_offsets), the four entry points take pointers."""
 
-    def __init__(self, lib: ctypes.CDLL, name: str, layout: dict, work: list[int], library: Path):
-        self.name, self.library, self.layout = name, library, layout
-        self.state = np.zeros(layout["size"][0])
-        n_arg, n_res, n_iw, n_w = work
-        self._iw = np.zeros(max(n_iw, 1), dtype=np.int64)
-        self._w = np.zeros(max(n_w, 1))
-        self._arg = (ctypes.c_void_p * max(n_arg, 1))()
-        self._res = (ctypes.c_void_p * max(n_res, 1))()
-        fn = getattr(lib, f"{name}_estimate")
-        fn.restype = ctypes.c_int
-        fn.argtypes = [ctypes.c_void_p] * 8 + [ctypes.c_longlong, ctypes.c_int]
-        self._fn = fn
-        self._fixed = (self.state.ctypes.data, self._iw.ctypes.data, self._w.ctypes.data,
-                       ctypes.addressof(self._arg), ctypes.addressof(self._res))
+    def __init__(self, lib: ctypes.CDLL, name: str, n: int, delay: int, library: Path):
+        from ..codegen.estimator_c import OFFSET_FIELDS
 
-    def view(self, part: str) -> np.ndarray:
-        offset, size = self.layout[part]
-        return self.state[offset : offset + size]
+        self.name, self.library = name, library
+        offsets = (ctypes.c_longlong * (len(OFFSET_FIELDS) + 1))()
+        getattr(lib, f"{name}_offsets")(offsets)
+        size = int(offsets[0])
+        self.state = np.zeros((size + 7) // 8)  # 8-byte aligned, as the struct needs
+        raw = self.state.view(np.uint8)
+        counts = {"acc": (delay + 1) * n, "violation": 1, "jump": 1}
+        self._views: dict[str, np.ndarray] = {}
+        for field, offset in zip(OFFSET_FIELDS, offsets[1:], strict=True):
+            if field == "k":
+                dtype, count = np.int64, 1
+            elif field in ("started", "coasted", "prev_valid", "status", "reason", "rejected"):
+                dtype, count = np.int32, 1
+            else:
+                dtype, count = np.float64, counts.get(field, n)
+            width = np.dtype(dtype).itemsize
+            self._views[field] = raw[offset : offset + width * count].view(dtype)
+        at = self.state.ctypes.data
+        pointer = ctypes.c_void_p
 
-    def call(self, y: int, sig_m: int, sig_t: int, slot: int, started: int) -> int:
-        return self._fn(*self._fixed, y, sig_m, sig_t, slot, started)
+        def bind(suffix: str, restype, *argtypes):
+            fn = getattr(lib, f"{name}_estimator_{suffix}")
+            fn.restype, fn.argtypes = restype, [pointer, *argtypes]
+            return lambda *args: fn(at, *args)
+
+        self.start = bind("start", None, pointer)
+        self.reinit = bind("reinit", None)
+        self.applied = bind("applied", None, pointer)
+        self.update = bind("update", ctypes.c_int, pointer, pointer, pointer)
+
+    def view(self, field: str) -> np.ndarray:
+        return self._views[field]
 
 
 def load_fast_estimator(model, sensing) -> FastEstimatorBinding:
     """The compiled estimator of `sensing` for `model` (a CompiledModel), generated and compiled on first use."""
     if not isinstance(model, CompiledModel):
         raise FastPathUnavailable(f"the model backend {type(model).__name__} has no compiled library to extend")
-    from ..codegen.estimator_c import estimator_key, state_layout
+    from ..codegen.estimator_c import estimator_key
 
     spec = model.spec
     key = estimator_key(spec, sensing)
@@ -185,15 +200,13 @@ def load_fast_estimator(model, sensing) -> FastEstimatorBinding:
     def make(target: Path) -> str:
         from ..codegen.estimator_c import build_estimator, write_estimator
 
-        export = build_estimator(spec, sensing, name)
-        write_estimator(export, target)
-        return " ".join(str(v) for v in (*export.work, export.unmeasured.size, len(export.rows)))
+        write_estimator(build_estimator(spec, sensing, name), target)
+        return "estimator"
 
-    numbers = [int(v) for v in _generated(name, root, folder, source, make, "the fast estimator").split()]
+    _generated(name, root, folder, source, make, "the fast estimator")
     lib_path = ensure_built(name, source, root)
     lib = _open(lib_path, "the fast estimator's library")
-    layout = state_layout(model.layout.n, sensing.delay_periods, numbers[4], numbers[5])
-    return FastEstimatorBinding(lib, name, layout, numbers[:4], lib_path)
+    return FastEstimatorBinding(lib, name, model.layout.n, sensing.delay_periods, lib_path)
 
 
 def _open(lib_path, what: str) -> ctypes.CDLL:

@@ -34,13 +34,13 @@ from scipy.linalg.lapack import dpotrf, dpotrs
 from ..control.path import DesiredPath
 from ..model.layout import nominal_coordinates
 from ..model.schema import Sensing, SpecError, _Strict
-from ..model.sensing_layout import PROJECTION_TOLERANCE, is_ideal, measured_indices
+from ..model.sensing_layout import PROJECTION_ACCEPT, PROJECTION_TOLERANCE, is_ideal, measured_indices, sample_checks
 from ..model.spec_checks import sensing_problems
 from ..model.spec_errors import format_pydantic
 from .cable_events import SimulationError
 
-__all__ = ["PROJECTION_TOLERANCE", "Estimator", "FastEstimator", "SensingError", "check_measurable", "describe",
-           "is_ideal", "make_estimator", "measured_indices", "resolve"]
+__all__ = ["ACCEPTED", "COASTING", "LOST", "PROJECTION_TOLERANCE", "REASONS", "Estimator", "SensingError",
+           "check_measurable", "describe", "is_ideal", "make_estimator", "measured_indices", "resolve"]
 
 # A column-rank deficit of φ_q on the unmeasured coordinates: singular values below this × the largest.
 RANK_TOLERANCE = 1e-9
@@ -157,8 +157,23 @@ def check_measurable(model, sensing: Sensing, q: np.ndarray | None = None, sourc
         "winch cable's length follows from its cable row"))])
 
 
+# The estimator's status after an update (Estimator.status; the exported controller's est.status).
+ACCEPTED, COASTING, LOST = 0, 1, 2
+# Why a sample was rejected (Estimator.reason; est.reason in C).
+REASONS = ("accepted", "not finite", "a unit axis off unit length", "further from its prediction than the crane can "
+           "move in a period", "the projection did not converge", "not confirmed by the sample before it",
+           "the estimate turned non-finite")
+
+
 class Estimator:
-    """The sensor and the estimator of one run: `estimate(q_plant, t)` -> (q̂, q̇̂) for the controller.
+    """The sensor and the estimator of one run: `estimate(q_plant, t)` -> (q̂, q̇̂) for the controller; the sensor
+    alone is `sample(q_plant)` (the measurement y the estimator reads now), the estimator alone `update(y, t)`.
+
+    Each sample is checked before it is used (docs/sensing.md, "Bad samples"): finite, each fully measured unit
+    axis of unit length, each coordinate within its gate of the prediction (max_speed or max_axis_rate times the
+    period, 10 noise σ and a quantisation step, widened by each period coasted), and the projection converged. A
+    rejected sample leaves the prediction as the estimate (`status` COASTING); after more than max_coast_periods in
+    a row the estimate is LOST until two consecutive samples that agree within their gates re-acquire it.
 
     Preallocated; per call: one normal draw, the Gauss–Newton steps (`phi`, `phi_q` through the
     compiled bindings, a Cholesky factorisation of φ_q φ_qᵀ by LAPACK), the α-β update and one
@@ -168,6 +183,7 @@ class Estimator:
         spec, lay = model.spec, model.layout
         self.model, self.path, self.sensing = model, path, sensing
         self.index, self.noise, self.step = measured_indices(spec, lay, sensing)
+        self.checks = sample_checks(spec, lay, sensing)
         self.quantized = self.step > 0
         self._noisy, self._any_quantized = bool(self.noise.any()), bool(self.quantized.any())
         self._steps = self.step[self.quantized]
@@ -189,6 +205,8 @@ class Estimator:
         self.q = np.zeros(n)  # the estimate handed to the controller (overwritten every call)
         self.qd = np.zeros(n)
         self._qm, self._qdm = np.zeros(n), np.zeros(n)  # the estimate at the measurement's time
+        self._pred, self._q_good = np.zeros(n), np.zeros(n)  # this update's prediction; qm of the last accepted
+        self._y_prev, self._dy = np.zeros(nm), np.zeros(nm)
         self.predict = sensing.predict_delay
         self._xf, self._vf, self._r = np.zeros(n), np.zeros(n), np.zeros(n)
         m = self.rows.size
@@ -196,8 +214,11 @@ class Estimator:
         self.unmeasured = np.setdiff1d(np.arange(n), self.index)
         nu = self.unmeasured.size
         self._au, self._h, self._xu = np.zeros((m, nu)), np.zeros((nu, nu)), np.zeros(nu)
-        self._k = 0
-        self._started = False
+        self._k = self._ks = 0
+        self._started = self._prev_valid = False
+        self.coasted = 0  # samples rejected in a row (capped at max_coast + 1)
+        self.status, self.reason, self.rejected = ACCEPTED, 0, -1  # of the last update (REASONS[reason])
+        self.jump = 0.0  # the last sample's largest |y − prediction| / gate
         self.rng = np.random.default_rng(sensing.seed)
         self.last_violation = 0.0  # max |φ| after the last projection
 
@@ -213,19 +234,45 @@ class Estimator:
             s = self._steps
             out[self.quantized] = s * np.round(out[self.quantized] / s)
 
+    def sample(self, q_plant: np.ndarray) -> np.ndarray:
+        """The sensor at this control instant: q_plant sampled into the delay line; returns the measurement the
+        estimator reads now (taken delay_periods ago; a view, overwritten delay + 1 calls later)."""
+        d = self.delay
+        slot = self._ks % (d + 1)
+        self._sample(q_plant, self._ring[slot])
+        self._ks += 1
+        return self._ring[self._ks % (d + 1)] if d else self._ring[slot]
+
     def reset(self, q0: np.ndarray) -> None:
         """A new run from rest at q0: the delay line holds measurements of q0 (the crane at rest
         before the start), the filter starts at the projected q0 with zero rates."""
+        self._reset_sensor(q0)
+        self.q[:] = q0
+        self.qd[:] = 0.0
+        self._qm[:] = self._xf[:] = self._q_good[:] = self._pred[:] = q0
+        self._qdm[:] = self._vf[:] = 0.0
+        self._acc[:] = 0.0
+        self._k = 0
+        self._started = self._prev_valid = False
+        self.coasted, self.status, self.reason, self.rejected, self.jump = 0, ACCEPTED, 0, -1, 0.0
+        self.last_violation = 0.0
+
+    def _reset_sensor(self, q0: np.ndarray) -> None:
         self.rng = np.random.default_rng(self.sensing.seed)
         for slot in self._ring:
             self._sample(q0, slot)
-        self.q[:] = q0
-        self.qd[:] = 0.0
-        self._qm[:] = q0
-        self._qdm[:] = 0.0
-        self._acc[:] = 0.0
-        self._k = 0
-        self._started = False
+        self._ks = 0
+
+    def reinit(self) -> None:
+        """Restart the filter from the next sample (a restart mid-motion): its positions taken as they come (no
+        gate), the rates from zero; the estimate so far is the unmeasured coordinates' prior (the last accepted one
+        if it is not finite); the commanded accelerations and the delay line are kept."""
+        if not np.isfinite(self._qm).all():
+            self._qm[:] = self._q_good
+        self._qdm[:] = self._vf[:] = 0.0
+        self._xf[:] = self._qm
+        self._started = self._prev_valid = False
+        self.coasted, self.status, self.reason, self.rejected = 0, ACCEPTED, 0, -1
 
     # --- the estimator -------------------------------------------------------------------------------
     def project(self, q: np.ndarray, signals) -> np.ndarray:
@@ -287,30 +334,88 @@ class Estimator:
         np.dot(a.T, y, out=x)
         return x
 
-    def applied(self, qdd: np.ndarray) -> None:
+    def applied(self, qdd: np.ndarray | None) -> None:
         """The acceleration the controller commanded at this instant (its model's q̈): the filter's
-        prediction over the period that follows this instant's measurement."""
-        self._acc[(self._k - 1) % (self.delay + 1)] = qdd
+        prediction over the period that follows this instant's measurement (None or not finite: 0, a command that
+        was not applied)."""
+        slot = self._acc[(self._k - 1) % (self.delay + 1)]
+        if qdd is None or not np.isfinite(qdd).all():
+            slot[:] = 0.0
+        else:
+            slot[:] = qdd
 
     def estimate(self, q_plant: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Sample the plant at t; the estimate from the measurement of delay_periods ago, carried
         forward to t with the commanded accelerations (predict_delay) or as it is."""
+        self.update(self.sample(q_plant), t)
+        return self.q, self.qd
+
+    def _check(self, y: np.ndarray, lost: bool) -> tuple[int, int]:
+        """(reason, y index) of the sample's first failed check ((0, -1): none); sets jump, y_prev, prev_valid."""
+        checks, reason, rejected = self.checks, 0, -1
+        bad = np.flatnonzero(~np.isfinite(y))
+        if bad.size:
+            reason, rejected = 1, int(bad[0])
+        else:
+            for (a, b, c), tolerance in zip(checks.axes, checks.axis_tolerance, strict=True):
+                ya, yb, yc = y[a], y[b], y[c]
+                if not abs(math.sqrt(ya * ya + yb * yb + yc * yc) - 1.0) <= tolerance:
+                    reason, rejected = 2, int(a)
+                    break
+        valid, dy = reason == 0, self._dy
+        self.jump = 0.0
+        if valid and lost and not self._prev_valid:  # re-acquiring needs the sample before it
+            reason = 5
+        elif valid and (lost or self._started):
+            if lost:  # re-acquiring: the sample must agree with the one before it
+                np.subtract(y, self._y_prev, out=dy)
+                np.abs(dy, out=dy)
+                dy /= checks.gate
+            else:
+                np.take(self._pred, self.index, out=dy)
+                np.subtract(y, dy, out=dy)
+                np.abs(dy, out=dy)
+                dy /= checks.gate * (1.0 + self.coasted)
+            j = int(dy.argmax())
+            self.jump = float(dy[j])
+            if self.jump > 1.0:
+                reason, rejected = (5 if lost else 3), j
+        if valid:
+            self._y_prev[:] = y
+        self._prev_valid = valid
+        return reason, rejected
+
+    def update(self, y: np.ndarray, t: float) -> int:
+        """The estimator alone: the measurement y (taken delay_periods ago) -> the estimate at t in `q`, `qd`;
+        returns `status` (ACCEPTED, COASTING on the prediction through a rejected sample, LOST)."""
         d, T = self.delay, self.period
         slot = self._k % (d + 1)
         acc = self._acc[slot]  # q̈ commanded at instant k − d − 1: over the period that ends at the measurement
-        self._sample(q_plant, self._ring[slot])
         self._k += 1
-        measured = self._ring[self._k % (d + 1)] if d else self._ring[slot]  # the oldest: taken d periods ago
-        q, qd = self._qm, self._qdm  # the estimate at the measurement's time
-        if self._started:  # unmeasured coordinates: predicted from the last estimate
-            q += T * qd + (0.5 * T * T) * acc
-        q[self.index] = measured
-        self.project(q, self.path.flat(max(t - d * T, 0.0)))
-        # velocities: α-β filter of the projected positions, then onto φ_q q̇ = −φ_t
+        q, qd, pred = self._qm, self._qdm, self._pred  # the estimate at the measurement's time
+        pred[:] = q
+        if self._started:  # the prediction: the unmeasured coordinates' prior, the measured ones' check
+            pred += T * qd + (0.5 * T * T) * acc
+        lost = self.coasted > self.checks.max_coast
+        reason, rejected = self._check(y, lost)
+        q[:] = pred
+        if reason == 0:
+            q[self.index] = y
+        signals = self.path.flat(max(t - d * T, 0.0))
+        self.project(q, signals)
+        if reason == 0 and not self.last_violation <= PROJECTION_ACCEPT:
+            reason, rejected = 4, -1
+            q[:] = pred
+            self.project(q, signals)
+        accepted = reason == 0
+        # velocities: α-β filter of the projected positions (re-acquired: the positions from the sample, the
+        # coasted rates kept), then onto φ_q q̇ = −φ_t
         if not self._started:
             self._xf[:] = q
             self._vf[:] = 0.0
             self._started = True
+        elif accepted and lost:
+            self._xf[:] = q
         else:
             xf, vf, r = self._xf, self._vf, self._r
             xf += T * vf + (0.5 * T * T) * acc  # prediction with the commanded acceleration
@@ -320,19 +425,34 @@ class Estimator:
             vf += (self.beta / T) * r
         qd[:] = self._vf
         self._consistent_rates(qd)
-        if not (d and self.predict):
-            self.q[:], self.qd[:] = q, qd
-            return self.q, self.qd
-        # carried forward over the d periods since the measurement (the accelerations commanded then)
         out_q, out_qd = self.q, self.qd
         out_q[:], out_qd[:] = q, qd
-        for j in range(1, d + 1):
-            a = self._acc[(slot + j) % (d + 1)]  # instants k − d … k − 1
-            out_q += T * out_qd + (0.5 * T * T) * a
-            out_qd += T * a
-        self.project(out_q, self.path.flat(t))
-        self._consistent_rates(out_qd)
-        return out_q, out_qd
+        if d and self.predict:  # carried forward over the d periods since the measurement
+            for j in range(1, d + 1):
+                a = self._acc[(slot + j) % (d + 1)]  # instants k − d … k − 1
+                out_q += T * out_qd + (0.5 * T * T) * a
+                out_qd += T * a
+            self.project(out_q, self.path.flat(t))
+            self._consistent_rates(out_qd)
+        self.coasted = 0 if accepted else min(self.coasted + 1, self.checks.max_coast + 1)
+        self._settle(reason, rejected, accepted)
+        return self.status
+
+    def _settle(self, reason: int, rejected: int, accepted: bool) -> None:
+        """The update's status; an estimate that turned non-finite goes back to the last accepted one, at rest,
+        lost (re-acquired from two agreeing samples)."""
+        parts = (self._qm, self._qdm, self._xf, self._vf, self.q, self.qd)
+        if not all(np.isfinite(v).all() for v in parts):
+            for v in (self._qm, self._xf, self.q):
+                v[:] = self._q_good
+            for v in (self._qdm, self._vf, self.qd):
+                v[:] = 0.0
+            self.last_violation, self.coasted = 0.0, self.checks.max_coast + 1
+            reason, rejected, accepted = 6, -1, False
+        elif accepted:
+            self._q_good[:] = self._qm
+        self.reason, self.rejected = reason, rejected
+        self.status = ACCEPTED if accepted else (LOST if self.coasted > self.checks.max_coast else COASTING)
 
     def trouble(self, q_plant: np.ndarray) -> str | None:
         """Why the last estimate handed to the controller cannot stand for the plant's state `q_plant` (the state
@@ -357,42 +477,6 @@ class Estimator:
         qd -= self._min_norm(self._phi_dot_out)
 
 
-class FastEstimator(Estimator):
-    """The fast path's estimator (docs/fast-path.md): the sensor (noise, quantisation, the delay line) as Estimator,
-    the estimate from its measurement in one compiled call (acroboter.codegen.estimator_c: the same statements, its
-    state block holding the estimate, the filter and the commanded accelerations that `reset` and `applied` write)."""
-
-    def __init__(self, model, path: DesiredPath, sensing: Sensing, binding):
-        super().__init__(model, path, sensing)
-        b, n, d = binding, model.layout.n, self.delay
-        self.binding = b
-        self._qm, self._qdm, self._xf, self._vf = b.view("qm"), b.view("qdm"), b.view("xf"), b.view("vf")
-        self.q, self.qd = b.view("q"), b.view("qd")
-        self._acc = b.view("acc").reshape(d + 1, n)
-        self._violation = b.view("violation")
-        ns = model.layout.n_signals
-        self._sig_m, self._sig_t = np.zeros(3 * ns), np.zeros(3 * ns)
-        self._rows_at = [row.ctypes.data for row in self._ring]
-        self._sig_at = (self._sig_m.ctypes.data, self._sig_t.ctypes.data)
-        self._flat, self._carry = path.flat, bool(d and self.predict)
-
-    def estimate(self, q_plant: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
-        d, T = self.delay, self.period
-        slot = self._k % (d + 1)
-        self._sample(q_plant, self._ring[slot])
-        self._k += 1
-        self._sig_m[:] = self._flat(max(t - d * T, 0.0))
-        if self._carry:
-            self._sig_t[:] = self._flat(t)
-        code = self.binding.call(self._rows_at[self._k % (d + 1) if d else slot], *self._sig_at, slot,
-                                 1 if self._started else 0)
-        self._started = True
-        if code != 0:  # a generated function failed: a non-finite estimate stops the run with a message
-            self.q[:] = np.nan
-        self.last_violation = float(self._violation[0])
-        return self.q, self.qd
-
-
 def make_estimator(model, path: DesiredPath, sensing: Sensing | None, fast: bool = False) -> Estimator | None:
     """The estimator of a run, or None where the controller reads the plant's state (no sensing, or an
     ideal one: every coordinate, no noise, no quantisation, no delay). fast=True: the compiled estimator
@@ -401,6 +485,7 @@ def make_estimator(model, path: DesiredPath, sensing: Sensing | None, fast: bool
         return None
     if fast:
         from ..runtime.fast_library import FastPathUnavailable, load_fast_estimator
+        from .fast_estimator import FastEstimator
 
         try:
             return FastEstimator(model, path, sensing, load_fast_estimator(model, sensing))

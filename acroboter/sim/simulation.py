@@ -13,7 +13,9 @@ from ..control.path import DesiredPath
 from ..model.spec import MAX_CONTROL_STEPS, PositionTask, WinchTension, YawTask
 from ..runtime.compiled import CompiledModel
 from .plant import Plant, SimulationError
-from .sensing import SensingError
+from .plants import PLANTS, check_mujoco_timestep, setup_default  # noqa: F401 (the names' old home)
+from .sensing import REASONS, SensingError, describe
+from .stateful import STEP_CODES, StatefulController
 
 
 @dataclass
@@ -68,6 +70,13 @@ class RunResult:
     energy_checked_from: float | None = None
     # Open loop (acroboter.sim.open_loop): per input, the instants at which it was outside the spec's limits.
     outside_limits: dict[str, dict] | None = None
+    # With sensing, per instant: the measurement the estimator read (columns: measured_names), the estimate the
+    # controller used, and the step's code (acroboter.sim.stateful.STEP_CODES: 0 accepted, 4 coasted).
+    measured_names: list[str] | None = None
+    measurements: np.ndarray | None = None
+    estimate_q: np.ndarray | None = None
+    estimate_qd: np.ndarray | None = None
+    step_code: np.ndarray | None = None
 
 
 # A run that strays this far from the path (m) has diverged: nothing useful follows.
@@ -192,8 +201,14 @@ def simulate(
     position_rows = Scenario.from_model(model).position_rows
     clock = time.perf_counter
     diverged_at = divergence = None
-    if sensor is not None:
-        sensor.reset(q0)
+    stateful = rec_y = rec_qhat = rec_qdhat = rec_code = None
+    if sensor is not None:  # the controller reads measurements: the exported controller's step (sim.stateful)
+        stateful = StatefulController(model, path, controller, sensor)
+        stateful.strict = True  # a singular system is the divergence below, as without sensing
+        if stateful.init(q0) != 0:
+            raise SimulationError(f"{controller.name}: the run cannot start at q0: {stateful.problem}")
+        rec_y = np.zeros((samples, sensor.index.size))
+        rec_qhat, rec_qdhat, rec_code = np.zeros((samples, n)), np.zeros((samples, n)), np.zeros(samples, np.int8)
     wall0 = clock()
     for k in range(samples):
         t = rec_t[k]
@@ -206,9 +221,14 @@ def simulate(
         try:
             if sensor is None:
                 u = controller.compute(q, qd, t)  # evaluates the path itself: the timed step is all of it
-            else:  # measurement, projection and velocity estimate are part of the timed step
-                u = controller.compute(*sensor.estimate(q, t), t)
-                sensor.applied(controller.qdd)  # the filter's prediction over the next period
+            else:  # measurement, its checks, projection and velocity estimate are part of the timed step
+                y = sensor.sample(q)
+                code = stateful.step(y, t)
+                u = stateful.u
+                rec_y[k], rec_qhat[k], rec_qdhat[k], rec_code[k] = y, stateful.q, stateful.qd, code
+                if code not in (0, 4):  # no trustworthy command: the exported controller would hold its last one
+                    diverged_at, divergence = t, _no_command(stateful, sensor)
+                    break
         except SingularSystemError as err:
             if k == 0:
                 if sensor is not None and (trouble := sensor.trouble(q)) is not None:  # the estimate's doing
@@ -274,6 +294,8 @@ def simulate(
         rec_tension, rec_active = rec_tension[kept], rec_active[kept]
         rec_limit, rec_impact, rec_saturated = rec_limit[kept], rec_impact[kept], rec_saturated[kept]
         rec_gap = rec_gap[kept]
+        if stateful is not None:
+            rec_y, rec_qhat, rec_qdhat, rec_code = rec_y[kept], rec_qhat[kept], rec_qdhat[kept], rec_code[kept]
         if checks_energy:
             rec_residual = rec_residual[kept]
         if energy:
@@ -287,11 +309,27 @@ def simulate(
                        cable_gap=rec_gap, energy_residual=rec_residual,
                        energy_bound=plant.energy_bound if checks_energy else None,
                        energy_checked_from=plant.energy_checked_from if checks_energy else None)
+    if stateful is not None:
+        result.measured_names = [lay.coordinates[i] for i in sensor.index]
+        result.measurements, result.step_code = rec_y, rec_code
+        result.estimate_q, result.estimate_qd = rec_qhat, rec_qdhat
     if energy:
         names = ("mechanical", "work_inputs", "work_anchors", "dissipated")
         result.energy = {name: rec_energy[:, i].copy() for i, name in enumerate(names)}
         result.energy["impacts"] = rec_impact.copy()
     return result
+
+
+def _no_command(stateful: StatefulController, sensor) -> str:
+    """Why the controller had no trustworthy command (a step code other than 0 and 4), naming the sensing."""
+    code = stateful.code
+    if code == 5:
+        j = sensor.rejected
+        where = f" at y[{j}] {stateful.model.layout.coordinates[sensor.index[j]]}" if j >= 0 else ""
+        return (f"the controller's estimate was lost: {sensor.checks.max_coast + 1} samples in a row rejected, the "
+                f"last {REASONS[sensor.reason]}{where} (sensing: {describe(sensor.sensing)}); it holds its last good "
+                "command until two consecutive samples agree (docs/sensing.md, \"Bad samples\")")
+    return f"the controller's step returned {code}: {STEP_CODES[code]}"
 
 
 # --- the tracking figures per instant: the summary, the figures and Result read the same ones ----------
@@ -414,51 +452,3 @@ def constraint_violation(result: RunResult, layout) -> float:
     rigid = np.abs(result.phi[:, ~cable]).max() if (~cable).any() else 0.0
     stretched = np.maximum(result.phi[:, cable], 0.0).max() if cable.any() else 0.0
     return float(max(rigid, stretched))
-
-
-PLANTS = ("own", "mujoco")  # the project's Baumgarte RK4 plant, or MuJoCo on the spec's MJCF model
-
-
-def check_mujoco_timestep(plant_step: float, dt, control_period: float | None = None) -> float:
-    """MuJoCo's step: a number of seconds in its range (acroboter.model.ranges.MUJOCO_TIMESTEP) that divides the
-    spec's plant step (ValueError naming a step that does, otherwise) and, with `control_period`, makes at most
-    MAX_MUJOCO_STEPS_PER_PERIOD steps in it (the work, and the memory of the path's table, a period takes)."""
-    from ..model.ranges import MUJOCO_TIMESTEP, mujoco_work_problem
-
-    MUJOCO_TIMESTEP.check(dt, "mujoco_timestep")  # a RangeError, a ValueError
-    if control_period is not None and (problem := mujoco_work_problem(dt, control_period)) is not None:
-        raise ValueError(f"mujoco_timestep: {problem}")
-    count = plant_step / dt
-    if round(count) >= 1 and math.isclose(round(count) * dt, plant_step, rel_tol=1e-9):
-        return float(dt)
-    for k in range(max(1, math.ceil(count)), 100_000):  # the largest step below dt that prints exactly
-        text = f"{plant_step / k:.6g}"
-        if math.isclose(float(text) * k, plant_step, rel_tol=1e-12):
-            break
-    raise ValueError(f"mujoco_timestep {dt:g} s must divide the spec's plant step simulation.step = {plant_step:g} s "
-                     f"(MuJoCo steps {count:.4g} times per plant step): give e.g. {text} s")
-
-
-def setup_default(model: CompiledModel, path: DesiredPath, plant_params=None, plant: str = "own",
-                  mujoco_timestep: float | None = None):
-    """Plant for a spec's simulation section; `plant_params` (name -> value, acroboter.physical)
-    make its crane differ from the controller's model. plant="mujoco": MuJoCo on the spec's MJCF
-    model (acroboter.mujoco_plant) at `mujoco_timestep` (default: the MJCF's), which must divide the
-    spec's plant step."""
-    sim = model.spec.simulation
-    if plant == "own":
-        if mujoco_timestep is not None:
-            raise ValueError("mujoco_timestep: only the MuJoCo plant has a time step of its own (plant='mujoco')")
-        return Plant(model, path, sim.baumgarte_zeta, sim.baumgarte_omega, plant_params)
-    if plant != "mujoco":
-        raise ValueError(f"plant: expected one of {', '.join(PLANTS)}, found {plant!r}")
-    from ..model.extras import require
-
-    require("mujoco", "plant='mujoco'", "plant='own' needs no extra")  # MissingExtraError, an ImportError
-    from ..model.mjcf_model import DEFAULT_TIMESTEP
-    from .mujoco_plant import MujocoPlant
-
-    dt = check_mujoco_timestep(sim.step, DEFAULT_TIMESTEP if mujoco_timestep is None else mujoco_timestep,
-                               1.0 / model.spec.controller.rate_hz)
-    return MujocoPlant(model, path, plant_params, timestep=float(dt))
-
