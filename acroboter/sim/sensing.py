@@ -416,13 +416,13 @@ class Estimator:
             self._started = True
         elif accepted and lost:
             self._xf[:] = q
-        else:
+        else:  # after coasting, the innovation built up over 1 + coasted periods: the rate's share scaled down
             xf, vf, r = self._xf, self._vf, self._r
             xf += T * vf + (0.5 * T * T) * acc  # prediction with the commanded acceleration
             vf += T * acc
             np.subtract(q, xf, out=r)
             xf += self.alpha * r
-            vf += (self.beta / T) * r
+            vf += (self.beta / (T * (1.0 + self.coasted))) * r
         qd[:] = self._vf
         self._consistent_rates(qd)
         out_q, out_qd = self.q, self.qd

@@ -178,14 +178,15 @@ EST_API int @NAME@_estimator_update(@NAME@_estimator* e, const double* y, const 
     e->started = 1;
   } else if (accepted && lost) {
     for (i = 0; i < EST_N; ++i) e->xf[i] = q[i];
-  } else {
+  } else { /* after coasting, the innovation built up over 1 + coasted periods: the rate's share scaled down */
+    const double gain = EST_BETA / (EST_T * (1.0 + (double)e->coasted));
     for (i = 0; i < EST_N; ++i) {
       double r;
       e->xf[i] += EST_T * e->vf[i] + (0.5 * EST_T * EST_T) * acc[i];
       e->vf[i] += EST_T * acc[i];
       r = q[i] - e->xf[i];
       e->xf[i] += EST_ALPHA * r;
-      e->vf[i] += (EST_BETA / EST_T) * r;
+      e->vf[i] += gain * r;
     }
   }
   for (i = 0; i < EST_N; ++i) qd[i] = e->vf[i];
