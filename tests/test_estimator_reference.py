@@ -312,8 +312,7 @@ def test_groups_given_as_read_only_mappings_take_overrides(crane):
 def test_the_estimator_is_the_python_one_unless_asked(crane):
     """make_estimator's default is the reference estimator (the compiled one only with fast=True); none for an
     ideal sensing."""
-    from acroboter.sim.fast_estimator import FastEstimator
-    from acroboter.sim.sensing import make_estimator
+    from acroboter.sim.fast_estimator import FastEstimator, make_estimator
 
     spec, model, path, _ = crane
     sensing = resolve(spec, CASES["delay 1, predicted"])

@@ -18,15 +18,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import acroboter
+from acroboter.api.stateful import controller_constants
 from acroboter.cli.generate import export_step_main
 from acroboter.codegen.controller_c import build_controller, controller_files, write_controller
 from acroboter.codegen.export_step import ExportError
 from acroboter.control.controllers import Gains, make_controller
 from acroboter.model.spec import load_spec
-from acroboter.runtime.cache import load_model
-from acroboter.sim.sensing import Estimator, resolve
 from acroboter.sim.simulation import setup_default, simulate
-from acroboter.sim.statics import desired_path, solve_equilibrium
+from acroboter.sim.statics import solve_equilibrium
 
 REPO = Path(__file__).resolve().parent.parent
 SPEC_PATH = REPO / "model_spec" / "acroboter.toml"
@@ -90,7 +90,7 @@ static @NAME@_state st;
 
 int main(int argc, char** argv) {
   int count, ny, nsig, l, i, j, p, stride, rc;
-  double q0[@N@], *data, *u, *calls, passes[@PASSES@], cpu[@PASSES@], slowest = 0.0;
+  double q0[@N@], signals0[3 * @NAME_U@_NS], *data, *u, *calls, passes[@PASSES@], cpu[@PASSES@], slowest = 0.0;
   FILE* f;
   if (argc < 2 || !(f = fopen(argv[1], "r"))) { fprintf(stderr, "cannot open the data file\n"); return 2; }
   if (fscanf(f, "%d %d %d %d", &count, &ny, &nsig, &l) != 4) { fprintf(stderr, "bad header\n"); return 2; }
@@ -104,12 +104,13 @@ int main(int argc, char** argv) {
     if (fscanf(f, "%lf", &data[i]) != 1) { fprintf(stderr, "short data file\n"); return 2; }
   fclose(f);
 
+  for (i = 0; i < 3 * @NAME_U@_NS; ++i) signals0[i] = data[1 + ny + i];  /* the first instant's signals */
   armed = 1;
-  @NAME@_init(&st, q0);
+  if (@NAME@_init(&st, q0, signals0) != @NAME_U@_OK) { armed = 0; fprintf(stderr, "init refused q0\n"); return 5; }
   for (i = 0; i < count; ++i) {
     double* x = data + (size_t)i * stride;
     rc = @NAME@_step(&st, x + 1, x[0], x + 1 + ny, u + (size_t)i * l);
-    if (rc != 0) { armed = 0; fprintf(stderr, "step %d returned %d\n", i, rc); return 4; }
+    if (rc != @NAME_U@_OK) { armed = 0; fprintf(stderr, "step %d returned %d\n", i, rc); return 4; }
   }
   armed = 0;
   for (i = 0; i < count; ++i) {
@@ -151,36 +152,26 @@ int main(int argc, char** argv) {
 
 
 def python_closed_loop(method: str, seconds: float, sensing_overrides=None):
-    """A Python closed loop with sensing and integral action; per control instant the delayed measurement the
-    estimator used, the signals at t and the controller's u."""
-    spec = load_spec(SPEC_PATH)
-    model = load_model(spec)
-    path = desired_path(model)
-    start = solve_equilibrium(model, path)
-    gains = Gains.from_spec(spec, ki=KI)
-    sensing = resolve(spec, {**SENSING, **(sensing_overrides or {})})
-    controller = make_controller(method, model, path, gains)
-    estimator = Estimator(model, path, sensing)
-    rows = []
-    estimate, compute = estimator.estimate, controller.compute
+    """A Python closed loop with sensing and integral action, recorded through the public API: per control instant
+    the measurement the estimator read (Result.measurements), the signals at t and the controller's u."""
+    crane = acroboter.Crane.from_toml(SPEC_PATH)
+    sensing = {**SENSING, **(sensing_overrides or {})}
+    result = crane.simulate(method, duration=seconds, sensing=sensing, ki=KI)
+    assert result.diverged_at is None and (result.step_codes == 0).all()
+    rows = [[float(t), y, np.array(crane.path.flat(t)), u] for t, y, u in
+            zip(result.time, result.measurements, result.u, strict=True)]
+    z = crane.stateful_controller(method, sensing=sensing, ki=KI)  # the same run replayed: its final integral
+    assert z.init(result.q[0]) == 0
+    for t, y, *_ in rows:
+        z.step(y, t)
+    return crane, crane.gains(ki=KI), crane.sensing(sensing), result.q[0], rows, z.controller.integral.copy()
 
-    def recording_estimate(q, t):
-        out = estimate(q, t)
-        d = estimator.delay
-        measured = estimator._ring[estimator._k % (d + 1)] if d else estimator._ring[0]
-        rows.append([float(t), measured.copy(), np.array(path.flat(t))])
-        return out
 
-    def recording_compute(q, qd, t, signals=None):
-        u = compute(q, qd, t, signals)
-        rows[-1].append(u.copy())
-        return u
-
-    estimator.estimate, controller.compute = recording_estimate, recording_compute
-    simulate(model, path, controller, setup_default(model, path), start.q, seconds, spec.controller.rate_hz,
-             spec.simulation.step, sensor=estimator)
-    z = controller.integral.copy()
-    return spec, gains, sensing, start.q, rows, z
+def export_to(crane, method, gains, sensing, folder):
+    export = build_controller(crane.spec, method, gains, sensing, spec_path=SPEC_PATH,
+                              **controller_constants(crane))
+    write_controller(export, folder)
+    return export
 
 
 def compile_driver(folder: Path, name: str, n: int) -> Path:
@@ -237,11 +228,10 @@ def relative_error(u_c: np.ndarray, u_py: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("method", ["penalty", "mlm"])
 def test_stateful_controller_matches_python_closed_loop(method, tmp_path, record_property):
-    spec, gains, sensing, q0, rows, z = python_closed_loop(method, RUN_SECONDS)
+    crane, gains, sensing, q0, rows, z = python_closed_loop(method, RUN_SECONDS)
     assert np.abs(z).max() > 1e-6  # the integral acts (z = ∫σ dt, not zero)
-    export = build_controller(spec, method, gains, sensing, spec_path=SPEC_PATH)
+    export = export_to(crane, method, gains, sensing, tmp_path)
     assert export.estimator and export.delay == 1 and export.unmeasured.size == 6
-    write_controller(export, tmp_path)
     lay = export.step.layout
     exe = compile_driver(tmp_path, export.name, lay.n)
     data = tmp_path / "data.txt"
@@ -265,9 +255,8 @@ def test_stateful_controller_matches_python_closed_loop(method, tmp_path, record
 def test_the_estimators_variants_match_python(overrides, tmp_path):
     """The estimator's branches: no delay (one projection), two periods carried over, the delayed estimate used as it
     is; a short run each (measured over 8 s: 1.3e-9, 1.2e-9, 1.0e-9)."""
-    spec, gains, sensing, q0, rows, _ = python_closed_loop("penalty", 2.0, overrides)
-    export = build_controller(spec, "penalty", gains, sensing, spec_path=SPEC_PATH)
-    write_controller(export, tmp_path)
+    crane, gains, sensing, q0, rows, _ = python_closed_loop("penalty", 2.0, overrides)
+    export = export_to(crane, "penalty", gains, sensing, tmp_path)
     lay = export.step.layout
     exe = compile_driver(tmp_path, export.name, lay.n)
     write_data(tmp_path / "data.txt", q0, rows, lay.l)
@@ -278,9 +267,9 @@ def test_the_estimators_variants_match_python(overrides, tmp_path):
 def test_a_broken_estimator_is_caught(tmp_path, monkeypatch):
     """The comparison has teeth: the same loop with the α-β filter's gain β off by 1e-3 disagrees."""
     method = "penalty"
-    spec, gains, sensing, q0, rows, _ = python_closed_loop(method, 1.0)
-    export = build_controller(spec, method, gains, sensing, spec_path=SPEC_PATH)
-    export.beta *= 1.001
+    crane, gains, sensing, q0, rows, _ = python_closed_loop(method, 1.0)
+    export = build_controller(crane.spec, method, gains, sensing, spec_path=SPEC_PATH, **controller_constants(crane))
+    export.estimator.beta *= 1.001
     write_controller(export, tmp_path)
     lay = export.step.layout
     exe = compile_driver(tmp_path, export.name, lay.n)
@@ -299,7 +288,7 @@ def test_cli_writes_the_stateful_controller(tmp_path, capsys):
     name = "acroboter_penalty_controller"
     assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == sorted(controller_files(name))
     header = " ".join((out / f"{name}.h").read_text().replace(" * ", " ").split())  # unwrapped
-    assert "y[0] = q[0] CC.r_x (tracker; m, sensor noise sd 0.0002)" in header
+    assert "y[0] = q[0] CC.r_x (tracker; m, sensor noise sd 0.0002; gate 0.022)" in header
     assert "ki = 18.375" in header and "at most 3 minimal-norm steps" in header
     first = {p: (out / p).read_bytes() for p in controller_files(name)}
     assert export_step_main(["--spec", str(spec), "--stateful", "--out", str(out)]) == 0
@@ -320,7 +309,9 @@ def test_the_stateless_export_still_refuses_integral_action():
         build_controller  # noqa: B018 (the stateful one accepts it, below)
         from acroboter.codegen.export_step import build_step
         build_step(spec, "penalty", Gains.from_spec(spec, ki=KI))
-    assert build_controller(spec, "penalty", Gains.from_spec(spec, ki=KI)).step.gains.ki == KI
+    crane = acroboter.Crane.from_toml(SPEC_PATH)
+    assert build_controller(spec, "penalty", Gains.from_spec(spec, ki=KI),
+                            **controller_constants(crane)).step.gains.ki == KI
 
 
 # --- the anti-windup where a limit binds (no sensing: the measurements are the state) ----------------------------
@@ -329,8 +320,6 @@ def test_the_stateless_export_still_refuses_integral_action():
 def limited(tmp_path_factory):
     """test_integral_action's lift with the winches at most 27.5 N: the limit binds for a while during the lift."""
     from test_integral_action import LIFT, LIFT_START, LIFT_TIME, start_targets, with_winch_limits
-
-    import acroboter
 
     crane = acroboter.Crane.from_toml(with_winch_limits(tmp_path_factory.mktemp("lift"), 27.5))
     target, _ = start_targets(crane.model)
@@ -369,7 +358,7 @@ def test_anti_windup_matches_python_where_a_limit_binds(method, limited, tmp_pat
     simulate(model, path, controller, setup_default(model, path), start.q, 3.0, spec.controller.rate_hz,
              spec.simulation.step)
     assert sum(held) >= 10  # the anti-windup holds z over a stretch of the lift
-    export = build_controller(spec, method, gains, None)
+    export = build_controller(spec, method, gains, None, **controller_constants(crane))
     assert not export.estimator
     write_controller(export, tmp_path)
     exe = compile_driver(tmp_path, export.name, model.layout.n)

@@ -185,8 +185,7 @@ def test_condition_estimate_is_never_below_the_exact_one(crane):
 def test_compiled_estimator_matches_the_python_one(crane, overrides):
     """The compiled estimator (acroboter.codegen.estimator_c) under the same reference controller: the same run to
     round-off, with and without delay and prediction, with unmeasured coordinates rebuilt by the projection."""
-    from acroboter.sim.fast_estimator import FastEstimator
-    from acroboter.sim.sensing import make_estimator
+    from acroboter.sim.fast_estimator import FastEstimator, make_estimator
 
     model, path, spec = crane.model, crane.path, crane.spec
     sensing = crane.sensing(overrides)

@@ -45,10 +45,11 @@ from ..model.spec import (
 )
 from ..runtime.cache import load_model
 from ..runtime.compiled import CompiledModel
+from ..sim.fast_estimator import make_estimator
 from ..sim.feasibility import Feasibility, check_path
 from ..sim.open_loop import held_path, simulate_open_loop
 from ..sim.result import Result
-from ..sim.sensing import check_measurable, make_estimator
+from ..sim.sensing import check_measurable
 from ..sim.sensing import resolve as resolve_sensing
 from ..sim.simulation import Scenario, setup_default, simulate
 from ..sim.statics import Equilibrium, desired_path, inputs_outside_limits, solve_equilibrium, start_targets

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..control.controllers import make_controller
 from ..control.fast import path_table
-from ..sim.sensing import make_estimator
+from ..sim.fast_estimator import make_estimator
 from ..sim.stateful import StatefulController
 
 __all__ = ["export_controller", "stateful_controller"]

@@ -66,7 +66,7 @@ def bench_steps(crane, methods: list[str], states, repeats: int) -> dict:
     """Interleaved passes: per method the reference, fast and exported C steps, and the estimator, timed."""
     from ..codegen.step_graph import ExportError
     from ..control.controllers import make_controller
-    from ..sim.sensing import make_estimator
+    from ..sim.fast_estimator import make_estimator
 
     model, path, gains = crane.model, crane.path, crane.gains()
     reference = {m: make_controller(m, model, path, gains) for m in methods}

@@ -252,7 +252,7 @@ def main(argv: list[str] | None = None) -> int:
 @guarded
 def export_step_main(argv: list[str] | None = None) -> int:
     """`acroboter export-step`: one method's complete control step as self-contained C and a header."""
-    from ..codegen.controller_c import controller_files, controller_name, export_controller
+    from ..codegen.controller_c import controller_files, controller_name
     from ..codegen.export_step import (
         GAIN_OPTIONS,
         MLM_SYSTEMS,
@@ -312,8 +312,10 @@ def export_step_main(argv: list[str] | None = None) -> int:
         if args.stateful:
             name = controller_name(spec, args.method, gains.recovery)
             with results_folder(out, "export-step", expected=controller_files(name), accumulate=True) as folder:
-                export_controller(args.spec, args.method, folder.staging, args.mlm_system, args.penalty_system,
-                                  **overrides)
+                from ..api.crane import Crane  # the start state and the path's numbers come from the library
+
+                Crane.from_toml(args.spec).export_controller(args.method, folder.staging, None, args.mlm_system,
+                                                             args.penalty_system, **overrides)
                 written = folder.publish()
             for path in written:
                 print(f"wrote {_shown(path)}")

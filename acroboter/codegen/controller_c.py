@@ -47,7 +47,7 @@ RANK_TOLERANCE = 1e-9  # as acroboter.sim.sensing.RANK_TOLERANCE
 # CasADi's generated C under -Wall -Wextra (tests/test_c_templates.py): every function has the same signature
 # (arg, res, iw, w, mem), most leave some unused; and gcc 12's -Warray-bounds flags casadi_copy's zero fill in the
 # bounded QP's Switch branch after constant propagation (a destination it sizes [0, 0]; -Wstringop-overflow says the
-# same), a path the sizes CasADi checked never take (the 55 s closed loops ran clean under ASan and UBSan, docs/controller.md).
+# same), a path the sizes CasADi checked never take (closed loops ran clean under ASan and UBSan, docs/controller.md).
 GENERATED_PRAGMAS = """#if defined(__GNUC__)
 #pragma GCC diagnostic ignored "-Wunused-parameter"
 #pragma GCC diagnostic ignored "-Warray-bounds"

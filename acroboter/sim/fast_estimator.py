@@ -1,6 +1,7 @@
-"""The fast path's estimator (docs/fast-path.md): the sensor (noise, quantisation, the delay line) as
-acroboter.sim.sensing.Estimator, the estimator itself one compiled call (acroboter.codegen.estimator_c: the same
-statements, the same sample checks, its state a C struct whose fields `reset`, `applied` and the records read)."""
+"""The estimator of a run (`make_estimator`), and the fast path's (docs/fast-path.md): the sensor (noise,
+quantisation, the delay line) as acroboter.sim.sensing.Estimator, the estimator itself one compiled call
+(acroboter.codegen.estimator_c: the same statements, the same sample checks, its state a C struct whose fields
+`reset`, `applied` and the records read)."""
 
 from __future__ import annotations
 
@@ -8,9 +9,9 @@ import numpy as np
 
 from ..control.path import DesiredPath
 from ..model.schema import Sensing
-from .sensing import ACCEPTED, COASTING, LOST, Estimator
+from .sensing import ACCEPTED, COASTING, LOST, Estimator, is_ideal
 
-__all__ = ["FastEstimator"]
+__all__ = ["FastEstimator", "make_estimator"]
 
 
 class FastEstimator(Estimator):
@@ -59,3 +60,19 @@ class FastEstimator(Estimator):
         self.last_violation, self.jump = float(f["violation"][0]), float(f["jump"][0])
         self.coasted, self.reason, self.rejected = int(f["coasted"][0]), int(f["reason"][0]), int(f["rejected"][0])
         self.status = (ACCEPTED, COASTING, LOST)[int(f["status"][0])]
+
+
+def make_estimator(model, path: DesiredPath, sensing: Sensing | None, fast: bool = False) -> Estimator | None:
+    """The estimator of a run, or None where the controller reads the plant's state (no sensing, or an
+    ideal one: every coordinate, no noise, no quantisation, no delay). fast=True: the compiled estimator
+    (FastEstimator), generated and compiled on first use; the Python one where it cannot be built."""
+    if sensing is None or is_ideal(model.spec, model.layout, sensing):
+        return None
+    if fast:
+        from ..runtime.fast_library import FastPathUnavailable, load_fast_estimator
+
+        try:
+            return FastEstimator(model, path, sensing, load_fast_estimator(model, sensing))
+        except FastPathUnavailable:
+            pass
+    return Estimator(model, path, sensing)

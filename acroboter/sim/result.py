@@ -120,6 +120,35 @@ class Result:
     def diverged_at(self) -> float | None:
         return self.run.diverged_at
 
+    # --- what the controller saw (runs with sensing; None without) ------------------------------------
+    @property
+    def measurement_names(self) -> list[str] | None:
+        """The coordinate each column of `measurements` samples (the sensing groups' order: the C's y layout)."""
+        return self.run.measured_names
+
+    @property
+    def measurements(self) -> np.ndarray | None:
+        """Per instant the measurement y the estimator read (taken delay_periods earlier, noise and quantisation
+        included): what `Crane.stateful_controller(...).step(y, t)` or the exported C controller's step is fed
+        to replay this run (docs/controller.md, "Replay a run")."""
+        return self.run.measurements
+
+    @property
+    def estimate(self) -> np.ndarray | None:
+        """Per instant the estimate q̂ the controller used (columns: `coordinates`)."""
+        return self.run.estimate_q
+
+    @property
+    def estimate_rates(self) -> np.ndarray | None:
+        """Per instant the estimate q̇̂ the controller used."""
+        return self.run.estimate_qd
+
+    @property
+    def step_codes(self) -> np.ndarray | None:
+        """Per instant the stateful step's code (acroboter.sim.stateful.STEP_CODES: 0 the sample accepted, 4
+        rejected and the prediction used; a run stops at any other)."""
+        return self.run.step_code
+
     def input(self, name: str) -> np.ndarray:
         """One input by actuator name, e.g. result.input("tension_1") (N, or N·m for torques)."""
         return self.run.u[:, _index(self.inputs, name, "input")]
@@ -189,6 +218,11 @@ class Result:
         for i, name in enumerate(self.coordinates):
             unit = "_m" if ".r_" in name or name.endswith(".length") else ""
             cols[f"q_{name}{unit}"] = self.run.q[:, i]
+        if self.run.measurements is not None:  # what the controller saw: its code and each measurement
+            cols["step_code"] = self.run.step_code.astype(np.int8)
+            for j, name in enumerate(self.run.measured_names):
+                unit = "_m" if ".r_" in name or name.endswith(".length") else ""
+                cols[f"y_{name}{unit}"] = self.run.measurements[:, j]
         if state:
             for i, name in enumerate(self.coordinates):
                 unit = "_m_per_s" if ".r_" in name or name.endswith(".length") else "_per_s"

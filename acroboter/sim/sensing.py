@@ -40,7 +40,7 @@ from ..model.spec_errors import format_pydantic
 from .cable_events import SimulationError
 
 __all__ = ["ACCEPTED", "COASTING", "LOST", "PROJECTION_TOLERANCE", "REASONS", "Estimator", "SensingError",
-           "check_measurable", "describe", "is_ideal", "make_estimator", "measured_indices", "resolve"]
+           "check_measurable", "describe", "is_ideal", "measured_indices", "resolve"]
 
 # A column-rank deficit of φ_q on the unmeasured coordinates: singular values below this × the largest.
 RANK_TOLERANCE = 1e-9
@@ -475,20 +475,3 @@ class Estimator:
         self._phi_q.call()
         self._phi_dot.call()
         qd -= self._min_norm(self._phi_dot_out)
-
-
-def make_estimator(model, path: DesiredPath, sensing: Sensing | None, fast: bool = False) -> Estimator | None:
-    """The estimator of a run, or None where the controller reads the plant's state (no sensing, or an
-    ideal one: every coordinate, no noise, no quantisation, no delay). fast=True: the compiled estimator
-    (FastEstimator), generated and compiled on first use; the Python one where it cannot be built."""
-    if sensing is None or is_ideal(model.spec, model.layout, sensing):
-        return None
-    if fast:
-        from ..runtime.fast_library import FastPathUnavailable, load_fast_estimator
-        from .fast_estimator import FastEstimator
-
-        try:
-            return FastEstimator(model, path, sensing, load_fast_estimator(model, sensing))
-        except FastPathUnavailable:
-            pass
-    return Estimator(model, path, sensing)
