@@ -39,6 +39,7 @@ from ..model.spec import Spec, load_spec
 from .estimator_c import EstimatorExport, build_estimator
 from .export_step import ExportError, build_step, step_name
 from .generate import INPUT_NAMES
+from .stack_usage import measure_stack
 from .step_graph import StepExport
 from .structured import independent_rows
 from .symbolic import build_symbolic_model
@@ -194,9 +195,15 @@ def write_controller(export: ControllerExport, out_dir: Path) -> list[Path]:
     for suffix in (".c", ".h"):
         path = out_dir / f"{stem}{suffix}"
         path.write_text(step_comment + (GENERATED_PRAGMAS if suffix == ".c" else "") + path.read_text())
-    header, source = render_controller(export, (out_dir / f"{stem}.c").read_text())
+    functions_text = (out_dir / f"{stem}.c").read_text()
+    header, source = render_controller(export, functions_text)
     (out_dir / f"{export.name}.h").write_text(header)
     (out_dir / f"{export.name}.c").write_text(source)
+    # the stack each call needs, by the compiler at hand (the header names it; none: the header says so)
+    entries = [f"{export.name}_{call}" for call in ("init", "step", "reset", "reinit", "path")]
+    measured = measure_stack(out_dir, [f"{export.name}.c", f"{stem}.c"], entries)
+    if measured is not None:
+        (out_dir / f"{export.name}.h").write_text(render_controller(export, functions_text, measured)[0])
     return [out_dir / f for f in controller_files(export.name)]
 
 

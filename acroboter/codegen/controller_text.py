@@ -158,7 +158,19 @@ def _estimator_lines(export) -> list[str]:
     ]
 
 
-def header_text(export, symbols: list[str]) -> str:
+def _stack_text(export, stack) -> str:
+    if stack is None:
+        return ("Stack: not measured (no C compiler with -fcallgraph-info at export): the generated functions keep "
+                "their intermediate values in local variables, a few kB per step; measure with gcc -fstack-usage.")
+    figures, compiler = stack
+    calls = ", ".join(f"{entry.removeprefix(export.name + '_')} {size} bytes" for entry, size in figures.items())
+    return (f"Stack (the deepest call chain of each call; measured at export by {compiler} -fcallgraph-info=su): "
+            f"{calls}; plus libm's own frames, and the dynamic linker's lazy binding on a first call (about 3 kB "
+            "where it saves the vector registers: link with -Wl,-z,now or set LD_BIND_NOW for a hard real-time "
+            "loop).")
+
+
+def header_text(export, symbols: list[str], stack=None) -> str:
     name, step, lay, u = export.name, export.step, export.step.layout, export.name.upper()
     est = export.estimator
     iters = export.iterations
@@ -236,9 +248,8 @@ def header_text(export, symbols: list[str]) -> str:
            if est else "no estimator; ")
         + f"every linear solve a fixed SX Cholesky or CasADi's ldl/qr; the bounded QP ({QP_PLUGIN}), where a spec "
         f"has limits, at most {QP_MAX_ITER} iterations.",
-        f"Memory: sizeof({name}_state) = {state_bytes(export)} bytes (x86-64, LP64), the caller's; no heap. Stack: "
-        "the generated functions keep their intermediate values in local variables (measure with gcc -fstack-usage "
-        "-fcallgraph-info=su: docs/controller.md gives the figures for the default crane).",
+        f"Memory: sizeof({name}_state) = {state_bytes(export)} bytes (x86-64, LP64), the caller's; no heap.",
+        _stack_text(export, stack),
         f"Link with -lm: the code calls {', '.join(symbols)} from libm (and the compiler may emit memset, memcpy "
         "or memmove). Compile with -O2, never -ffast-math (the checks need NaN and inf).",
         "",
@@ -275,8 +286,9 @@ def _numbers(values) -> str:
     return ", ".join(repr(float(v)) for v in values)
 
 
-def render_controller(export, function_text: str) -> tuple[str, str]:
-    """(<name>.h, <name>.c); `function_text`: the generated functions' C (for the libm symbols it calls)."""
+def render_controller(export, function_text: str, stack=None) -> tuple[str, str]:
+    """(<name>.h, <name>.c); `function_text`: the generated functions' C (for the libm symbols it calls); `stack`:
+    acroboter.codegen.stack_usage.measure_stack's figures, or None (not measured)."""
     name, lay, est = export.name, export.step.layout, export.estimator
     u, n = name.upper(), lay.n
     sizes = _sizes(export)
@@ -313,4 +325,4 @@ def render_controller(export, function_text: str) -> tuple[str, str]:
         STATE_BYTES=state_bytes(export), N=n, DELAY1=export.delay + 1, NS3=3 * lay.n_signals, K1=max(lay.k, 1),
         L=lay.l, M_ALL=max(export.n_constraints, 1), NY=sizes["NY"], SZ_ARG=max(w[0], 1), SZ_RES=max(w[1], 1),
         SZ_IW=max(w[2], 1), SZ_W=max(w[3], 1))
-    return header_text(export, symbols) + header_body, source
+    return header_text(export, symbols, stack) + header_body, source
