@@ -167,14 +167,18 @@ class FastEstimatorBinding:
                 dtype, count = np.float64, counts.get(field, n)
             width = np.dtype(dtype).itemsize
             self._views[field] = raw[offset : offset + width * count].view(dtype)
-        at = self.state.ctypes.data
+        # the two doubles and the six ints the records read, adjacent in the struct: one view each
+        self._views["scalars"] = raw[offsets[1 + OFFSET_FIELDS.index("violation")] :][:16].view(np.float64)
+        self._views["ints"] = raw[offsets[1 + OFFSET_FIELDS.index("started")] :][:24].view(np.int32)
+        self.at = self.state.ctypes.data
         pointer = ctypes.c_void_p
 
         def bind(suffix: str, restype, *argtypes):
             fn = getattr(lib, f"{name}_estimator_{suffix}")
             fn.restype, fn.argtypes = restype, [pointer, *argtypes]
-            return lambda *args: fn(at, *args)
+            return fn
 
+        # each takes the state's address first (self.at)
         self.start = bind("start", None, pointer)
         self.reinit = bind("reinit", None)
         self.applied = bind("applied", None, pointer)

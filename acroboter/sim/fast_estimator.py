@@ -15,7 +15,8 @@ __all__ = ["FastEstimator", "make_estimator"]
 
 
 class FastEstimator(Estimator):
-    """Estimator whose `update` is the compiled one (`binding`: acroboter.runtime.fast_library.FastEstimatorBinding)."""
+    """Estimator whose `update` is the compiled one (`binding`: acroboter.runtime.fast_library.FastEstimatorBinding);
+    `applied` is Estimator's, into the struct's ring of accelerations (the C's applied, statement for statement)."""
 
     def __init__(self, model, path: DesiredPath, sensing: Sensing, binding):
         super().__init__(model, path, sensing)
@@ -25,41 +26,41 @@ class FastEstimator(Estimator):
         self.q, self.qd = b.view("q"), b.view("qd")
         self._pred, self._q_good = b.view("pred"), b.view("q_good")
         self._acc = b.view("acc").reshape(d + 1, n)
-        self._fields = {f: b.view(f) for f in ("violation", "jump", "coasted", "status", "reason", "rejected")}
+        self._scalars, self._ints = b.view("scalars"), b.view("ints")  # [violation, jump]; [started .. rejected]
         ns = model.layout.n_signals
         self._sig_m, self._sig_t = np.zeros(3 * ns), np.zeros(3 * ns)
         self._sig_at = (self._sig_m.ctypes.data, self._sig_t.ctypes.data)
         self._flat, self._carry = path.flat, bool(d and self.predict)
+        self._at, self._update = b.at, b.update
 
     def reset(self, q0: np.ndarray) -> None:
         self._reset_sensor(q0)
+        self._k = 0  # Estimator.applied's slot (the struct's k, counted here too)
         q0 = np.ascontiguousarray(q0, dtype=float)
-        self.binding.start(q0.ctypes.data)
+        self.binding.start(self._at, q0.ctypes.data)
         self._read()
 
     def reinit(self) -> None:
-        self.binding.reinit()
+        self.binding.reinit(self._at)
         self._read()
-
-    def applied(self, qdd: np.ndarray | None) -> None:
-        self.binding.applied(None if qdd is None else np.ascontiguousarray(qdd, dtype=float).ctypes.data)
 
     def update(self, y: np.ndarray, t: float) -> int:
         d, T = self.delay, self.period
         self._sig_m[:] = self._flat(max(t - d * T, 0.0))
         if self._carry:
             self._sig_t[:] = self._flat(t)
-        y = np.ascontiguousarray(y, dtype=float)
-        if self.binding.update(y.ctypes.data, *self._sig_at) < 0:  # a generated function failed
+        if not (y.dtype == np.float64 and y.flags.c_contiguous):
+            y = np.ascontiguousarray(y, dtype=float)
+        self._k += 1
+        if self._update(self._at, y.ctypes.data, *self._sig_at) < 0:  # a generated function failed
             self.q[:] = np.nan
         self._read()
         return self.status
 
     def _read(self) -> None:
-        f = self._fields
-        self.last_violation, self.jump = float(f["violation"][0]), float(f["jump"][0])
-        self.coasted, self.reason, self.rejected = int(f["coasted"][0]), int(f["reason"][0]), int(f["rejected"][0])
-        self.status = (ACCEPTED, COASTING, LOST)[int(f["status"][0])]
+        self.last_violation, self.jump = self._scalars.tolist()
+        _, self.coasted, _, status, self.reason, self.rejected = self._ints.tolist()
+        self.status = (ACCEPTED, COASTING, LOST)[status]
 
 
 def make_estimator(model, path: DesiredPath, sensing: Sensing | None, fast: bool = False) -> Estimator | None:

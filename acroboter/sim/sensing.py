@@ -202,13 +202,16 @@ class Estimator:
         n, nm = lay.n, self.index.size
         self._ring = np.zeros((self.delay + 1, nm))
         self._acc = np.zeros((self.delay + 1, n))  # commanded q̈ of the last delay + 1 instants (applied)
-        self.q = np.zeros(n)  # the estimate handed to the controller (overwritten every call)
-        self.qd = np.zeros(n)
-        self._qm, self._qdm = np.zeros(n), np.zeros(n)  # the estimate at the measurement's time
+        # one block, as the C struct's: qm, qdm (the estimate at the measurement's time), xf, vf (the filter), q, qd
+        # (the estimate handed to the controller, overwritten every call); one sum tells whether all are finite
+        self._state = np.zeros(6 * n)
+        self._qm, self._qdm, self._xf, self._vf, self.q, self.qd = (self._state[i * n : (i + 1) * n] for i in range(6))
         self._pred, self._q_good = np.zeros(n), np.zeros(n)  # this update's prediction; qm of the last accepted
         self._y_prev, self._dy = np.zeros(nm), np.zeros(nm)
         self.predict = sensing.predict_delay
-        self._xf, self._vf, self._r = np.zeros(n), np.zeros(n), np.zeros(n)
+        self._r = np.zeros(n)
+        na = self.checks.axes.shape[0]
+        self._axes_y, self._axes_n = np.zeros((na, 3)), np.zeros(na)
         m = self.rows.size
         self._a, self._g, self._b, self._x = np.zeros((m, n)), np.zeros((m, m)), np.zeros(m), np.zeros(n)
         self.unmeasured = np.setdiff1d(np.arange(n), self.index)
@@ -339,7 +342,7 @@ class Estimator:
         prediction over the period that follows this instant's measurement (None or not finite: 0, a command that
         was not applied)."""
         slot = self._acc[(self._k - 1) % (self.delay + 1)]
-        if qdd is None or not np.isfinite(qdd).all():
+        if qdd is None or not math.isfinite(np.add.reduce(qdd)):
             slot[:] = 0.0
         else:
             slot[:] = qdd
@@ -353,15 +356,21 @@ class Estimator:
     def _check(self, y: np.ndarray, lost: bool) -> tuple[int, int]:
         """(reason, y index) of the sample's first failed check ((0, -1): none); sets jump, y_prev, prev_valid."""
         checks, reason, rejected = self.checks, 0, -1
-        bad = np.flatnonzero(~np.isfinite(y))
-        if bad.size:
-            reason, rejected = 1, int(bad[0])
-        else:
-            for (a, b, c), tolerance in zip(checks.axes, checks.axis_tolerance, strict=True):
-                ya, yb, yc = y[a], y[b], y[c]
-                if not abs(math.sqrt(ya * ya + yb * yb + yc * yc) - 1.0) <= tolerance:
-                    reason, rejected = 2, int(a)
-                    break
+        if not math.isfinite(np.add.reduce(y)):  # NaN and ±inf survive a sum (a finite overflow is refused too)
+            bad = np.flatnonzero(~np.isfinite(y))
+            reason, rejected = 1, int(bad[0]) if bad.size else 0
+        elif checks.axes.size:
+            a = self._axes_y
+            np.take(y, checks.axes, out=a)
+            np.multiply(a, a, out=a)
+            norm = self._axes_n
+            np.add(a[:, 0], a[:, 1], out=norm)
+            norm += a[:, 2]
+            np.sqrt(norm, out=norm)
+            norm -= 1.0
+            np.abs(norm, out=norm)
+            if not (norm <= checks.axis_tolerance).all():
+                reason, rejected = 2, int(checks.axes[int(np.argmin(norm <= checks.axis_tolerance)), 0])
         valid, dy = reason == 0, self._dy
         self.jump = 0.0
         if valid and lost and not self._prev_valid:  # re-acquiring needs the sample before it
@@ -375,7 +384,7 @@ class Estimator:
                 np.take(self._pred, self.index, out=dy)
                 np.subtract(y, dy, out=dy)
                 np.abs(dy, out=dy)
-                dy /= checks.gate * (1.0 + self.coasted)
+                dy /= checks.gate if not self.coasted else checks.gate * (1.0 + self.coasted)
             j = int(dy.argmax())
             self.jump = float(dy[j])
             if self.jump > 1.0:
@@ -441,8 +450,7 @@ class Estimator:
     def _settle(self, reason: int, rejected: int, accepted: bool) -> None:
         """The update's status; an estimate that turned non-finite goes back to the last accepted one, at rest,
         lost (re-acquired from two agreeing samples)."""
-        parts = (self._qm, self._qdm, self._xf, self._vf, self.q, self.qd)
-        if not all(np.isfinite(v).all() for v in parts):
+        if not math.isfinite(np.add.reduce(self._state)):
             for v in (self._qm, self._xf, self.q):
                 v[:] = self._q_good
             for v in (self._qdm, self._vf, self.qd):
