@@ -26,6 +26,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import acroboter
+from acroboter.codegen.controller_text import RECOVERY_PERIODS  # the header states it (measured: 3 periods)
 from acroboter.runtime.exported import load_exported_controller
 
 KI = 18.375
@@ -38,9 +39,6 @@ SENSING = {
     "seed": 7,
 }
 CASES = {"penalty-d1": ("penalty", 1), "penalty-d2": ("penalty", 2), "mlm-d1": ("mlm", 1)}
-# A fault the checks reject leaves the commands within 0.1 N of the undisturbed replay within this many periods
-# (measured: 3 on the penalty run).
-RECOVERY_PERIODS = 10
 FAULT_START = 60  # 1.2 s into the run: the path's first edge is under way
 
 
