@@ -20,6 +20,7 @@ from __future__ import annotations
 import logging
 import math
 import numbers
+import threading
 from collections.abc import Callable, Mapping
 from os import PathLike
 from pathlib import Path
@@ -114,7 +115,7 @@ class Crane:
     def path(self) -> DesiredPath:
         """The spec's desired path (waypoints, mean speed, yaw turn)."""
         if self._path is None:
-            self._path = desired_path(self.model)
+            self._path = desired_path(self.model.data())
         return self._path
 
     def input_limits(self) -> dict[str, tuple[float, float, float]]:
@@ -134,51 +135,58 @@ class Crane:
                             "acceleration)")
         if duration is None:
             raise ValueError("a trajectory function needs its duration: pass duration=seconds")
-        _, start_yaw = start_targets(self.model)
+        _, start_yaw = start_targets(self.model.data())
         return TrajectoryPath(self.spec, self.layout, trajectory, float(duration), start_yaw)
 
     def equilibrium(self, trajectory: Trajectory | None = None, duration: float | None = None) -> Equilibrium:
         """The static equilibrium at the start of the path: q, constraint multipliers, inputs (at rest)."""
         if trajectory is None:
             if self._start is None:
-                self._start = solve_equilibrium(self.model, self.path)
+                self._start = solve_equilibrium(self.model.data(), self.path)
             return self._start
-        return solve_equilibrium(self.model, self.desired(trajectory, duration))
+        return solve_equilibrium(self.model.data(), self.desired(trajectory, duration))
 
     # --- the dynamics terms at a state (acroboter.api.dynamics; docs/model.md §1-5) ---------------------
+    def _working(self):
+        """This thread's working copy of the model for the dynamics terms (made once per thread)."""
+        local = self.__dict__.setdefault("_threads", threading.local())
+        if not hasattr(local, "data"):
+            local.data = self.model.data()
+        return local.data
+
     def mass_matrix(self, q) -> np.ndarray:
         """M(q), (n, n): kg on the bodies' centres, kg·m² on their axes, the drums' reflected inertia (kg)
         on the winch lengths (constant in natural coordinates)."""
-        return evaluate(self.model, self.path, "mass_matrix", q)
+        return evaluate(self._working(), self.path, "mass_matrix", q)
 
     def bias_forces(self, q, qd, t: float = 0.0) -> np.ndarray:
         """c(q, q̇, t), (n,): every generalized force but the inputs' and the constraints' (gravity,
         damping, the velocity terms), on the left: M q̈ + c = H u − φ_qᵀ λ. N (N·m on the axes' rows)."""
-        return evaluate(self.model, self.path, "bias_forces", q, qd, t)
+        return evaluate(self._working(), self.path, "bias_forces", q, qd, t)
 
     def input_matrix(self, q) -> np.ndarray:
         """H(q), (n, l): the generalized force of each input per unit (`crane.inputs`, their units)."""
-        return evaluate(self.model, self.path, "input_matrix", q)
+        return evaluate(self._working(), self.path, "input_matrix", q)
 
     def constraints(self, q, t: float = 0.0) -> np.ndarray:
         """φ(q, t), (m,): the geometric constraints (`crane.layout.constraints`): the bodies' axes
         orthonormal (unitless) and each cable |p_a − p_b|² − L² (m²; ≤ 0 for a slack cable), the moving
         anchors where the path has them at t. 0 on a consistent configuration."""
-        return evaluate(self.model, self.path, "constraints", q, t=t)
+        return evaluate(self._working(), self.path, "constraints", q, t=t)
 
     def constraint_jacobian(self, q, t: float = 0.0) -> np.ndarray:
         """φ_q(q, t) = ∂φ/∂q, (m, n)."""
-        return evaluate(self.model, self.path, "constraint_jacobian", q, t=t)
+        return evaluate(self._working(), self.path, "constraint_jacobian", q, t=t)
 
     def servo_error(self, q, t: float = 0.0) -> np.ndarray:
         """σ(q, t), (k,): the servo-constraints' values (named in `crane.servo_constraints`) against the
         spec's desired path at t: the tracked point's position error (m), yaw and level (unitless). 0 on
         the path."""
-        return evaluate(self.model, self.path, "servo_error", q, t=t)
+        return evaluate(self._working(), self.path, "servo_error", q, t=t)
 
     def servo_jacobian(self, q, t: float = 0.0) -> np.ndarray:
         """σ_q(q, t) = ∂σ/∂q, (k, n)."""
-        return evaluate(self.model, self.path, "servo_jacobian", q, t=t)
+        return evaluate(self._working(), self.path, "servo_jacobian", q, t=t)
 
     def mjcf(self, timestep: float | None = None, plant_params: Mapping[str, float] | None = None,
              pose: str = "spec") -> str:
@@ -243,7 +251,7 @@ class Crane:
         constraints to determine the rest, is a SpecError naming the field (docs/sensing.md)."""
         chosen = resolve_sensing(self.spec, sensing, source=str(self.source or self.name))
         if chosen is not None and chosen is not self.spec.sensing:
-            check_measurable(self.model, chosen, source=str(self.source or self.name))
+            check_measurable(self.model.data(), chosen, source=str(self.source or self.name))
         return chosen
 
     def check_delay(self, sensing, duration: float) -> None:
@@ -278,7 +286,8 @@ class Crane:
             raise ValueError(f"fast: expected True or False, found {fast!r}")
         name = self.method_name(method, iterations)
         path = self.desired(trajectory, duration)
-        return Controller(make_controller(name, self.model, path, self.gains(**overrides), fast=fast), self.inputs)
+        return Controller(make_controller(name, self.model.data(), path, self.gains(**overrides), fast=fast),
+                          self.inputs)
 
     def stateful_controller(self, method: str = "penalty", sensing=None, iterations: int | None = None,
                             fast: bool = False, **overrides):
@@ -302,7 +311,8 @@ class Crane:
         path = self.desired(trajectory, duration)
         duration = _duration(path, duration)
         start = self.equilibrium(trajectory, duration)
-        return check_path(self.model, path, setup_default(self.model, path), start.q, duration,
+        data = self.model.data()
+        return check_path(data, path, setup_default(data, path), start.q, duration,
                           self.gains(**overrides))
 
     def plan(self, margin: float = 0.05, max_speed: float | None = None, max_accel: float | None = None,
@@ -329,8 +339,8 @@ class Crane:
                 range_.check(value, name)
         path = self.desired(trajectory, duration)
         start = self.equilibrium(trajectory, duration)
-        return plan(self.model, path, start.q, float(margin), max_speed, max_accel, int(intervals), certify, verbose,
-                    window, corners)
+        return plan(self.model.data(), path, start.q, float(margin), max_speed, max_accel, int(intervals), certify,
+                    verbose, window, corners)
 
     def simulate(self, method: str = "penalty", duration: float | None = None,
                  trajectory: Trajectory | None = None, iterations: int | None = None,
@@ -371,16 +381,17 @@ class Crane:
         path = self.desired(trajectory, duration)
         duration = _duration(path, duration)
         self.check_delay(chosen, duration)
-        engine = setup_default(self.model, path, plant_params, plant, mujoco_timestep)
+        data = self.model.data()  # this run's own buffers: nothing it writes is another run's
+        engine = setup_default(data, path, plant_params, plant, mujoco_timestep)
         start = self.equilibrium(trajectory, duration)
-        controller = make_controller(name, self.model, path, gains, fast=fast)
+        controller = make_controller(name, data, path, gains, fast=fast)
         rest = np.zeros(self.layout.n)
         for _ in range(warm_up):  # steady-state step times: the first calls page code in
             controller.compute(start.q, rest, 0.0)
         controller.reset()  # the run starts with the integral action's z = 0
-        run = simulate(self.model, path, controller, engine, start.q, duration,
+        run = simulate(data, path, controller, engine, start.q, duration,
                        self.spec.controller.rate_hz, self.spec.simulation.step, progress=progress,
-                       allow_divergence=True, sensor=make_estimator(self.model, path, chosen, fast=fast))
+                       allow_divergence=True, sensor=make_estimator(data, path, chosen, fast=fast))
         return Result(run, self.layout, self.scenario, self.name)
 
     def simulate_open_loop(self, inputs, duration: float, trajectory: Trajectory | None = None,
@@ -417,12 +428,13 @@ class Crane:
                 qd0 = None
             if qd0 is None or qd0.shape != (self.layout.n,) or not np.isfinite(qd0).all():
                 raise ValueError(f"qd0: expected {self.layout.n} finite velocities (crane.coordinates' order)")
-        engine = setup_default(self.model, path, plant_params, plant, mujoco_timestep)
+        data = self.model.data()  # this run's own buffers
+        engine = setup_default(data, path, plant_params, plant, mujoco_timestep)
         start = self.equilibrium(trajectory, duration)
         if qd0 is not None:  # the own plant's projection, whichever plant runs (same parameters)
-            own = engine if plant == "own" else setup_default(self.model, path, plant_params)
+            own = engine if plant == "own" else setup_default(data.data(), path, plant_params)
             qd0 = own.consistent_velocity(start.q, qd0)
-        run = simulate_open_loop(self.model, path, engine, start.q, inputs, float(duration),
+        run = simulate_open_loop(data, path, engine, start.q, inputs, float(duration),
                                  self.spec.controller.rate_hz, self.spec.simulation.step, qd0=qd0, progress=progress)
         return Result(run, self.layout, self.scenario, self.name)
 

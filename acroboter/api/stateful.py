@@ -18,9 +18,9 @@ def stateful_controller(crane, method: str, sensing, iterations, fast: bool, ove
     """See Crane.stateful_controller."""
     name = crane.method_name(method, iterations)
     chosen = crane.sensing(sensing)
-    path = crane.path
-    controller = make_controller(name, crane.model, path, crane.gains(**overrides), fast=fast)
-    return StatefulController(crane.model, path, controller, make_estimator(crane.model, path, chosen, fast=fast))
+    path, data = crane.path, crane.model.data()  # its own working copy of the model
+    controller = make_controller(name, data, path, crane.gains(**overrides), fast=fast)
+    return StatefulController(data, path, controller, make_estimator(data, path, chosen, fast=fast))
 
 
 def controller_constants(crane) -> dict:

@@ -57,12 +57,16 @@ class CasadiModel(SharedInputs):
         context = GenerationContext(spec).register_all()
         self.manifest = context.manifest()  # the generated folder's manifest.json, as CompiledModel reads it
         self.source_dir = self.library_path = self.cache_root = None  # nothing on disk
+        self.functions_source = context.functions  # the casadi.Function objects, shared by every working copy
+        self._bind_buffers()
+
+    def _bind_buffers(self) -> None:
         ns = self.layout.n_signals
         self.signals = np.zeros(3 * ns)
         self.buffers: dict[str, np.ndarray] = {
             "s": self.signals[:ns], "sd": self.signals[ns : 2 * ns], "sdd": self.signals[2 * ns :],
         }
-        for f in context.functions.values():
+        for f in self.functions_source.values():
             for i in range(f.n_in()):
                 self.buffers.setdefault(f.name_in(i), np.zeros(f.numel_in(i)))
         self.q, self.qd, self.p = self.buffers["q"], self.buffers["qd"], self.buffers["p"]
@@ -71,8 +75,16 @@ class CasadiModel(SharedInputs):
         self._inputs = (self.q, self.qd, self.s, self.sd, self.sdd)
         self.functions = {
             name: CasadiFunction(f, [self.buffers[f.name_in(i)] for i in range(f.n_in())])
-            for name, f in context.functions.items()
+            for name, f in self.functions_source.items()
         }
+
+    def data(self) -> CasadiModel:
+        """A working copy with buffers and outputs of its own (as CompiledModel.data)."""
+        other = object.__new__(type(self))
+        for key in ("spec", "layout", "manifest", "source_dir", "library_path", "cache_root", "functions_source"):
+            setattr(other, key, getattr(self, key))
+        other._bind_buffers()
+        return other
 
     def bind(self, name: str) -> CasadiFunction:
         f = self.functions[name].function

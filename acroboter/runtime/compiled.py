@@ -185,7 +185,13 @@ class CompiledModel(SharedInputs):
         # the files -> library link: everything that defines the library is what it embeds
         check_library(self.lib, spec.name, expected_embedded(self.manifest, key), lib_path, source_dir, remedy)
 
-        # One buffer per input name, shared by every function that reads that input.
+        self._bind_buffers()
+
+    # What a working copy (data()) shares with its model: nothing it writes.
+    SHARED = ("spec", "layout", "source_dir", "manifest", "library_path", "cache_root", "lib")
+
+    def _bind_buffers(self) -> None:
+        # One buffer per input name, shared by every function of this object that reads that input.
         self.buffers: dict[str, np.ndarray] = {}
         # s, ṡ, s̈ are views of one block, so a single assignment sets all three.
         ns = self.layout.n_signals
@@ -204,6 +210,15 @@ class CompiledModel(SharedInputs):
                                 info["outputs"])
             for name, info in self.manifest["functions"].items()
         }
+
+    def data(self) -> CompiledModel:
+        """A working copy (MuJoCo's MjModel/MjData split): the same loaded library, spec, layout and manifest, and
+        input buffers, outputs and work arrays of its own. Each run, controller and thread works on its own copy,
+        so two of them never share a number they write (acroboter.api.Crane gives every run one)."""
+        other = object.__new__(type(self))
+        other.__dict__.update({key: self.__dict__[key] for key in self.SHARED})
+        other._bind_buffers()
+        return other
 
     def bind(self, name: str) -> BoundFunction:
         """A second binding of function `name` with outputs of its own (inputs: the shared buffers,

@@ -34,6 +34,7 @@ class OpenLoopInputs:
     in the controller's place (the state it is given is not looked at)."""
 
     name = OPEN_LOOP
+    loads_model = False  # compute() writes no buffer: simulate loads the plant's state and the path for its records
 
     def __init__(self, inputs, times: np.ndarray, input_names: list[str]):
         l = len(input_names)

@@ -201,6 +201,7 @@ def simulate(
     position_rows = Scenario.from_model(model).position_rows
     clock = time.perf_counter
     diverged_at = divergence = None
+    loads = getattr(controller, "loads_model", True)  # whether compute() leaves the state and signals in the buffers
     stateful = rec_y = rec_qhat = rec_qdhat = rec_code = None
     if sensor is not None:  # the controller reads measurements: the exported controller's step (sim.stateful)
         stateful = StatefulController(model, path, controller, sensor)
@@ -249,8 +250,10 @@ def simulate(
         rec_gap[k] = plant.cable_gap
         if checks_energy:
             rec_residual[k] = plant.energy_residual
-        if sensor is not None:  # the records are the plant's, not the estimate the controller loaded
+        if sensor is not None or not loads:  # the records are the plant's state, at the path's signals at t
             model.q[:], model.qd[:] = q, qd
+            if not loads:  # an open-loop driver loads nothing: the path's signals at t too
+                model.signals[:] = path.flat(t)
         sigma_fn.call()  # at the state and signals the controller just loaded
         phi_fn.call()
         rec_sigma[k], rec_phi[k] = sigma_out, phi_out
