@@ -14,6 +14,7 @@ import argparse
 import copy
 import importlib
 import math
+import re
 import subprocess
 import sys
 import types
@@ -416,3 +417,41 @@ def test_animation_frames_are_counted_before_any_is_drawn(short_results, tmp_pat
     _exits_2(main, [str(short_results), "--out", str(tmp_path / "a.mp4"), "--fps", "240", "--speed", "1e-3",
                     "--renderer", "matplotlib", "-q"], capsys, "--speed: expected 0.0012", "240,001 frames")
     assert not list(tmp_path.iterdir())
+
+
+def _range_ends(err: str) -> tuple[float, float]:
+    low, high = re.search(r"expected (\S+) <=? \w+ <=? ([^\s,]+)", err).groups()
+    return float(low), float(high)
+
+
+@pytest.mark.parametrize("option", sorted(ranges.GAIN_RANGES))
+def test_every_gain_option_names_itself_with_a_range_that_is_not_empty(option, tmp_path, capsys):
+    """Issue 35: `run --kp 100` blamed --kd with an empty range (50 < kd < 50). Each gain option beyond its range,
+    and kp/kd beyond what the control rate samples, names the option given and a range a value can be in."""
+    from acroboter.cli.run import main
+
+    out = ["--out", str(tmp_path / "out"), "-q"]
+    limit = ranges.GAIN_RANGES[option]
+    too_large = ["--" + option.replace("_", "-"), repr(float(limit.high) * 10.0 if limit.high else 1e300)]
+    with pytest.raises(SystemExit) as stop:  # argparse's range check: exit 2 naming the option
+        main([*too_large, *out])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert f"--{option.replace('_', '-')}: expected" in err, err
+    low, high = _range_ends(err[err.index("expected") - 1 :])
+    assert low < high, err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(("argv", "named"), [(["--kp", "100"], "--kp"), (["--kd", "60"], "--kd"),
+                                             (["--kp", "20", "--kd", "1"], "--kp"), (["--kd", "0.05"], "--kd"),
+                                             (["--kp", "100", "--kd", "60"], "--kd")])
+def test_the_sampled_gain_check_names_the_gain_given(argv, named, tmp_path, capsys):
+    from acroboter.cli.run import main
+
+    assert main([*argv, "--out", str(tmp_path / "out"), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {named}: expected"), err
+    low, high = _range_ends(err)
+    assert low < high, err
+    assert not (tmp_path / "out").exists()

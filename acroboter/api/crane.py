@@ -236,7 +236,9 @@ class Crane:
                 continue
             GAIN_RANGES[name].check(value, name)  # RangeError (a ValueError): "kp: expected 0 < kp <= 1e4 (1/s), …"
         gains = Gains.from_spec(self.spec, **overrides)
-        for name, problem in sampled_gain_problems(gains.kp, gains.kd, self.spec.controller.rate_hz, ("kp", "kd")):
+        given = (overrides.get("kp") is not None, overrides.get("kd") is not None)
+        for name, problem in sampled_gain_problems(gains.kp, gains.kd, self.spec.controller.rate_hz, ("kp", "kd"),
+                                                   given):
             raise ValueError(f"{name}: {problem}")
         if (problem := integral_gain_problem(gains.kp, gains.kd, gains.ki)) is not None:
             raise ValueError(f"ki: {problem}")

@@ -301,7 +301,8 @@ def export_step_main(argv: list[str] | None = None) -> int:
         spec = load_spec(args.spec)
         kp = spec.controller.kp if args.kp is None else args.kp
         kd = spec.controller.kd if args.kd is None else args.kd
-        for name, problem in sampled_gain_problems(kp, kd, spec.controller.rate_hz, ("kp", "kd")):
+        for name, problem in sampled_gain_problems(kp, kd, spec.controller.rate_hz, ("kp", "kd"),
+                                                   (args.kp is not None, args.kd is not None)):
             print(f"error: --{name}: {problem}", file=sys.stderr)  # before any work: the law it bakes in is unstable
             return 2
         gains = Gains.from_spec(spec, **overrides)

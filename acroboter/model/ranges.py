@@ -359,19 +359,29 @@ def delay_problem(delay: int, rate_hz: float, duration: float, what: str = "run"
 
 
 def sampled_gain_problems(kp: float, kd: float, rate_hz: float, names: tuple[str, str] = ("controller.kp",
-                                                                                          "controller.kd")
-                          ) -> list[tuple[str, str]]:
+                                                                                          "controller.kd"),
+                          given: tuple[bool, bool] = (False, True)) -> list[tuple[str, str]]:
     """The servo law ë = −2kd ė − kp² e sampled at rate_hz (the acceleration held over T = 1/rate_hz) is stable iff
     kd·T < 1 and kp²·T < 4·kd (Jury's test of its characteristic polynomial z² − (2 − 2kdT − kp²T²/2) z +
-    1 − 2kdT + kp²T²/2): the problems as (where, text), none when it is."""
+    1 − 2kdT + kp²T²/2): the problems as (where, text), none when it is. The problem names the gain the user gave
+    (`given`: kp, kd), with the range that gain may take at the other one's value; a range that would be empty
+    (kd past 1/T, or kp past 2/T) blames the gain that caused it."""
     period = 1.0 / rate_hz
     if kd * period < 1.0 and kp * kp * period < 4.0 * kd:
         return []
-    window = KD.narrowed(low=kp * kp * period / 4.0, low_open=True, high=1.0 / period, high_open=True)
-    note = f"the servo law sampled at rate_hz = {rate_hz:g} Hz is unstable outside kp²·T/4 < kd < 1/T"
-    if kd * period < 1.0:  # kd too small for kp: lowering kp helps as well
-        note += f"; or kp below {math.sqrt(4.0 * kd / period):.4g}"
-    return [(names[1], window.problem(kd, note))]
+    note = f"the servo law sampled at rate_hz = {rate_hz:g} Hz is stable only for kp²·T/4 < kd < 1/T"
+    kd_fits = kp * kp * period / 4.0 < 1.0 / period  # some kd works with this kp (kp < 2/T)
+    kp_fits = kd * period < 1.0  # some kp works with this kd
+    blame_kd = kd_fits and (not kp_fits or (given[1] and not given[0]))
+    if blame_kd:
+        window = KD.narrowed(low=kp * kp * period / 4.0, low_open=True, high=1.0 / period, high_open=True)
+        also = f"; or kp below {math.sqrt(4.0 * kd / period):.4g}" if kp_fits else ""  # kd too small for kp
+        return [(names[1], window.problem(kd, f"{note} (kp = {kp:g}){also}"))]
+    if kp_fits:  # kp too large for this kd
+        window = KP.narrowed(high=math.sqrt(4.0 * kd / period), high_open=True)
+        return [(names[0], window.problem(kp, f"{note} (kd = {kd:g}: kp < √(4 kd/T))"))]
+    window = KD.narrowed(high=1.0 / period, high_open=True)  # kd too large, and kp too for any kd
+    return [(names[1], window.problem(kd, f"{note}; and kp below 2/T = {2.0 / period:g}"))]
 
 
 RK4_RADIUS = 2.6  # RK4's stability region holds every λh of the left half-plane with |λh| <= 2.61
