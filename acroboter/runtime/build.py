@@ -34,7 +34,7 @@ from pathlib import Path
 from ..model.locations import cache_dir, shipped_generated_folder, spec_folder
 from ..model.spec import load_spec
 from .integrity import verify_sources
-from .progress import progress_disabled
+from .progress import announce, progress_disabled
 
 log = logging.getLogger(__name__)
 # -O2 and IEEE semantics: never -ffast-math, the dynamics must be reproducible to the last bit.
@@ -169,6 +169,7 @@ def build(spec_name: str, source_dir: Path, cache_root: Path) -> Path:
 
         # largest first: the big translation units (the penalty terms) bound the wall time
         ordered = sorted(sources, key=lambda src: src.stat().st_size, reverse=True)
+        announce(f"compiling {spec_name} ({len(sources)} files, once: cached in {lib.parent.parent})")
         with ThreadPoolExecutor(max_workers=compile_jobs()) as pool, \
                 tqdm(total=len(sources), unit="file", desc=f"compiling {spec_name}", file=sys.stderr,
                      disable=progress_disabled(), leave=False) as bar:
