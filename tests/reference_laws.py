@@ -11,7 +11,7 @@ def penalty_inputs_40_digits(model, desired, gains, method, states) -> np.ndarra
     """The penalty methods with the projected recovery, in 40-digit arithmetic (mpmath), from the model
     terms at each state: a reference free of the round-off of either formulation. With more inputs than
     servo-constraints, the distribution of the same fit, lexicographic in the servo accelerations
-    (acroboter.distribution.BoundedInputs.solve_task), which must be within the limits at these states (the
+    (acroboter.control.distribution.BoundedInputs.solve_task), which must be within the limits at these states (the
     reference has no QP)."""
     iterations = 1 if method == "penalty" else int(method.removeprefix("iterative-"))
     lay = model.layout

@@ -1,4 +1,4 @@
-"""Every command line behind the one error boundary (acroboter.entry): bad options and an unwritable
+"""Every command line behind the one error boundary (acroboter.cli.entry): bad options and an unwritable
 --out exit 2 with one message and no traceback, before any work."""
 
 from __future__ import annotations

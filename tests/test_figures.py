@@ -1,4 +1,4 @@
-"""The run's figures and table (acroboter.figures, acroboter.report): the files, legends outside the
+"""The run's figures and table (acroboter.report.figures, acroboter.report): the files, legends outside the
 axes, labels with names and units, the tracking-error and magnified-path views, and paper=False."""
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The project's plant against MuJoCo, an engine written by others, on the spec's MJCF model.
 
-Oracles: MuJoCo (mujoco, pinned) stepping the XML of acroboter.mjcf_model, analytic statics (each
+Oracles: MuJoCo (mujoco, pinned) stepping the XML of acroboter.model.mjcf_model, analytic statics (each
 winch of the symmetric crane carries m_SU g L / (3 drop)) and ballistics (the centre of mass of
 bodies on slack cables falls at g). Nothing here compares the code with numbers it produced before.
 """

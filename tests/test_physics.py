@@ -1,6 +1,6 @@
 """Physics of the compiled model, on every shipped spec: what must hold whatever the numbers are.
 
-Signals are s = [moving anchors' xyz | x_d, y_d, z_d, yaw_d] (acroboter.layout). At the start the
+Signals are s = [moving anchors' xyz | x_d, y_d, z_d, yaw_d] (acroboter.model.layout). At the start the
 anchor sits at its spec position and the targets are the tracked point's initial position, yaw 0.
 """
 

@@ -1,4 +1,4 @@
-"""A plant that differs from the controller's model (acroboter.physical, `plant_params`).
+"""A plant that differs from the controller's model (acroboter.model.physical, `plant_params`).
 
 Oracles:
 (a) the one library's parametric plant at perturbed parameters against plants generated from a

@@ -213,7 +213,7 @@ class Crane:
     def plant_parameters(self) -> dict[str, float]:
         """The physical parameters a plant may differ in (`simulate(plant_params=...)`), with the spec's
         values: gravity.x/y/z, <body>.mass, <body>.inertia.xx …, <body>.damping.translational/rotational,
-        <body>.points.<point>.x/y/z, <cable>.length, <cable>.winch.reflected_inertia (acroboter.physical)."""
+        <body>.points.<point>.x/y/z, <cable>.length, <cable>.winch.reflected_inertia (acroboter.model.physical)."""
         return dict(zip(parameter_names(self.spec), map(float, parameter_values(self.spec)), strict=True))
 
     def gains(self, **overrides) -> Gains:
@@ -245,7 +245,7 @@ class Crane:
         return gains
 
     def sensing(self, sensing=None):
-        """The sensing a run uses (acroboter.spec.Sensing, or None: the plant's state): None, the spec's
+        """The sensing a run uses (acroboter.model.schema.Sensing, or None: the plant's state): None, the spec's
         section; False, none; a mapping of overrides onto the spec's section (or, without one, the
         groups 'positions', 'axes', 'lengths' measuring every coordinate exactly): `noise` and
         `quantization` ({group: value}), `delay_periods`, `seed`, `velocity_filter_s`,

@@ -19,7 +19,7 @@ writes four files for the robot's real-time computer:
   the command's checks (the safe command where it cannot be trusted). All buffers (the work arrays of the
   generated functions included, sized here) are in the state struct: no heap, no globals.
 
-Without a [sensing] section (or with an ideal one, as acroboter.sim.sensing.make_estimator) the
+Without a [sensing] section (or with an ideal one, as acroboter.sim.fast_estimator.make_estimator) the
 measurements are the state itself, y = [q; q̇], and no estimator runs.
 """
 
@@ -115,7 +115,7 @@ def build_controller(spec: Spec, method: str, gains: Gains, sensing: Sensing | N
     """Build the core step (with z, q̈ and the saturation judgement), σ, φ and the estimator's SX functions for
     `sensing` (resolved, e.g. acroboter.sim.sensing.resolve; None: the state is measured). `start_q` (the static
     equilibrium) and `path_numbers` (acroboter.control.fast.path_table of the spec's path) become the header's
-    constants: the library computes them (acroboter.api.Crane.export_controller)."""
+    constants: the library computes them (acroboter.api.crane.Crane.export_controller)."""
     if start_q is None or path_numbers is None:
         raise ExportError("the stateful controller needs its start state and the path's numbers: export it through "
                           "the library (Crane.export_controller, or `acroboter export-step --stateful`)")

@@ -48,7 +48,7 @@ FUNCTIONS: dict[str, tuple[str, ...]] = {
 }
 
 # The plant's own functions: the same terms with the physical parameters as the input `plant_params`
-# (acroboter.physical), for the plant's events, impacts and energy; its RK4 step is plant_step.
+# (acroboter.model.physical), for the plant's events, impacts and energy; its RK4 step is plant_step.
 PLANT_FUNCTIONS: dict[str, tuple[str, ...]] = {
     "plant_terms": ("mass_matrix", "bias_forces", "phi", "phi_q", "phi_dot", "gamma", "input_matrix"),
     "plant_energy": ("kinetic", "potential", "dissipated_power"),
@@ -178,7 +178,7 @@ class GenerationContext:
             path = out_dir / f"{f.name()}.c"
             path.write_text(header + cg.dump())
             written.append(path)
-        # The same crane for MuJoCo (acroboter.mjcf_model): checked in and hashed like the C.
+        # The same crane for MuJoCo (acroboter.model.mjcf_model): checked in and hashed like the C.
         mjcf = out_dir / f"{self.spec.name}.xml"
         mjcf.write_text(mjcf_xml(self.spec))
         written.append(mjcf)

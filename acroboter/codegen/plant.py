@@ -14,7 +14,7 @@ every number is the rigid plant's (multiplying by 1.0 and adding 0.0 are exact i
 The mask is held over the step: switching it is an event the caller resolves between steps.
 
 The plant's functions take the crane's physical parameters as an input vector `plant_params`
-(acroboter.physical: masses, inertias, points, fixed lengths, drums, damping, gravity), so that a
+(acroboter.model.physical: masses, inertias, points, fixed lengths, drums, damping, gravity), so that a
 plant may differ from the controller's model without a library of its own. M then depends on
 them, not on the state: M⁻¹ is built from M's diagonal blocks (inverse_mass), which costs a few
 divisions per call. Generated from a model without parameters (GenerationContext with

@@ -53,7 +53,7 @@ class SymbolicModel:
     sigma_dot: ca.SX
     gamma_s: ca.SX
     input_matrix: ca.SX
-    # The physical parameters (acroboter.physical) the terms depend on as symbols: a parametric model
+    # The physical parameters (acroboter.model.physical) the terms depend on as symbols: a parametric model
     # (the plant's) has one per name, the controller's none (its numbers are folded in).
     parameters: ca.SX
     parameter_names: list[str]
@@ -70,7 +70,7 @@ def _time_derivatives(expr, q, qd, s, sd, sdd):
 
 def build_symbolic_model(spec: Spec, parametric: bool = False) -> SymbolicModel:
     """The model terms of `spec`: with the spec's numbers as constants, or (parametric) with every
-    physical parameter (acroboter.physical.parameter_names) a symbol of the vector `parameters`."""
+    physical parameter (acroboter.model.physical.parameter_names) a symbol of the vector `parameters`."""
     layout = build_layout(spec)
     n, ns = layout.n, layout.n_signals
     q, qd = ca.SX.sym("q", n), ca.SX.sym("qd", n)
@@ -227,7 +227,7 @@ def _is_zero(entry) -> bool:
 
 def _axes_inertia(body, value) -> list[list]:
     """J = ½ tr(I_G) E − I_G with I_G's entries the body's parameters (SX; the products of inertia
-    that are zero in the spec stay exact zeros, acroboter.physical)."""
+    that are zero in the spec stay exact zeros, acroboter.model.physical)."""
     inertia = [[ca.SX(0)] * 3 for _ in range(3)]
     for key, (a, c) in INERTIA_ENTRIES.items():
         if a == c or body.inertia[a][c] != 0.0:

@@ -399,7 +399,7 @@ class Sensing(_Strict):
 
 
 def sensing_coordinates(spec: Spec, selector: str) -> list[str] | None:
-    """The coordinate names (acroboter.layout's) a sensing selector stands for; None if it names none."""
+    """The coordinate names (acroboter.model.layout's) a sensing selector stands for; None if it names none."""
     bodies = {b.name for b in spec.bodies}
     winches = {c.name for c in spec.cables if c.winch is not None}
     head, _, tail = selector.partition(".")

@@ -214,7 +214,7 @@ class CompiledModel(SharedInputs):
     def data(self) -> CompiledModel:
         """A working copy (MuJoCo's MjModel/MjData split): the same loaded library, spec, layout and manifest, and
         input buffers, outputs and work arrays of its own. Each run, controller and thread works on its own copy,
-        so two of them never share a number they write (acroboter.api.Crane gives every run one)."""
+        so two of them never share a number they write (acroboter.api.crane.Crane gives every run one)."""
         other = object.__new__(type(self))
         other.__dict__.update({key: self.__dict__[key] for key in self.SHARED})
         other._bind_buffers()

@@ -1,4 +1,4 @@
-"""MuJoCo as the plant: the spec's MJCF model (acroboter.codegen.mjcf) stepped by MuJoCo, read in
+"""MuJoCo as the plant: the spec's MJCF model (acroboter.model.mjcf_model) stepped by MuJoCo, read in
 the project's natural coordinates, with the interface of acroboter.sim.plant.Plant.
 
     plant = MujocoPlant(model, path)            # model: a CompiledModel (for its spec and layout)

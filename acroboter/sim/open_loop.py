@@ -7,9 +7,9 @@ control instant and held for the period, as a controller's output is) or an arra
 control instant. The inputs are validated once, before any work (shape, finite). The spec's input
 limits are not applied: an open-loop input is what the user asks, and the run's summary lists, per
 input, the instants at which it was outside the limits (`inputs_outside_limits`). The moving anchors
-follow `path` (acroboter.crane holds them at the spec's start by default).
+follow `path` (acroboter.api.crane holds them at the spec's start by default).
 
-The run is the closed loop's (acroboter.simulation.simulate) with this module's OpenLoopInputs in
+The run is the closed loop's (acroboter.sim.simulation.simulate) with this module's OpenLoopInputs in
 the controller's place: the same records, invariants, summary and CSV.
 """
 

@@ -17,7 +17,7 @@ inelastic impacts, cascades), whose docstring says how and why. This module chec
 balance (ENERGY_TOL_REL) at the end of every control period and of every substep with an event.
 
 Physical parameters. The plant may differ from the controller's model: `parameters` (name -> value,
-acroboter.physical: masses, inertias, body points, fixed cable lengths, drum inertias, damping,
+acroboter.model.physical: masses, inertias, body points, fixed cable lengths, drum inertias, damping,
 gravity) replace the spec's in everything the plant evaluates, the RK4 step (`plant_step`) and the
 terms of its events, impacts and energy (`plant_terms`, `plant_energy`), all generated with the
 parameters as a run-time input. The controller keeps the spec's. A plant with points or lengths
@@ -86,7 +86,7 @@ def stage_rows(path: DesiredPath, h: float, first_step: int, steps: int) -> Stag
 
 class Plant(CableEvents):
     def __init__(self, model, path: DesiredPath, zeta: float, omega: float, parameters=None):
-        """The plant of `model`'s crane; `parameters` (name -> value, acroboter.physical) replace the
+        """The plant of `model`'s crane; `parameters` (name -> value, acroboter.model.physical) replace the
         spec's physical parameters in it (checked here: PlantParameterError; fixed for its lifetime)."""
         self.model, self.path = model, path
         # The path's [s, ṡ, s̈] at the few instants of an event: its rows (the table's numbers, cheaper), else its table

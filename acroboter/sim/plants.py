@@ -36,9 +36,9 @@ def check_mujoco_timestep(plant_step: float, dt, control_period: float | None = 
 
 def setup_default(model: CompiledModel, path: DesiredPath, plant_params=None, plant: str = "own",
                   mujoco_timestep: float | None = None):
-    """Plant for a spec's simulation section; `plant_params` (name -> value, acroboter.physical)
+    """Plant for a spec's simulation section; `plant_params` (name -> value, acroboter.model.physical)
     make its crane differ from the controller's model. plant="mujoco": MuJoCo on the spec's MJCF
-    model (acroboter.mujoco_plant) at `mujoco_timestep` (default: the MJCF's), which must divide the
+    model (acroboter.sim.mujoco_plant) at `mujoco_timestep` (default: the MJCF's), which must divide the
     spec's plant step."""
     sim = model.spec.simulation
     if plant == "own":

@@ -53,7 +53,7 @@ class RunResult:
     # Per instant: whether a limit kept the input from what the controller asked of the task.
     saturated: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     control_period: float = 0.0  # s
-    # The plant's physical parameters other than the spec's (acroboter.physical); {}: the model's crane.
+    # The plant's physical parameters other than the spec's (acroboter.model.physical); {}: the model's crane.
     plant_params: dict[str, float] = field(default_factory=dict)
     # Per instant: the moving anchors' positions (m), 3 columns per anchor in layout order
     # (layout.anchor_signal), so that a run can be drawn without its path.
@@ -149,7 +149,7 @@ def simulate(
 
     `qd0`: the plant's initial velocities (default at rest).
 
-    `sensor` (acroboter.sensing.Estimator, reset here to q0): the controller reads its estimate from
+    `sensor` (acroboter.sim.sensing.Estimator, reset here to q0): the controller reads its estimate from
     measurements instead of the plant's state; the records stay the plant's (docs/sensing.md).
     """
     lay = model.layout
