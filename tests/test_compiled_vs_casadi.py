@@ -84,7 +84,7 @@ def random_extra_input(pair: Pair, name: str, size: int, model_inputs, rng: np.r
             rng.standard_normal((n, n)), -1).reshape(-1, order="F")
     if name in ("force", "qdd", "qdd_sum"):
         return rng.standard_normal(size)
-    if name == "plant_params":  # physical parameters (acroboter.model.physical): the spec's ±2 % (inertias stay physical)
+    if name == "plant_params":  # physical parameters (acroboter.model.physical): the spec's ±2 % (inertias physical)
         from acroboter.model.physical import parameter_values
 
         return parameter_values(pair.spec) * rng.uniform(0.98, 1.02, size)

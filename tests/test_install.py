@@ -157,3 +157,14 @@ def test_two_concurrent_first_runs_of_a_new_crane_build_one_library(installed, t
     for i in range(2):
         summary = json.loads((tmp_path / f"run{i}" / "out" / "summary.json").read_text())
         assert summary["methods"]["penalty"]["max_position_error_mm"] < 5.0
+
+
+def test_the_installed_package_carries_its_c_and_exports_the_controller(installed, tmp_path):
+    """The hand-written C (acroboter/codegen/c/*.c, *.h) is package data: the installed package's plant loop (the run
+    above) and the stateful export read it."""
+    python, site, env, _ = installed
+    shipped = sorted(p.name for p in (site / "acroboter" / "codegen" / "c").iterdir())
+    assert {"estimator.c", "estimator_state.h", "controller.c", "controller.h", "path.c", "plant_loop.c"} <= set(shipped)
+    proc = _run(python, ["export-step", "--stateful", "--out", "ctrl"], tmp_path, env, timeout=600)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert (tmp_path / "ctrl" / "acroboter_penalty_controller.h").is_file()

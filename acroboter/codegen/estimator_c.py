@@ -140,19 +140,7 @@ def _source(e: EstimatorExport) -> str:
     struct, code = estimator_text(e, api="")
     offsets = "\n".join(f"  out[{i + 1}] = (long long)offsetof({e.name}_estimator, {field});"
                         for i, field in enumerate(OFFSET_FIELDS))
-    return f"""/* {e.name}: the fast path's estimator (acroboter.codegen.estimator_c). Generated: do not edit. */
-#include <math.h>
-#include <stddef.h>
-#include "{e.name}_functions.h"
-
-{struct}
-{code}
-/* sizeof the struct, then the byte offset of each field the Python binding reads (OFFSET_FIELDS' order). */
-void {e.name}_offsets(long long* out) {{
-  out[0] = (long long)sizeof({e.name}_estimator);
-{offsets}
-}}
-"""
+    return render("fast_estimator.c", NAME=e.name, STRUCT=struct, CODE=code, OFFSETS=offsets)
 
 
 def write_estimator(e: EstimatorExport, folder: Path) -> None:

@@ -99,13 +99,4 @@ def path_source(name: str) -> str:
     """<name>_flat(table, t, out): acroboter.control.path.DesiredPath.flat in C, statement for statement (the same
     IEEE operations in the same order: the same bits), from the path's numbers in `table` (control/fast.py
     path_table); <name>_run(table, t, signals, arg, res, iw, w): the signals at t into `signals`, then the step."""
-    return (f"/* {name}_path.c: the desired path's signals and the step in one call (acroboter.codegen.fast_step). */\n"
-            f"int {name}(const double** arg, double** res, long long int* iw, double* w, int mem);\n\n"
-            + render("path.c", NAME=name, API="")
-            + f"""
-int {name}_run(const double* tab, double t, double* signals, const double** arg, double** res, long long int* iw,
-               double* w) {{
-  {name}_flat(tab, t, signals);
-  return {name}(arg, res, iw, w, 0);
-}}
-""")
+    return render("fast_step_path.c", NAME=name, PATH=render("path.c", NAME=name, API=""))

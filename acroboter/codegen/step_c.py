@@ -44,8 +44,8 @@ def _limits_block(export: StepExport) -> list[str]:
         lines.append("  bounded distribution: none (no finite limit, and no more inputs than servo-constraints): u is "
                      "the unbounded solution")
         return lines
-    lines.append("  bounded distribution (as acroboter.control.distribution.BoundedInputs; the Python controller's u, also "
-                 "where a limit binds):")
+    lines.append("  bounded distribution (as acroboter.control.distribution.BoundedInputs; the Python controller's u, "
+                 "also where a limit binds):")
     lines += [f"    - {text}" for text in export.distribution]
     if export.qp_used:
         lines.append(
@@ -58,10 +58,10 @@ def _limits_block(export: StepExport) -> list[str]:
             "printing that is compiled out (CASADI_SNPRINTF undefined): no stdio function is referenced"
         )
     lines.append("    - weights, relative to G's scale tr(G)/l (its mean eigenvalue: a sum of the diagonal, no "
-                 f"eigenvalue solver), as acroboter.control.distribution: mu = SECONDARY_WEIGHT * tr(G)/l (SECONDARY_WEIGHT = "
-                 f"{SECONDARY_WEIGHT:g}) on the internal forces in a lexicographic QP; mu = PENALTY_SECONDARY_WEIGHT * "
-                 f"tr(G)/l (PENALTY_SECONDARY_WEIGHT = {PENALTY_SECONDARY_WEIGHT:g}) in the weighted form (eq12/eq13 "
-                 "with more inputs than servo-constraints only)")
+                 "eigenvalue solver), as acroboter.control.distribution: mu = SECONDARY_WEIGHT * tr(G)/l "
+                 f"(SECONDARY_WEIGHT = {SECONDARY_WEIGHT:g}) on the internal forces in a lexicographic QP; "
+                 f"mu = PENALTY_SECONDARY_WEIGHT * tr(G)/l (PENALTY_SECONDARY_WEIGHT = {PENALTY_SECONDARY_WEIGHT:g}) "
+                 "in the weighted form (eq12/eq13 with more inputs than servo-constraints only)")
     lines.append("    - the C returns u only: which inputs hold a limit (the controller's limit_state) is not reported")
     return lines
 

@@ -165,8 +165,8 @@ def _mlm_internal_forces(graph: StepGraph) -> ca.MX:
     )
     export.distribution.append(
         f"{l} inputs for {k} servo-constraints: u = u_pref + E^T (E E^T)^-1 (e - E u_pref), the solution of E u = e "
-        "closest to the preferred values (acroboter.control.distribution's lexicographic eigen split of E^T E, in closed "
-        "form)" + (", if within the limits; otherwise the QP with Hessian E^T E + mu Z Z^T, Z Z^T = "
+        "closest to the preferred values (acroboter.control.distribution's lexicographic eigen split of E^T E, in "
+        "closed form)" + (", if within the limits; otherwise the QP with Hessian E^T E + mu Z Z^T, Z Z^T = "
         "I - E^T (E E^T)^-1 E, mu = SECONDARY_WEIGHT * tr(E^T E)/l" if bounds.bounded else "")
     )
     export.notes.append(
@@ -365,8 +365,8 @@ def _recovery_prelude(graph: StepGraph) -> dict[str, ca.SX]:
         graph.export.distribution.append(
             f"{l} inputs for {k} servo-constraints: as controllers.Penalty, always the distribution of the projected "
             "recovery's fit 1/2 u^T G u + g^T u, G = H^T P H, g = H^T P sigma_q^T lambda_hat, lexicographic in the "
-            "servo accelerations E u (acroboter.control.distribution.BoundedInputs.solve_task): the fit's input in the task "
-            "directions u_F = -E^T (E G E^T)^-1 E g, its servo accelerations e_F = E u_F exactly and the internal "
+            "servo accelerations E u (acroboter.control.distribution.BoundedInputs.solve_task): the fit's input in the "
+            "task directions u_F = -E^T (E G E^T)^-1 E g, its servo accelerations e_F = E u_F exactly and the internal "
             "forces (null(E)) at the preferred values: u = u_pref + E^T (E E^T)^-1 (e_F - E u_pref)"
             + (", if within the limits; otherwise the QP with Hessian E^T E + mu Z Z^T, Z Z^T = I - E^T (E E^T)^-1 E, "
                "gradient -E^T e_F - mu Z Z^T u_pref, mu = SECONDARY_WEIGHT * tr(E^T E)/l"

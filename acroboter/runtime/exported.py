@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..codegen.templates import render
+
 __all__ = ["ExportedController", "compile_shared", "load_exported_controller"]
 
 
@@ -80,8 +82,7 @@ class ExportedController:
 def load_exported_controller(folder: Path, name: str, n_inputs: int, n_signals: int) -> ExportedController:
     """<name>.c and <name>_functions.c in `folder` (as write_controller leaves them) compiled and bound."""
     folder = Path(folder)
-    (folder / "state_size.c").write_text(f'#include <stddef.h>\n#include "{name}.h"\n'
-                                         f"size_t {name}_state_size(void) {{ return sizeof({name}_state); }}\n")
+    (folder / "state_size.c").write_text(render("state_size.c", NAME=name))
     sources = [folder / f for f in (f"{name}.c", f"{name}_functions.c", "state_size.c")]
     lib = compile_shared(sources, folder / f"lib{name}.so", f"the exported controller {name}")
     return ExportedController(lib, name, n_inputs, n_signals)
