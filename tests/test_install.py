@@ -164,7 +164,8 @@ def test_the_installed_package_carries_its_c_and_exports_the_controller(installe
     above) and the stateful export read it."""
     python, site, env, _ = installed
     shipped = sorted(p.name for p in (site / "acroboter" / "codegen" / "c").iterdir())
-    assert {"estimator.c", "estimator_state.h", "controller.c", "controller.h", "path.c", "plant_loop.c"} <= set(shipped)
+    assert {"estimator.c", "estimator_state.h", "controller.c", "controller.h", "path.c",
+            "plant_loop.c"} <= set(shipped)
     proc = _run(python, ["export-step", "--stateful", "--out", "ctrl"], tmp_path, env, timeout=600)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert (tmp_path / "ctrl" / "acroboter_penalty_controller.h").is_file()

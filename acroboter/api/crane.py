@@ -249,7 +249,8 @@ class Crane:
         section; False, none; a mapping of overrides onto the spec's section (or, without one, the
         groups 'positions', 'axes', 'lengths' measuring every coordinate exactly): `noise` and
         `quantization` ({group: value}), `delay_periods`, `seed`, `velocity_filter_s`,
-        `projection_iterations`, `groups`. A bad value, or groups that measure too little for the
+        `projection_iterations`, `groups`, and the sample checks' `max_speed`, `max_axis_rate`, `max_coast_periods`
+        (docs/sensing.md, "Bad samples"). A bad value, or groups that measure too little for the
         constraints to determine the rest, is a SpecError naming the field (docs/sensing.md)."""
         chosen = resolve_sensing(self.spec, sensing, source=str(self.source or self.name))
         if chosen is not None and chosen is not self.spec.sensing:

@@ -27,6 +27,8 @@ COMMAND_TOLERANCE = 1e-9
 # After a fault the checks rejected, the commands are back within 0.1 N of an undisturbed run's within this many
 # periods (tests/test_fail_safe.py: a property over generated faults; measured 3 on the default crane).
 RECOVERY_PERIODS = 10
+# A step more than this many periods after the last one does not integrate z over the gap.
+MAX_GAP_PERIODS = 10
 # The step's return codes (acroboter.sim.stateful.STEP_CODES says the same in Python).
 CODES = {"OK": 0, "NOT_INITIALISED": 1, "CORE_FAILED": 2, "UNTRUSTED": 3, "COASTING": 4, "LOST": 5,
          "UNSAFE_COMMAND": 6, "INVALID_Q0": 7, "NO_STATIC_COMMAND": 8}
@@ -70,7 +72,8 @@ def state_bytes(export) -> int:
     f64, i32, i64, ptr = ctypes.c_double, ctypes.c_int, ctypes.c_longlong, ctypes.c_void_p
     fields = [("magic", ctypes.c_ulonglong), ("k", i64), ("code", i32), ("has_t_last", i32), ("hold", i32),
               ("t_last", f64), ("saturated", f64), ("q0", f64 * n), ("sig", f64 * ((d + 1) * 3 * lay.n_signals)),
-              ("q", f64 * (2 * n)), ("z", f64 * (3 * max(lay.k, 1))), ("qdd", f64 * n), ("u", f64 * (3 * lay.l)),
+              ("q", f64 * (2 * n)), ("z", f64 * (5 * max(lay.k, 1) + 1)), ("has_t_kept", i32), ("qdd", f64 * n),
+              ("u", f64 * (3 * lay.l)),
               ("phi", f64 * max(export.n_constraints, 1))]
     if est is not None:
         ew = est.work
@@ -78,7 +81,7 @@ def state_bytes(export) -> int:
         class Estimator(ctypes.Structure):
             _fields_ = [("d", f64 * (6 * n + (d + 1) * n + 2 * n + max(est.measured.size, 1) + n
                                      + max(est.unmeasured.size, 1) + max(len(est.rows), 1) + 2)),
-                        ("k", i64), ("ints", i32 * 6), ("arg", ptr * max(ew[0], 1)), ("res", ptr * max(ew[1], 1)),
+                        ("k", i64), ("ints", i32 * 7), ("arg", ptr * max(ew[0], 1)), ("res", ptr * max(ew[1], 1)),
                         ("iw", i64 * max(ew[2], 1)), ("w", f64 * max(ew[3], 1))]
 
         fields.append(("est", Estimator))
@@ -125,12 +128,14 @@ def _estimator_lines(export) -> list[str]:
     if est is None:
         return []
     iters, c = export.iterations, est.checks
+    names = [export.coordinates[est.measured[a]].rpartition("_")[0] for a, _, _ in c.axes]  # 'CC.u' of 'CC.u_x'
+    axes = ", ".join(f"{n} {v:g}" for n, v in zip(names, c.axis_tolerance, strict=True)) or "(none measured whole)"
     return [
         "Estimator (acroboter.sim.sensing.Estimator, statement for statement), in each step:",
         "  1. the prediction at the sample's time: the last estimate carried over the period with the acceleration "
         "commanded then;",
         f"  2. the sample's checks (docs/sensing.md, 'Bad samples'): every y[j] finite; every fully measured unit axis "
-        f"of unit length to {', '.join(f'{v:g}' for v in c.axis_tolerance) or '-'}; every y[j] within its gate of "
+        f"of unit length to {axes}; every y[j] within its gate of "
         f"the prediction (max_speed = {s.max_speed:g} m/s or max_axis_rate = {s.max_axis_rate:g} 1/s times T, "
         f"plus {GATE_SIGMAS:g} noise sd and one quantisation step; listed with y above), the gate widened by each "
         f"period coasted (x (1 + st->est.coasted)); the projection of the sample converged (max |phi| <= "
@@ -157,8 +162,8 @@ def _estimator_lines(export) -> list[str]:
         f"jump beyond its gate, at most {u}_MAX_COAST samples long) the commands are back within 0.1 N of an "
         f"undisturbed run's within {RECOVERY_PERIODS} periods (tests/test_fail_safe.py; measured 3). A wrong sample "
         "the checks cannot tell from a motion (inside its gate, a frozen sensor while the crane moves slowly) is "
-        f"used like any other. {u}_reinit restarts the filter from the next sample (mid-motion: positions as they "
-        "come, rates from 0).",
+        f"used like any other. {export.name}_reinit restarts the filter from the next sample (mid-motion: positions "
+        "as they come, rates from 0).",
         "",
     ]
 
@@ -215,9 +220,14 @@ def header_text(export, symbols: list[str], stack=None) -> str:
         f"  void {name}_path(double t, double* signals);  the spec's path at t (s): [s; sd; sdd] in the signal "
         "layout below (m, m/s, m/s^2; the yaw in rad, rad/s, rad/s^2): rest-to-rest quintic edges through the "
         "waypoints, the yaw one quintic over the whole path, moving anchors following x and y; the same bits as "
-        "acroboter's DesiredPath.flat",
+        f"acroboter's DesiredPath.flat. It lasts {export.path_numbers[4]:.6g} s; before t = 0 it holds its start, "
+        "after its end its last waypoint, at rest",
+        f"  A step whose t or signals are not finite returns {u}_UNTRUSTED and changes nothing; a step more than "
+        f"{MAX_GAP_PERIODS} periods after the last one does not integrate z over the gap; a step that returns "
+        f"anything but {u}_OK or {u}_COASTING leaves z as it was.",
         "",
-        "Return codes of step (and init); u always holds a command within the bounds below:",
+        "Return codes of step (and init); after every code but 1, u holds a command within the bounds below "
+        f"({name}_u_low, {name}_u_high):",
         f"  {u}_OK 0: the sample was accepted, u computed from it",
         f"  {u}_NOT_INITIALISED 1: init never succeeded on this struct: u is NOT written, nothing changed",
         f"  {u}_CORE_FAILED 2: the core step failed (its bounded QP did not converge): u = the safe command",
@@ -308,9 +318,9 @@ def render_controller(export, function_text: str, stack=None) -> tuple[str, str]
         f"#define K1 {max(lay.k, 1)}", f"#define M_ALL {max(export.n_constraints, 1)}", f"#define NB {len(bodies)}",
         f"#define KI {export.step.gains.ki!r}", f"#define MAGIC {u}_MAGIC",
         f"#define INIT_TOLERANCE {INIT_TOLERANCE!r}", f"#define COMMAND_TOLERANCE {COMMAND_TOLERANCE!r}",
-        f"#define PROJECTION_ACCEPT {PROJECTION_ACCEPT!r}",
-        f"static const double u_low[{lay.l}] = {{{_numbers(export.command_low)}}};",
-        f"static const double u_high[{lay.l}] = {{{_numbers(export.command_high)}}};",
+        f"#define PROJECTION_ACCEPT {PROJECTION_ACCEPT!r}", f"#define MAX_GAP {MAX_GAP_PERIODS * export.period!r}",
+        f"const double {name}_u_low[{lay.l}] = {{{_numbers(export.command_low)}}};",
+        f"const double {name}_u_high[{lay.l}] = {{{_numbers(export.command_high)}}};",
         f"static const casadi_int bodies[{len(bodies)}] = {{{', '.join(map(str, bodies))}}};",
         f"static const double path_table[{export.path_numbers.size}] = {{{_numbers(export.path_numbers)}}};",
         f"const double {name}_q0[{n}] = {{{_numbers(export.start_q)}}};",

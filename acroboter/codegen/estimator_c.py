@@ -44,7 +44,7 @@ __all__ = ["EstimatorExport", "OFFSET_FIELDS", "build_estimator", "estimator_key
 
 # The struct fields the fast path reads through <name>_offsets (acroboter.runtime.fast_library), in this order.
 OFFSET_FIELDS = ("qm", "qdm", "xf", "vf", "q", "qd", "acc", "pred", "q_good", "violation", "jump", "k", "started",
-                 "coasted", "prev_valid", "status", "reason", "rejected")
+                 "coasted", "prev_valid", "status", "reason", "rejected", "distrust")
 
 
 @dataclass

@@ -161,15 +161,15 @@ class FastEstimatorBinding:
         for field, offset in zip(OFFSET_FIELDS, offsets[1:], strict=True):
             if field == "k":
                 dtype, count = np.int64, 1
-            elif field in ("started", "coasted", "prev_valid", "status", "reason", "rejected"):
+            elif field in ("started", "coasted", "prev_valid", "status", "reason", "rejected", "distrust"):
                 dtype, count = np.int32, 1
             else:
                 dtype, count = np.float64, counts.get(field, n)
             width = np.dtype(dtype).itemsize
             self._views[field] = raw[offset : offset + width * count].view(dtype)
-        # the two doubles and the six ints the records read, adjacent in the struct: one view each
+        # the two doubles and the seven ints the records read, adjacent in the struct: one view each
         self._views["scalars"] = raw[offsets[1 + OFFSET_FIELDS.index("violation")] :][:16].view(np.float64)
-        self._views["ints"] = raw[offsets[1 + OFFSET_FIELDS.index("started")] :][:24].view(np.int32)
+        self._views["ints"] = raw[offsets[1 + OFFSET_FIELDS.index("started")] :][:28].view(np.int32)
         self.at = self.state.ctypes.data
         pointer = ctypes.c_void_p
 

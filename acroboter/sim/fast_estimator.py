@@ -26,7 +26,7 @@ class FastEstimator(Estimator):
         self.q, self.qd = b.view("q"), b.view("qd")
         self._pred, self._q_good = b.view("pred"), b.view("q_good")
         self._acc = b.view("acc").reshape(d + 1, n)
-        self._scalars, self._ints = b.view("scalars"), b.view("ints")  # [violation, jump]; [started .. rejected]
+        self._scalars, self._ints = b.view("scalars"), b.view("ints")  # [violation, jump]; [started .. distrust]
         ns = model.layout.n_signals
         self._sig_m, self._sig_t = np.zeros(3 * ns), np.zeros(3 * ns)
         self._sig_at = (self._sig_m.ctypes.data, self._sig_t.ctypes.data)
@@ -59,7 +59,7 @@ class FastEstimator(Estimator):
 
     def _read(self) -> None:
         self.last_violation, self.jump = self._scalars.tolist()
-        _, self.coasted, _, status, self.reason, self.rejected = self._ints.tolist()
+        _, self.coasted, _, status, self.reason, self.rejected, self.distrust = self._ints.tolist()
         self.status = (ACCEPTED, COASTING, LOST)[status]
 
 

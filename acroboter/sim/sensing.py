@@ -32,7 +32,7 @@ from pydantic import ValidationError
 from scipy.linalg.lapack import dpotrf, dpotrs
 
 from ..control.path import DesiredPath
-from ..model.layout import nominal_coordinates
+from ..model.layout import build_layout, nominal_coordinates
 from ..model.schema import Sensing, SpecError, _Strict
 from ..model.sensing_layout import PROJECTION_ACCEPT, PROJECTION_TOLERANCE, is_ideal, measured_indices, sample_checks
 from ..model.spec_checks import sensing_problems
@@ -45,6 +45,7 @@ __all__ = ["ACCEPTED", "COASTING", "LOST", "PROJECTION_TOLERANCE", "REASONS", "E
 # A column-rank deficit of φ_q on the unmeasured coordinates: singular values below this × the largest.
 RANK_TOLERANCE = 1e-9
 OVERRIDE_KEYS = ("noise", "quantization", *Sensing.model_fields)  # groups, delay_periods, seed, ...
+CHECK_KEYS = ("max_speed", "max_axis_rate", "max_coast_periods")  # the sample checks' settings
 # An estimate further than this from the plant's state (m; unitless for the axes) is not the crane's: a failure
 # that follows it is the measurements' doing, and its message says so (`Estimator.trouble`).
 ESTIMATE_LIMIT = 0.5
@@ -119,6 +120,12 @@ def resolve(spec, sensing=None, source: str = "sensing") -> Sensing | None:
     problems = sensing_problems(spec, chosen)
     if problems:
         raise SpecError(source, problems)
+    if isinstance(sensing, Mapping) and is_ideal(spec, build_layout(spec), chosen):
+        given = [key for key in CHECK_KEYS if key in sensing]
+        if given:  # an ideal sensing is the state: nothing is checked, the setting would do nothing
+            raise SpecError(source, [(f"sensing.{given[0]}", (
+                "an ideal sensing (every coordinate, no noise, no quantisation, no delay) is the plant's state: no "
+                "sample is checked; give some noise, quantisation or delay, or leave the sample checks out"))])
     return chosen
 
 
@@ -220,6 +227,7 @@ class Estimator:
         self._k = self._ks = 0
         self._started = self._prev_valid = False
         self.coasted = 0  # samples rejected in a row (capped at max_coast + 1)
+        self.distrust = 0  # +2 per rejected sample, -1 per accepted: a fault that keeps coming back loses the estimate
         self.status, self.reason, self.rejected = ACCEPTED, 0, -1  # of the last update (REASONS[reason])
         self.jump = 0.0  # the last sample's largest |y − prediction| / gate
         self.rng = np.random.default_rng(sensing.seed)
@@ -257,7 +265,7 @@ class Estimator:
         self._acc[:] = 0.0
         self._k = 0
         self._started = self._prev_valid = False
-        self.coasted, self.status, self.reason, self.rejected, self.jump = 0, ACCEPTED, 0, -1, 0.0
+        self.coasted, self.status, self.reason, self.rejected, self.jump, self.distrust = 0, ACCEPTED, 0, -1, 0.0, 0
         self.last_violation = 0.0
 
     def _reset_sensor(self, q0: np.ndarray) -> None:
@@ -275,7 +283,7 @@ class Estimator:
         self._qdm[:] = self._vf[:] = 0.0
         self._xf[:] = self._qm
         self._started = self._prev_valid = False
-        self.coasted, self.status, self.reason, self.rejected = 0, ACCEPTED, 0, -1
+        self.coasted, self.status, self.reason, self.rejected, self.distrust = 0, ACCEPTED, 0, -1, 0
 
     # --- the estimator -------------------------------------------------------------------------------
     def project(self, q: np.ndarray, signals) -> np.ndarray:
@@ -405,7 +413,7 @@ class Estimator:
         pred[:] = q
         if self._started:  # the prediction: the unmeasured coordinates' prior, the measured ones' check
             pred += T * qd + (0.5 * T * T) * acc
-        lost = self.coasted > self.checks.max_coast
+        lost = self._lost()
         reason, rejected = self._check(y, lost)
         q[:] = pred
         if reason == 0:
@@ -444,8 +452,16 @@ class Estimator:
             self.project(out_q, self.path.flat(t))
             self._consistent_rates(out_qd)
         self.coasted = 0 if accepted else min(self.coasted + 1, self.checks.max_coast + 1)
+        if accepted:
+            self.distrust = 0 if lost else max(self.distrust - 1, 0)  # re-acquired: trusted anew
+        elif self.distrust <= 4 * self.checks.max_coast:
+            self.distrust += 2
         self._settle(reason, rejected, accepted)
         return self.status
+
+    def _lost(self) -> bool:
+        """More than max_coast_periods rejected in a row, or a fault that keeps coming back (distrust)."""
+        return self.coasted > self.checks.max_coast or self.distrust > 4 * self.checks.max_coast
 
     def _settle(self, reason: int, rejected: int, accepted: bool) -> None:
         """The update's status; an estimate that turned non-finite goes back to the last accepted one, at rest,
@@ -460,7 +476,7 @@ class Estimator:
         elif accepted:
             self._q_good[:] = self._qm
         self.reason, self.rejected = reason, rejected
-        self.status = ACCEPTED if accepted else (LOST if self.coasted > self.checks.max_coast else COASTING)
+        self.status = ACCEPTED if accepted else (LOST if self._lost() else COASTING)
 
     def trouble(self, q_plant: np.ndarray) -> str | None:
         """Why the last estimate handed to the controller cannot stand for the plant's state `q_plant` (the state

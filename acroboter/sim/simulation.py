@@ -329,9 +329,14 @@ def _no_command(stateful: StatefulController, sensor) -> str:
     if code == 5:
         j = sensor.rejected
         where = f" at y[{j}] {stateful.model.layout.coordinates[sensor.index[j]]}" if j >= 0 else ""
-        return (f"the controller's estimate was lost: {sensor.checks.max_coast + 1} samples in a row rejected, the "
-                f"last {REASONS[sensor.reason]}{where} (sensing: {describe(sensor.sensing)}); it holds its last good "
-                "command until two consecutive samples agree (docs/sensing.md, \"Bad samples\")")
+        s = sensor.sensing
+        gate = (f"; the gate: max_speed = {s.max_speed:g} m/s, max_axis_rate = {s.max_axis_rate:g} 1/s"
+                if sensor.reason in (3, 5) else "")
+        count = (f"{sensor.checks.max_coast + 1} samples in a row rejected" if sensor.coasted > sensor.checks.max_coast
+                 else "more than a third of the samples rejected")
+        return (f"the controller's estimate was lost: {count}, the last {REASONS[sensor.reason]}{where} (sensing: "
+                f"{describe(s)}{gate}); it holds its last good command until two consecutive samples agree "
+                "(docs/sensing.md, \"Bad samples\")")
     return f"the controller's step returned {code}: {STEP_CODES[code]}"
 
 

@@ -16,6 +16,8 @@ that says why.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..control.controllers import Controller, SingularSystemError
@@ -45,6 +47,8 @@ STEP_CODES = {
 INIT_TOLERANCE = 1e-6
 # A command within its bounds to this fraction of max(1, |bound|) (the bounded QP meets a limit to round-off).
 COMMAND_TOLERANCE = 1e-9
+# A step more than this many periods after the last one does not integrate z over the gap.
+MAX_GAP_PERIODS = 10
 
 
 def check_start(model, q0: np.ndarray, signals: np.ndarray) -> str | None:
@@ -75,6 +79,7 @@ class StatefulController:
         lay = model.layout
         self.model, self.path, self.controller, self.estimator = model, path, controller, estimator
         self.n, self.l = lay.n, lay.l
+        self.period = 1.0 / model.spec.controller.rate_hz
         self.low, self.high = command_bounds(model.spec)
         self._tol_low = COMMAND_TOLERANCE * np.maximum(1.0, np.abs(self.low))
         self._tol_high = COMMAND_TOLERANCE * np.maximum(1.0, np.abs(self.high))
@@ -97,6 +102,8 @@ class StatefulController:
         """The crane at rest at q0 at time t0: checked (code 7, nothing changed), its static command (the core step at
         rest with the path held at t0) the first safe command (code 8 if there is none), then reset."""
         q0 = np.asarray(q0, dtype=float)
+        if q0.shape != (self.n,):
+            raise ValueError(f"q0: expected {self.n} coordinates (crane.coordinates' order), found shape {q0.shape}")
         signals = self.signals(t0)
         self.problem = check_start(self.model, q0, signals)
         if self.problem is not None:
@@ -142,15 +149,26 @@ class StatefulController:
         if not self.initialised:
             self.code = 1
             return 1
-        self.code = self._step(np.asarray(y, dtype=float), t, signals)
+        y = np.asarray(y, dtype=float)
+        size = self.estimator.index.size if self.estimator is not None else 2 * self.n
+        if y.shape != (size,):
+            raise ValueError(f"y: expected {size} measurements (result.measurement_names' order), found shape "
+                             f"{y.shape}")
+        inner = getattr(self.controller, "reference", self.controller)  # the fast path's wrapper: its reference's z
+        kept = (inner.integral.copy(), inner._sigma_last.copy(), inner._t_last)  # restored after a failed step
+        self.code = self._step(y, t, signals)
         if self.code in (0, 4):
             self.u_safe[:] = self.u
         else:
             self.u[:] = self.u_safe
+            inner.integral[:], inner._sigma_last[:], inner._t_last = kept
+            inner.hold_integral()  # nor over the period that ends at the next step
         return self.code
 
     def _step(self, y: np.ndarray, t: float, signals) -> int:
         est, ctrl, n = self.estimator, self.controller, self.n
+        if not math.isfinite(t) or (signals is not None and not np.isfinite(signals).all()):
+            return 3  # the caller's time and path: a step that cannot trust them changes nothing
         if est is None:
             self.q[:], self.qd[:] = y[:n], y[n : 2 * n]
             status = ACCEPTED
@@ -168,6 +186,9 @@ class StatefulController:
             return 3
         if status != ACCEPTED:
             ctrl.hold_integral()
+        last = getattr(ctrl, "reference", ctrl)._t_last
+        if last is not None and t - last > MAX_GAP_PERIODS * self.period:
+            ctrl.hold_integral()  # a gap in the calls is not integrated over
         try:
             u = ctrl.compute(self.q, self.qd, t, signals)
         except SingularSystemError:

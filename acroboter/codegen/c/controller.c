@@ -11,8 +11,8 @@
 static int command_within(const double* u) {
   casadi_int i;
   for (i = 0; i < L; ++i)
-    if (!isfinite(u[i]) || !(u[i] >= u_low[i] - COMMAND_TOLERANCE * fmax(1.0, fabs(u_low[i]))) ||
-        !(u[i] <= u_high[i] + COMMAND_TOLERANCE * fmax(1.0, fabs(u_high[i]))))
+    if (!isfinite(u[i]) || !(u[i] >= @NAME@_u_low[i] - COMMAND_TOLERANCE * fmax(1.0, fabs(@NAME@_u_low[i]))) ||
+        !(u[i] <= @NAME@_u_high[i] + COMMAND_TOLERANCE * fmax(1.0, fabs(@NAME@_u_high[i]))))
       return 0;
   return 1;
 }
@@ -102,6 +102,9 @@ int @NAME@_reinit(@NAME@_state* st) {
 static int control(@NAME@_state* st, const double* y, double t, const double* signals) {
   casadi_int i;
   int status = 0;
+  if (!isfinite(t)) return UNTRUSTED; /* the caller's time and path: a step that cannot trust them changes nothing */
+  for (i = 0; i < 3 * NS; ++i)
+    if (!isfinite(signals[i])) return UNTRUSTED;
 #if ESTIMATOR
   {
     const casadi_int slot = (casadi_int)(st->k % (DELAY + 1));
@@ -143,6 +146,7 @@ static int control(@NAME@_state* st, const double* y, double t, const double* si
       return UNTRUSTED;
     }
   if (status != 0) st->hold = 1; /* the estimate is a prediction: z not advanced over this period */
+  if (st->has_t_last && t - st->t_last > MAX_GAP) st->hold = 1; /* a gap in the calls is not integrated over */
   if (KI != 0.0) { /* integral action (Controller._integrate): trapezoid, held after a saturated step */
     st->arg[0] = st->q;
     st->arg[1] = st->qd;
@@ -185,9 +189,24 @@ int @NAME@_step(@NAME@_state* st, const double* y, double t, const double* signa
   casadi_int i;
   int code;
   if (st->magic != MAGIC) return NOT_INITIALISED;
+  for (i = 0; i < K1; ++i) { /* the integral as it was: a step without a trustworthy command leaves it so */
+    st->z_kept[i] = st->z[i];
+    st->sigma_kept[i] = st->sigma_last[i];
+  }
+  st->t_kept = st->t_last;
+  st->has_t_kept = st->has_t_last;
   code = control(st, y, t, signals);
-  if (code == OK || code == COASTING)
+  if (code == OK || code == COASTING) {
     for (i = 0; i < L; ++i) st->u_safe[i] = st->u_core[i];
+  } else {
+    for (i = 0; i < K1; ++i) {
+      st->z[i] = st->z_kept[i];
+      st->sigma_last[i] = st->sigma_kept[i];
+    }
+    st->t_last = st->t_kept;
+    st->has_t_last = st->has_t_kept;
+    st->hold = 1; /* nor over the period that ends at the next step */
+  }
   for (i = 0; i < L; ++i) u[i] = st->u_safe[i];
   st->code = code;
   return code;

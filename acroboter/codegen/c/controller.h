@@ -23,6 +23,8 @@ typedef struct {
   double sig[@DELAY1@][@NS3@];       /* the signals passed in the last DELAY + 1 calls */
   double q[@N@], qd[@N@];            /* the estimate the last step used (without an estimator: y) */
   double z[@K1@], sigma[@K1@], sigma_last[@K1@]; /* integral action: z = int sigma dt, and sigma */
+  double z_kept[@K1@], sigma_kept[@K1@], t_kept; /* the integral before the step: restored after a failed one */
+  int has_t_kept;
   double qdd[@N@];                   /* the core step's commanded acceleration (1/s^2 times q's units) */
   double u_core[@L@];                /* the core step's command, before its checks */
   double u_safe[@L@];                /* the safe command: the last good one (after init: u_static) */
@@ -34,10 +36,12 @@ typedef struct {
   casadi_real w[@SZ_W@];
 } @NAME@_state;
 
-/* q0 = the spec's static equilibrium at the start of its path (what acroboter's runs start from), and the y index
- * -> q index map of the measurements: constants for a caller without Python. */
+/* q0 = the spec's static equilibrium at the start of its path (what acroboter's runs start from), the y index -> q
+ * index map of the measurements, and the bounds every command u is within (the limits and the sanity bound):
+ * constants for a caller without Python. */
 extern const double @NAME@_q0[@N@];
 extern const int @NAME@_y_coordinate[@NY@];
+extern const double @NAME@_u_low[@L@], @NAME@_u_high[@L@];
 
 int @NAME@_init(@NAME@_state* st, const double* q0, const double* signals);
 int @NAME@_reset(@NAME@_state* st);

@@ -69,7 +69,7 @@ EST_API void @NAME@_estimator_start(@NAME@_estimator* e, const double* q0) {
     for (i = 0; i < EST_N; ++i) e->acc[j][i] = 0.0;
   e->violation = e->jump = 0.0;
   e->k = 0;
-  e->started = e->coasted = e->prev_valid = e->status = e->reason = 0;
+  e->started = e->coasted = e->prev_valid = e->status = e->reason = e->distrust = 0;
   e->rejected = -1;
 }
 
@@ -85,7 +85,7 @@ EST_API void @NAME@_estimator_reinit(@NAME@_estimator* e) {
     e->qdm[i] = e->vf[i] = 0.0;
     e->xf[i] = e->qm[i];
   }
-  e->started = e->coasted = e->prev_valid = e->status = e->reason = 0;
+  e->started = e->coasted = e->prev_valid = e->status = e->reason = e->distrust = 0;
   e->rejected = -1;
 }
 
@@ -129,7 +129,7 @@ EST_API int @NAME@_estimator_update(@NAME@_estimator* e, const double* y, const 
   }
 #endif
   valid = reason == 0;
-  lost = e->coasted > EST_MAX_COAST;
+  lost = e->coasted > EST_MAX_COAST || e->distrust > 4 * EST_MAX_COAST;
   e->jump = 0.0;
   if (valid && e->started && !lost) {
     scale = 1.0 + (double)e->coasted;
@@ -207,6 +207,8 @@ EST_API int @NAME@_estimator_update(@NAME@_estimator* e, const double* y, const 
   if (@NAME@_rates(e, e->q, e->qd, sig_t)) return -1;
 #endif
   e->coasted = accepted ? 0 : (e->coasted > EST_MAX_COAST ? EST_MAX_COAST + 1 : e->coasted + 1);
+  if (accepted) e->distrust = lost ? 0 : (e->distrust > 0 ? e->distrust - 1 : 0); /* re-acquired: trusted anew */
+  else if (e->distrust <= 4 * EST_MAX_COAST) e->distrust += 2;
   for (i = 0; i < EST_N; ++i)
     if (!isfinite(q[i]) || !isfinite(qd[i]) || !isfinite(e->xf[i]) || !isfinite(e->vf[i]) || !isfinite(e->q[i]) ||
         !isfinite(e->qd[i]))
@@ -226,6 +228,6 @@ EST_API int @NAME@_estimator_update(@NAME@_estimator* e, const double* y, const 
   }
   e->reason = reason;
   e->rejected = rejected;
-  e->status = accepted ? 0 : (e->coasted > EST_MAX_COAST ? 2 : 1);
+  e->status = accepted ? 0 : (e->coasted > EST_MAX_COAST || e->distrust > 4 * EST_MAX_COAST ? 2 : 1);
   return e->status;
 }

@@ -22,6 +22,8 @@ typedef struct {
                                        (re-acquisition), 6 the estimate turned non-finite (reset to the last
                                        accepted one, at rest) */
   int rejected;                     /* the y index that failed the check (-1: none, or not one coordinate's) */
+  int distrust;                     /* +2 per rejected sample, -1 per accepted one: a fault that keeps coming back
+                                       (more than a third of the samples) loses the estimate past 4 MAX_COAST */
   const casadi_real* arg[@SZ_ARG@];
   casadi_real* res[@SZ_RES@];
   casadi_int iw[@SZ_IW@];
