@@ -22,7 +22,7 @@ NOT_CODE = re.compile(r"xǁ|__mutmut_|no_such_mutant")
 
 def _sources() -> list[Path]:
     found = [REPO / "README.md", *sorted((REPO / "docs").rglob("*.md")), *sorted((REPO / "acroboter").rglob("*.py")),
-             *sorted((REPO / "acroboter" / "codegen" / "c").iterdir()), *sorted((REPO / "tools").iterdir()),
+             *sorted((REPO / "acroboter" / "c").iterdir()), *sorted((REPO / "tools").iterdir()),
              *sorted((REPO / "generated").rglob("*.c"))]
     return [p for p in found if p.is_file()]
 

@@ -160,10 +160,10 @@ def test_two_concurrent_first_runs_of_a_new_crane_build_one_library(installed, t
 
 
 def test_the_installed_package_carries_its_c_and_exports_the_controller(installed, tmp_path):
-    """The hand-written C (acroboter/codegen/c/*.c, *.h) is package data: the installed package's plant loop (the run
+    """The hand-written C (acroboter/c/*.c, *.h) is package data: the installed package's plant loop (the run
     above) and the stateful export read it."""
     python, site, env, _ = installed
-    shipped = sorted(p.name for p in (site / "acroboter" / "codegen" / "c").iterdir())
+    shipped = sorted(p.name for p in (site / "acroboter" / "c").iterdir())
     assert {"estimator.c", "estimator_state.h", "controller.c", "controller.h", "path.c",
             "plant_loop.c"} <= set(shipped)
     proc = _run(python, ["export-step", "--stateful", "--out", "ctrl"], tmp_path, env, timeout=600)

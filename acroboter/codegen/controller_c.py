@@ -11,7 +11,7 @@ writes four files for the robot's real-time computer:
   independent rows, the minimal-norm Gauss–Newton step φ_qᵀ(φ_q φ_qᵀ)⁻¹φ, the unmeasured coordinates'
   least-squares step (a_Uᵀa_U)⁻¹a_Uᵀφ, the rate correction φ_qᵀ(φ_q φ_qᵀ)⁻¹φ̇ and σ (SX Cholesky, as
   codegen.structured.cholesky_solve);
-- <name>.c/.h: the hand-written wrapper (acroboter/codegen/c/controller.c and .h, the estimator's
+- <name>.c/.h: the hand-written wrapper (acroboter/c/controller.c and .h, the estimator's
   estimator.c, the path's path.c, filled in by acroboter.codegen.controller_text) with a state struct and
   init(state, q0, signals), step(state, y, t, signals, u), reset(state), reinit(state) and path(t, signals):
   the estimator with its sample checks (fixed iteration counts), the α-β filter, the delay carried over with
@@ -45,7 +45,7 @@ from .structured import independent_rows
 from .symbolic import build_symbolic_model
 
 RANK_TOLERANCE = 1e-9  # as acroboter.sim.sensing.RANK_TOLERANCE
-# CasADi's generated C under -Wall -Wextra (tests/test_c_templates.py): every function has the same signature
+# CasADi's generated C under -Wall -Wextra (tests/test_c_sources.py): every function has the same signature
 # (arg, res, iw, w, mem), most leave some unused; and gcc 12's -Warray-bounds flags casadi_copy's zero fill in the
 # bounded QP's Switch branch after constant propagation (a destination it sizes [0, 0]; -Wstringop-overflow says the
 # same), a path the sizes CasADi checked never take (closed loops ran clean under ASan and UBSan, docs/controller.md).

@@ -1,5 +1,5 @@
 """The hand-written part of the stateful exported controller (acroboter.codegen.controller_c): <name>.h and <name>.c,
-rendered from acroboter/codegen/c/controller.h and controller.c (with estimator.c and path.c). The header's comment
+rendered from acroboter/c/controller.h and controller.c (with estimator.c and path.c). The header's comment
 is written here: everything a C developer needs to deploy the controller from the header alone (units and frames of
 every argument, the measurement vector's layout as macros, the return codes and what u and the state hold after
 each, the sample checks and their numbers, iteration counts, state size, stack, the libm symbols).
@@ -14,10 +14,10 @@ import textwrap
 
 import casadi as ca
 
+from ..model.c_templates import render
 from ..model.sensing_layout import GATE_SIGMAS, PROJECTION_ACCEPT, PROJECTION_TOLERANCE
 from .estimator_c import estimator_text
 from .step_qp import QP_PLUGIN
-from .templates import render
 
 # qrqp's default iteration limit (CasADi 3.x 'max_iter'): the bounded QP's worst case, where a spec has limits.
 QP_MAX_ITER = 1000

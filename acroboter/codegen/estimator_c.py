@@ -1,4 +1,4 @@
-"""The estimator of acroboter.sim.sensing as C: one text (acroboter/codegen/c/estimator.c and estimator_state.h)
+"""The estimator of acroboter.sim.sensing as C: one text (acroboter/c/estimator.c and estimator_state.h)
 for the stateful exported controller (acroboter.codegen.controller_c, its functions static) and the fast path's
 compiled estimator (here, its functions extern, bound by acroboter.runtime.fast_library):
 
@@ -25,6 +25,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from ..model.c_templates import render, templates_digest
 from ..model.fingerprint import codegen_hash
 from ..model.schema import Sensing
 from ..model.sensing_layout import (
@@ -37,7 +38,6 @@ from ..model.sensing_layout import (
 from ..model.spec import Spec
 from .structured import cholesky_solve, independent_rows
 from .symbolic import build_symbolic_model
-from .templates import render, templates_digest
 
 __all__ = ["EstimatorExport", "OFFSET_FIELDS", "build_estimator", "estimator_key", "estimator_text",
            "write_estimator"]

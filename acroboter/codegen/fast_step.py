@@ -33,11 +33,11 @@ from pathlib import Path
 
 import casadi as ca
 
+from ..model.c_templates import render, templates_digest
 from ..model.fingerprint import codegen_hash
 from ..model.settings import Gains
 from ..model.spec import Spec
 from .export_step import FAST_OUTPUTS, build_step
-from .templates import render, templates_digest
 
 __all__ = ["FAST_OUTPUTS", "FastStep", "build_fast_step", "fast_key", "fast_name", "write_fast_step"]
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..codegen.templates import render
+from ..model.c_templates import render
 
 __all__ = ["ExportedController", "compile_shared", "load_exported_controller"]
 

@@ -9,7 +9,7 @@ the event in Python as before (acroboter.sim.cable_events) and calls the loop ag
 the plant's numbers are those of the Python loop to the bit: the same generated function on the same
 inputs, the same comparisons (a NaN indicator is no event in either), the same copies.
 
-The C is fixed text (acroboter/codegen/c/plant_loop.c), not generated from a spec: it takes the step as a function
+The C is fixed text (acroboter/c/plant_loop.c), not generated from a spec: it takes the step as a function
 pointer with CasADi's calling convention. It is compiled once into the cache like the fast path's libraries
 (acroboter.runtime.build: -O2 -fPIC, no fast-math, a checksum and a build key).
 """
@@ -20,13 +20,13 @@ import ctypes
 import hashlib
 from pathlib import Path
 
-from ..codegen.templates import FOLDER
+from ..model.c_templates import FOLDER
 from .build import ensure_built
 from .fast_library import _generated, _open
 
 NAME = "acroboter_plant_loop"
 
-# The loop's C (acroboter/codegen/c/plant_loop.c, package data): fixed text, no placeholders.
+# The loop's C (acroboter/c/plant_loop.c, package data): fixed text, no placeholders.
 SOURCE = (FOLDER / "plant_loop.c").read_text()
 
 _P = ctypes.c_void_p

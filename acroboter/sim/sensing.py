@@ -164,9 +164,9 @@ def check_measurable(model, sensing: Sensing, q: np.ndarray | None = None, sourc
         "winch cable's length follows from its cable row"))])
 
 
-# The estimator's status after an update (Estimator.status; the exported controller's est.status).
+# The estimator's status after an update (Estimator.status, est.status in C), and why a sample was rejected
+# (Estimator.reason, est.reason in C).
 ACCEPTED, COASTING, LOST = 0, 1, 2
-# Why a sample was rejected (Estimator.reason; est.reason in C).
 REASONS = ("accepted", "not finite", "a unit axis off unit length", "further from its prediction than the crane can "
            "move in a period", "the projection did not converge", "not confirmed by the sample before it",
            "the estimate turned non-finite")
@@ -262,8 +262,7 @@ class Estimator:
         self.qd[:] = 0.0
         self._qm[:] = self._xf[:] = self._q_good[:] = self._pred[:] = q0
         self._qdm[:] = self._vf[:] = 0.0
-        self._acc[:] = 0.0
-        self._k = 0
+        self._acc[:], self._k = 0.0, 0
         self._started = self._prev_valid = False
         self.coasted, self.status, self.reason, self.rejected, self.jump, self.distrust = 0, ACCEPTED, 0, -1, 0.0, 0
         self.last_violation = 0.0

@@ -1,4 +1,4 @@
-/* @NAME@: the stateful controller (see @NAME@.h). Generated from acroboter/codegen/c/controller.c by
+/* @NAME@: the stateful controller (see @NAME@.h). Generated from acroboter/c/controller.c by
  * `acroboter export-step --stateful`: do not edit, re-export. acroboter.sim.stateful.StatefulController is the
  * same step in Python, statement for statement. */
 #include <math.h>

@@ -1,6 +1,6 @@
-"""Hand-written C lives as C (acroboter/codegen/c/*.c, *.h: package data), filled in here: `render` replaces each
+"""Hand-written C lives as C (acroboter/c/*.c, *.h: package data), filled in here: `render` replaces each
 @KEY@ with its value and refuses a template left with a placeholder, so a C tool, an editor and the compiler's
-warnings (tests/test_c_templates.py: -Wall -Wextra -Werror) see the real text."""
+warnings (tests/test_c_sources.py: -Wall -Wextra -Werror) see the real text."""
 
 from __future__ import annotations
 
@@ -8,14 +8,14 @@ import hashlib
 import re
 from pathlib import Path
 
-FOLDER = Path(__file__).resolve().with_name("c")
+FOLDER = Path(__file__).resolve().parent.parent / "c"  # acroboter/c/: package data
 _PLACEHOLDER = re.compile(r"@[A-Z][A-Z0-9_]*@")
 
 __all__ = ["FOLDER", "render", "templates_digest"]
 
 
 def render(name: str, **values: object) -> str:
-    """The template `name` (a file in acroboter/codegen/c/) with @KEY@ replaced by str(values[KEY])."""
+    """The template `name` (a file in acroboter/c/) with @KEY@ replaced by str(values[KEY])."""
     text = (FOLDER / name).read_text()
     for key, value in values.items():
         text = text.replace(f"@{key}@", str(value))

@@ -1,4 +1,4 @@
-/* @NAME@: the fast path's estimator (acroboter.codegen.estimator_c, rendered from acroboter/codegen/c/). Generated:
+/* @NAME@: the fast path's estimator (acroboter.codegen.estimator_c, rendered from acroboter/c/). Generated:
  * do not edit. */
 #include <math.h>
 #include <stddef.h>
