@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 import acroboter
@@ -128,9 +128,12 @@ def inject(case: Case, fault) -> tuple[np.ndarray, np.ndarray]:
     return y, bad
 
 
-@settings(max_examples=int(os.environ.get("ACROBOTER_FAULT_EXAMPLES", "40")), deadline=None,
+@settings(max_examples=int(os.environ.get("ACROBOTER_FAULT_EXAMPLES", "40")), deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(fault=faults(), key=st.sampled_from(sorted(CASES)))
+@example(fault=("axis_negate", 30, 60, -1.0, 0), key="mlm-d1")  # the cases that caught planted mutants
+@example(fault=("jump", 30, 60, -1.0, 0), key="mlm-d1")
+@example(fault=("nan", 11, 60, 1.0, 3), key="penalty-d1")
 def test_bad_samples_never_command_outside_the_bounds(cases, fault, key):
     case = cases[key]
     y, bad = inject(case, fault)
