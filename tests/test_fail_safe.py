@@ -423,23 +423,27 @@ def test_the_c_templates_render_completely():
     assert render("plant_loop.c") == (FOLDER / "plant_loop.c").read_text()  # no placeholder: as it is
 
 
+def with_winch_bound(case: Case, folder: Path, bound: float):
+    """The case's exported controller copied into `folder` with the winches' upper bound edited to `bound` in its
+    generated constants, compiled and bound."""
+    source_folder, name = Path(case.c.lib._name).parent, case.c.name
+    for f in (f"{name}.c", f"{name}.h", f"{name}_functions.c", f"{name}_functions.h"):
+        shutil.copy(source_folder / f, folder / f)
+    source = folder / f"{name}.c"
+    text = source.read_text()
+    high = re.search(rf"const double {name}_u_high\[6\] = \{{([^}}]*)\}};", text)
+    values = [float(v) for v in high.group(1).split(",")]
+    edited = f"const double {name}_u_high[6] = {{" + ", ".join(map(repr, [bound] * 3 + values[3:])) + "};"
+    source.write_text(text.replace(high.group(0), edited))
+    return load_exported_controller(folder, name, case.crane.layout.l, case.crane.layout.n_signals)
+
+
 def test_a_command_beyond_the_bound_is_never_returned(cases, tmp_path):
     """The winches' bound lowered just below the run's largest tension: those steps return code 6 with the last good
     command, in the C (its generated bound edited) and in Python; at 20 N init has no static command."""
     case = cases["penalty-d1"]
-    folder = Path(case.c.lib._name).parent
-    name = case.c.name
-    for f in (f"{name}.c", f"{name}.h", f"{name}_functions.c", f"{name}_functions.h"):
-        shutil.copy(folder / f, tmp_path / f)
-    source = tmp_path / f"{name}.c"
-    text = source.read_text()
-    high = re.search(rf"const double {name}_u_high\[6\] = \{{([^}}]*)\}};", text)
-    values = [float(v) for v in high.group(1).split(",")]
     bound = float(np.round(np.sort(case.result.u[:, :3].ravel())[-40], 6))  # beaten by the 40 largest tensions
-    lowered = [bound] * 3 + values[3:]
-    edited = f"const double {name}_u_high[6] = {{" + ", ".join(map(repr, lowered)) + "};"
-    source.write_text(text.replace(high.group(0), edited))
-    c = load_exported_controller(tmp_path, name, case.crane.layout.l, case.crane.layout.n_signals)
+    c = with_winch_bound(case, tmp_path, bound)
     python = case.python
     for which in ("c", "python"):
         if which == "c":

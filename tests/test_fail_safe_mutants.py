@@ -1,16 +1,11 @@
 """Suggested tests (mutation pass, issue 38). Uses test_fail_safe's recorded runs."""
 from __future__ import annotations
 
-import re
-import shutil
-from pathlib import Path
-
 import numpy as np
 import pytest
 import test_fail_safe
-from test_fail_safe import FAULT_START
+from test_fail_safe import FAULT_START, with_winch_bound
 
-from acroboter.runtime.exported import load_exported_controller
 from acroboter.sim.fast_estimator import make_estimator
 from acroboter.sim.sensing import ACCEPTED, COASTING, LOST
 
@@ -156,22 +151,9 @@ def test_reinit_takes_the_next_sample_without_a_gate(cases, fast):
     assert est.update(case.result.measurements[130], case.result.time[130]) == ACCEPTED  # the crane moved meanwhile
 
 
-def edited(case, tmp_path, high3):
-    folder, name = Path(case.c.lib._name).parent, case.c.name
-    for f in (f"{name}.c", f"{name}.h", f"{name}_functions.c", f"{name}_functions.h"):
-        shutil.copy(folder / f, tmp_path / f)
-    source = tmp_path / f"{name}.c"
-    text = source.read_text()
-    high = re.search(rf"const double {name}_u_high\[6\] = \{{([^}}]*)\}};", text)
-    values = [float(v) for v in high.group(1).split(",")]
-    edited = f"const double {name}_u_high[6] = {{" + ", ".join(map(repr, [high3] * 3 + values[3:])) + "};"
-    source.write_text(text.replace(high.group(0), edited))
-    return load_exported_controller(tmp_path, name, case.crane.layout.l, case.crane.layout.n_signals)
-
-
 def test_c_init_refuses_when_no_static_command(cases, tmp_path):
     case = cases["penalty-d1"]
-    c = edited(case, tmp_path, 20.0)
+    c = with_winch_bound(case, tmp_path, 20.0)
     c.state[:] = 0
     assert c.init(case.result.q[0], case.signals[0]) == 8
     assert c.step(case.result.measurements[0], 0.0, case.signals[0]) == 1
@@ -193,7 +175,7 @@ def test_a_failed_init_leaves_the_struct_uninitialised(cases):
 def test_reset_restores_the_static_safe_command(cases, tmp_path):
     case = cases["penalty-d1"]
     static = float(np.max(case.result.u[0, :3]))
-    c = edited(case, tmp_path, static + 0.5)
+    c = with_winch_bound(case, tmp_path, static + 0.5)
     y0 = case.result.measurements[0].copy()
     y0[case.names.index("SU.r_z")] -= 0.1
     assert c.init(case.result.q[0], case.signals[0]) == 0
@@ -210,7 +192,7 @@ def test_reset_restores_the_static_safe_command(cases, tmp_path):
 def test_beyond_the_bound_c_is_python(cases, tmp_path):
     case = cases["penalty-d1"]
     bound = float(np.round(np.sort(case.result.u[:, :3].ravel())[-40], 6))
-    c = edited(case, tmp_path, bound)
+    c = with_winch_bound(case, tmp_path, bound)
     python = case.python
     try:
         python.high[:3] = bound
