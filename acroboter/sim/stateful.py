@@ -86,6 +86,7 @@ class StatefulController:
         self.u, self.u_safe, self.u_static = np.zeros(self.l), np.zeros(self.l), np.zeros(self.l)
         self.q0 = np.zeros(self.n)
         self.q, self.qd = np.zeros(self.n), np.zeros(self.n)
+        self._z_kept, self._sigma_kept = np.zeros(lay.k), np.zeros(lay.k)  # the integral before a step
         self.initialised, self.code, self.problem = False, 1, None
         self.strict = False  # True: a singular system raises (acroboter.sim.simulation's divergence) instead of 3
 
@@ -155,13 +156,14 @@ class StatefulController:
             raise ValueError(f"y: expected {size} measurements (result.measurement_names' order), found shape "
                              f"{y.shape}")
         inner = getattr(self.controller, "reference", self.controller)  # the fast path's wrapper: its reference's z
-        kept = (inner.integral.copy(), inner._sigma_last.copy(), inner._t_last)  # restored after a failed step
+        z_kept, sigma_kept = self._z_kept, self._sigma_kept  # restored after a failed step (preallocated)
+        z_kept[:], sigma_kept[:], t_kept = inner.integral, inner._sigma_last, inner._t_last
         self.code = self._step(y, t, signals)
         if self.code in (0, 4):
             self.u_safe[:] = self.u
         else:
             self.u[:] = self.u_safe
-            inner.integral[:], inner._sigma_last[:], inner._t_last = kept
+            inner.integral[:], inner._sigma_last[:], inner._t_last = z_kept, sigma_kept, t_kept
             inner.hold_integral()  # nor over the period that ends at the next step
         return self.code
 
