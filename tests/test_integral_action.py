@@ -423,7 +423,7 @@ def test_the_integrator_does_not_wind_up_on_a_limit(limited, method):
 def test_ki_is_a_controller_setting_checked_for_stability(tmp_path, capsys):
     raw = DEFAULT.read_text()
     assert load_spec(DEFAULT).controller.ki == 0.0  # absent: no integral action
-    assert "ki" in acroboter.api.crane.GAIN_NAMES
+    assert "ki" in acroboter.model.controller_parameters.OVERRIDES
     crane = acroboter.Crane.from_toml(DEFAULT)
     assert crane.gains(ki=KI).ki == KI
     with pytest.raises(ValueError, match="ki"):

@@ -28,6 +28,7 @@ from pydantic import BaseModel
 
 from acroboter.cli.console import COMMANDS
 from acroboter.model import ranges
+from acroboter.model.controller_parameters import PARAMETERS, parameter
 from acroboter.model.ranges import Range
 from acroboter.model.spec import Spec, SpecError, parse_spec
 from acroboter.model.spec_errors import _format_loc
@@ -424,14 +425,14 @@ def _range_ends(err: str) -> tuple[float, float]:
     return float(low), float(high)
 
 
-@pytest.mark.parametrize("option", sorted(ranges.GAIN_RANGES))
+@pytest.mark.parametrize("option", [p.name for p in PARAMETERS if p.option and p.range is not None])
 def test_every_gain_option_names_itself_with_a_range_that_is_not_empty(option, tmp_path, capsys):
     """Issue 35: `run --kp 100` blamed --kd with an empty range (50 < kd < 50). Each gain option beyond its range,
     and kp/kd beyond what the control rate samples, names the option given and a range a value can be in."""
     from acroboter.cli.run import main
 
     out = ["--out", str(tmp_path / "out"), "-q"]
-    limit = ranges.GAIN_RANGES[option]
+    limit = parameter(option).range
     too_large = ["--" + option.replace("_", "-"), repr(float(limit.high) * 10.0 if limit.high else 1e300)]
     with pytest.raises(SystemExit) as stop:  # argparse's range check: exit 2 naming the option
         main([*too_large, *out])

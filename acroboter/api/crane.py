@@ -32,16 +32,13 @@ from ..control.path import DesiredPath, SampledTrajectory, TrajectoryPath
 from ..model.locations import example_spec
 from ..model.physical import parameter_names, parameter_values
 from ..model.plausibility import plausibility_warnings
-from ..model.ranges import GAIN_RANGES, delay_problem, sampled_gain_problems
-from ..model.settings import Gains
+from ..model.ranges import delay_problem
+from ..model.settings import Gains, resolve_gains
 from ..model.spec import (
     MAX_CONTROL_STEPS,
     MAX_ITERATIONS,
-    RECOVERIES,
-    SATURATIONS,
     Spec,
     SpecError,
-    integral_gain_problem,
     load_spec,
 )
 from ..runtime.cache import load_model
@@ -58,7 +55,6 @@ from .dynamics import evaluate
 
 # Untimed control steps at the start state before a timed run: the first calls page code and data in.
 WARM_UP_STEPS = 200
-GAIN_NAMES = ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu", "recovery", "kappa", "ki", "saturation")
 
 Trajectory = SampledTrajectory | Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
 
@@ -217,32 +213,11 @@ class Crane:
         return dict(zip(parameter_names(self.spec), map(float, parameter_values(self.spec)), strict=True))
 
     def gains(self, **overrides) -> Gains:
-        """The spec's controller settings with `overrides` (kp, kd, alpha_geometric, alpha_servo, omega,
-        mu, recovery, kappa, ki, saturation) checked and applied; ki ≥ 0 must keep the servo error dynamics stable,
-        ki < 2·kd·kp² (docs/integral_action.md); saturation is "qp" or "underactuation" (docs/saturation.md)."""
-        unknown = sorted(set(overrides) - set(GAIN_NAMES))
-        if unknown:
-            raise TypeError(f"unknown controller setting(s) {', '.join(unknown)}: use {', '.join(GAIN_NAMES)}")
-        for name, value in overrides.items():
-            if value is None:
-                continue
-            if name == "recovery":
-                if value not in RECOVERIES:
-                    raise ValueError(f"recovery: expected one of {', '.join(RECOVERIES)}, found {value!r}")
-                continue
-            if name == "saturation":
-                if value not in SATURATIONS:
-                    raise ValueError(f"saturation: expected one of {', '.join(SATURATIONS)}, found {value!r}")
-                continue
-            GAIN_RANGES[name].check(value, name)  # RangeError (a ValueError): "kp: expected 0 < kp <= 1e4 (1/s), …"
-        gains = Gains.from_spec(self.spec, **overrides)
-        given = (overrides.get("kp") is not None, overrides.get("kd") is not None)
-        for name, problem in sampled_gain_problems(gains.kp, gains.kd, self.spec.controller.rate_hz, ("kp", "kd"),
-                                                   given):
-            raise ValueError(f"{name}: {problem}")
-        if (problem := integral_gain_problem(gains.kp, gains.kd, gains.ki)) is not None:
-            raise ValueError(f"ki: {problem}")
-        return gains
+        """The spec's controller settings with `overrides` checked and applied: the names of
+        acroboter.model.controller_parameters.OVERRIDES (kp, kd, alpha_geometric, alpha_servo, omega, mu, ki,
+        recovery, kappa, saturation), each in its declared range; kp, kd stable sampled at the spec's rate; ki ≥ 0
+        below 2·kd·kp² (docs/integral_action.md). A bad value is a GainError (a ValueError) naming the parameter."""
+        return resolve_gains(self.spec, **overrides)
 
     def sensing(self, sensing=None):
         """The sensing a run uses (acroboter.model.schema.Sensing, or None: the plant's state): None, the spec's

@@ -139,6 +139,23 @@ def ranged(range_: Range, template: str = "{}") -> Callable[[str], float | int]:
     return carrying(parse, range_.name, (range_,), template)
 
 
+def add_parameter_options(parser: argparse.ArgumentParser, parameters, note: dict[str, str] | None = None) -> None:
+    """One option per controller parameter (acroboter.model.controller_parameters.ControllerParameter), derived
+    from its declaration: --alpha-geometric, dest alpha_geometric, its range or choices, default None (the spec's
+    value), the declared help (with a command's `note` on a name appended)."""
+    for item in parameters:
+        extra = f"; {note[item.name]}" if note and item.name in note else ""
+        kind = {"type": ranged(item.range)} if item.range is not None else {"choices": item.choices}
+        parser.add_argument(item.flag, dest=item.name, default=None, help=item.option_help() + extra, **kind)
+
+
+def as_option_text(err: Exception) -> str:
+    """A library argument's error in the words of the option that gave it: 'kd: expected …' as '--kd: expected …'
+    (a GainError names the parameter, a RangeError its argument)."""
+    name, sep, rest = str(err).partition(": ")
+    return f"--{name.replace('_', '-')}: {rest}" if sep and name.isidentifier() else str(err)
+
+
 def ranged_list(range_: Range) -> Callable[[str], list]:
     """Comma-separated numbers, each in `range_` (repeats dropped, order kept)."""
 

@@ -21,7 +21,7 @@ from ..codegen.generate import generate
 from ..model.interrupts import remembered_interrupt
 from ..model.locations import checkout_root, example_spec, shipped_generated_folder, spec_folder
 from ..model.spec import Spec, SpecError, load_spec
-from .entry import check_out_folder, guarded, ranged, spec_file
+from .entry import add_parameter_options, as_option_text, check_out_folder, guarded, spec_file
 from .outputs import OutputFolderError, folder_lock, no_empty_folder_left, out_path, results_folder
 
 SPEC_DIR = spec_folder()
@@ -254,16 +254,14 @@ def export_step_main(argv: list[str] | None = None) -> int:
     """`acroboter export-step`: one method's complete control step as self-contained C and a header."""
     from ..codegen.controller_c import controller_files, controller_name
     from ..codegen.export_step import (
-        GAIN_OPTIONS,
         MLM_SYSTEMS,
         PENALTY_SYSTEMS,
         ExportError,
         export_step,
         step_name,
     )
-    from ..model.ranges import GAIN_RANGES, sampled_gain_problems
-    from ..model.settings import Gains
-    from ..model.spec import RECOVERIES, integral_gain_problem
+    from ..model.controller_parameters import PARAMETERS
+    from ..model.settings import resolve_gains
 
     parser = argparse.ArgumentParser(
         prog="acroboter export-step",
@@ -272,11 +270,8 @@ def export_step_main(argv: list[str] | None = None) -> int:
     parser.add_argument("--spec", type=spec_file, default=example_spec(),
                         help="model spec: a TOML file or an example's name (default: %(default)s)")
     parser.add_argument("--method", default="penalty", help="mlm, penalty or iterative-N (default: %(default)s)")
-    parser.add_argument("--recovery", choices=RECOVERIES, default=None,
-                        help="input recovery of the penalty methods (default: the spec's, normally projected)")
-    for option in GAIN_OPTIONS:
-        parser.add_argument(f"--{option.replace('_', '-')}", default=None, dest=option,
-                            type=ranged(GAIN_RANGES[option]), help="override the spec's value (as run's option)")
+    exported = [item for item in PARAMETERS if item.option and item.exported]
+    add_parameter_options(parser, exported, {"ki": "--stateful only: the stateless step refuses integral action"})
     parser.add_argument("--mlm-system", choices=MLM_SYSTEMS, default="reduced",
                         help="MLM: the (m+l) system reduced by the constant M, or the full (n+m+l) one "
                         "(default: %(default)s)")
@@ -288,26 +283,18 @@ def export_step_main(argv: list[str] | None = None) -> int:
                         help="export the stateful controller instead (docs/controller.md): a state struct and "
                         "init/step/reset with the spec's [sensing] estimator (none: the state is measured) and "
                         "integral action (ki)")
-    parser.add_argument("--ki", default=None, type=ranged(GAIN_RANGES["ki"]),
-                        help="override the spec's integral gain (as run's option; --stateful only: the stateless "
-                        "step refuses integral action)")
     parser.add_argument("--out", type=out_path, default=None,
                         help=f"output folder (default: {DEFAULT_EMBEDDED}/<spec>_<method>/)")
     args = parser.parse_args(argv)
     if args.out is not None:
         check_out_folder(parser, args.out)
-    overrides = {name: getattr(args, name) for name in (*GAIN_OPTIONS, "recovery", "ki")}  # each in its range
+    overrides = {item.name: getattr(args, item.name) for item in exported}  # each in its range
     try:
         spec = load_spec(args.spec)
-        kp = spec.controller.kp if args.kp is None else args.kp
-        kd = spec.controller.kd if args.kd is None else args.kd
-        for name, problem in sampled_gain_problems(kp, kd, spec.controller.rate_hz, ("kp", "kd"),
-                                                   (args.kp is not None, args.kd is not None)):
-            print(f"error: --{name}: {problem}", file=sys.stderr)  # before any work: the law it bakes in is unstable
-            return 2
-        gains = Gains.from_spec(spec, **overrides)
-        if (problem := integral_gain_problem(gains.kp, gains.kd, gains.ki)) is not None:
-            print(f"error: --ki: {problem}", file=sys.stderr)
+        try:  # before any work: e.g. a kp, kd whose sampled law would be unstable
+            gains = resolve_gains(spec, **overrides)
+        except ValueError as err:
+            print(f"error: {as_option_text(err)}", file=sys.stderr)
             return 2
         out = args.out if args.out is not None else DEFAULT_EMBEDDED / f"{spec.name}_{args.method}"
         if args.stateful:

@@ -17,9 +17,10 @@ import math
 import sys
 from pathlib import Path
 
+from ..model.controller_parameters import OVERRIDES
 from ..model.locations import example_spec
 from ..model.spec import MAX_CONTROL_STEPS
-from .entry import guarded, progress_disabled
+from .entry import as_option_text, guarded, progress_disabled
 from .outputs import ResultsFolder, results_folder
 from .run_args import expand_methods, parse_args
 
@@ -72,9 +73,7 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
     from ..sim.simulation import check_mujoco_timestep
     from ..sim.statics import EquilibriumError
 
-    overrides = {name: getattr(args, name) for name in
-                 ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu", "recovery", "kappa", "ki",
-                  "saturation")}
+    overrides = {name: getattr(args, name) for name in OVERRIDES}
     try:
         crane = Crane.from_toml(args.spec, cache_dir=args.cache_dir)
         spec = crane.spec
@@ -84,7 +83,7 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
             try:
                 check_mujoco_timestep(spec.simulation.step, args.mujoco_timestep, 1.0 / spec.controller.rate_hz)
             except ValueError as err:
-                print(f"error: {_as_option(err)}", file=sys.stderr)
+                print(f"error: {as_option_text(err)}", file=sys.stderr)
                 return 2
         sensing = crane.sensing(args.sensing)  # SpecError naming the field (exit 2), before any work
         methods = expand_methods(args.method, args.iterations or spec.controller.penalty.iterations)
@@ -93,7 +92,7 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
         try:
             gains = crane.gains(**overrides)
         except ValueError as err:  # e.g. --kd outside what the control rate samples, --ki past Routh–Hurwitz
-            print(f"error: {_as_option(err)}", file=sys.stderr)
+            print(f"error: {as_option_text(err)}", file=sys.stderr)
             return 2
         path = crane.desired(trajectory)
         duration = args.duration if args.duration is not None else path.duration
@@ -264,12 +263,6 @@ def plant_provenance(args: argparse.Namespace, spec) -> dict:
 
     return {"engine": "mujoco", "mujoco_version": metadata.version("mujoco"), "integrator": "RK4",
             "step_s": args.mujoco_timestep or DEFAULT_TIMESTEP, "model": "acroboter.model.mjcf_model (docs/mujoco.md)"}
-
-
-def _as_option(err: Exception) -> str:
-    """'kd: expected …' (the library's argument) as '--kd: expected …' (the option that gave it)."""
-    name, sep, rest = str(err).partition(": ")
-    return f"--{name.replace('_', '-')}: {rest}" if sep and name.isidentifier() else str(err)
 
 
 def is_paper_crane(spec) -> bool:

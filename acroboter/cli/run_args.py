@@ -6,27 +6,20 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ..model.controller_parameters import PARAMETERS
 from ..model.extras import require
 from ..model.locations import example_spec
 from ..model.ranges import (
-    ALPHA_GEOMETRIC,
-    ALPHA_SERVO,
     DELAY,
     DURATION,
     ITERATIONS,
-    KAPPA,
-    KD,
-    KI,
-    KP,
-    MU,
     MUJOCO_TIMESTEP,
     NOISE,
-    OMEGA,
     QUANTIZATION,
     SEED,
 )
 from ..model.spec import MAX_ITERATIONS
-from .entry import named_number, ranged, ranged_list, spec_file
+from .entry import add_parameter_options, named_number, ranged, ranged_list, spec_file
 from .outputs import out_path
 
 DEFAULT_SPEC = example_spec("acroboter")
@@ -44,27 +37,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         "(default: mlm, penalty and iterative with the spec's iteration counts)")
     p.add_argument("--iterations", type=ranged_list(ITERATIONS), default=None,
                    help="iteration counts for 'iterative', comma-separated, 1..1000 (default: from the spec)")
-    p.add_argument("--recovery", choices=["projected", "eq12", "eq13", "eq15", "kappa"], default=None,
-                   help="input recovery of the penalty methods (default: from the spec)")
-    p.add_argument("--saturation", choices=["qp", "underactuation"], default=None,
-                   help="how a controller meets an input limit: qp (the bounded least squares) or underactuation (the "
-                        "saturated input held at its limit, the task reduced by the spec's [controller.underactuation] "
-                        "priority; docs/saturation.md) (default: from the spec, normally qp)")
-    p.add_argument("--kappa", type=ranged(KAPPA), default=None,
-                   help="κ of the 'kappa' recovery, 0..1 (default: from the spec)")
-    p.add_argument("--alpha-geometric", type=ranged(ALPHA_GEOMETRIC), default=None,
-                   help="α̃, 1..1e16 (default: from the spec)")
-    p.add_argument("--alpha-servo", type=ranged(ALPHA_SERVO), default=None, help="α̂, 1..1e16 (default: from the spec)")
-    p.add_argument("--omega", type=ranged(OMEGA), default=None,
-                   help="Ω of the constraint penalty, 1/s, at most 1e4 (default: spec)")
-    p.add_argument("--mu", type=ranged(MU), default=None,
-                   help="μ of the constraint penalty, at most 1e3 (default: spec)")
-    p.add_argument("--kp", type=ranged(KP), default=None,
-                   help="servo gain k_P, 1/s, at most 1e4, with kp²/(4·rate_hz) < kd < rate_hz (default: spec)")
-    p.add_argument("--kd", type=ranged(KD), default=None, help="servo gain k_D, 1/s, as --kp (default: spec)")
-    p.add_argument("--ki", type=ranged(KI), default=None,
-                   help="integral gain k_I of the servo error dynamics, 1/s³, below 2·kd·kp²; 0: none "
-                        "(default: spec, normally 0; docs/integral_action.md)")
+    add_parameter_options(p, [item for item in PARAMETERS if item.option])  # --kp, --kd, ... --saturation
     p.add_argument("--plant-param", action="append", default=[], metavar="NAME=VALUE", dest="plant_param",
                    type=named_number(None, "SU.mass=8.8"),
                    help="a physical parameter of the plant other than the spec's (the controller keeps the spec's), "

@@ -25,12 +25,12 @@ from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..model.controller_parameters import parameter
 from ..model.locations import example_spec
 from ..model.ranges import (
     ALPHA,
     CONNECT_TIMEOUT,
     DURATION,
-    GAIN_RANGES,
     ITERATIONS,
     OMEGA,
     TOLERANCE,
@@ -129,7 +129,7 @@ def sweep(spec_path: Path = DEFAULT_SPEC, *, alphas: list[float] | None = None, 
             range_.check(value, name)
     for name, value in (("kp", kp), ("kd", kd), ("mu", mu)):
         if value is not None:
-            GAIN_RANGES[name].check(value, name)
+            parameter(name).range.check(value, name)
     # `out` checked before any work (OutputFolderError); the files are staged and swapped in at the end
     with results_folder(out, "sweep", expected=["sweep.csv"]) if out is not None else nullcontext() as folder:
         spec = prepare(spec_path, duration)  # builds the library here if missing: the tasks only load it

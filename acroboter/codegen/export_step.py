@@ -78,7 +78,6 @@ from .symbolic import build_symbolic_model
 
 __all__ = ["ExportError", "StepExport", "build_step", "export_step", "parse_method", "step_name", "write_step"]
 
-GAIN_OPTIONS = ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu", "kappa")
 MLM_SYSTEMS = ("reduced", "full")
 FAST_OUTPUTS = ("u", "qdd", "within", "rcond")  # the parametric step's (acroboter.codegen.fast_step)
 PENALTY_SYSTEMS = ("auto", "multipliers", "matrix")

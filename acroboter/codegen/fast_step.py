@@ -7,7 +7,7 @@ SX function with shared subexpressions, CasADi's generated sparse LDLᵀ / QR, t
 inputs than servo-constraints, the distribution's closed-form step 2) with two differences:
 
 - the gains and the integral z are a run-time input, p = [k_P, k_D, α̃, α̂, Ω, μ, k_I, z]: the parameter vector
-  the generated model functions read (acroboter.codegen.structured.PARAMS), so the controller passes the model's
+  the generated model functions read (acroboter.model.controller_parameters), so the controller passes the model's
   own p buffer and one library serves every gain set (a study's sweep, integral action on and off); κ (the kappa
   recovery only) is baked in and part of the library's key;
 - the input limits and preferred values are a run-time input, limits = [lower; upper; preferred] (±inf for none),

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import casadi as ca
 
+from ..model.controller_parameters import runtime_names, runtime_size
 from ..model.fingerprint import codegen_hash, file_digest, meta_file, meta_source, source_header
 from ..model.interrupts import deferred_interrupt
 from ..model.mjcf_model import mjcf_xml
@@ -93,8 +94,8 @@ class GenerationContext:
         )
 
     def register_solver_terms(self, name: str, build) -> None:
-        """Controller-shaped terms with the run-time parameter vector p (acroboter.codegen.structured.PARAMS)."""
-        p = ca.SX.sym("p", structured.parameter_size(self.model.layout.k))
+        """Controller-shaped terms with the run-time parameter vector p (acroboter.model.controller_parameters)."""
+        p = ca.SX.sym("p", runtime_size(self.model.layout.k))
         terms = build(self.model, p)
         self.functions[name] = ca.Function(
             f"{self.spec.name}_{name}",
@@ -147,7 +148,7 @@ class GenerationContext:
                 "redundant_constraint_rows": list(lay.redundant_rows),
                 "independent_constraint_rows": structured.independent_rows(self.model),
                 "plant_parameters": list(self.plant_model.parameter_names),
-                "parameters": structured.parameter_names(lay.servo_constraints),
+                "parameters": runtime_names(lay.servo_constraints),
             },
             "functions": {
                 name: {

@@ -9,6 +9,7 @@ export.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,6 +17,7 @@ import casadi as ca
 import numpy as np
 from scipy.linalg import cholesky, solve_triangular
 
+from ..model.controller_parameters import runtime_size, runtime_view
 from ..model.layout import Layout, nominal_coordinates
 from ..model.settings import Gains
 from ..model.spec import Spec
@@ -57,21 +59,6 @@ class StepExport:
     notes: list[str] = field(default_factory=list)
     distribution: list[str] = field(default_factory=list)  # how the input limits are honoured (header)
     qp_used: bool = False
-
-
-@dataclass(frozen=True)
-class SymbolicGains:
-    """Gains as SX entries of the parametric step's p (the fields of acroboter.model.settings.Gains)."""
-
-    kp: ca.SX
-    kd: ca.SX
-    alpha_geometric: ca.SX
-    alpha_servo: ca.SX
-    omega: ca.SX
-    mu: ca.SX
-    recovery: str
-    kappa: float  # baked: not in p (only the kappa recovery reads it)
-    ki: ca.SX
 
 
 def sx_terms(model: SymbolicModel) -> dict[str, ca.SX]:
@@ -139,8 +126,7 @@ class StepGraph:
             self.input_names.append("z")
             self.inputs.append(ca.MX.sym("z", self.k))
             self.rho_s = self.rho_s + g.ki * z  # + k_I z, as codegen.structured.servo_and_constraint_rates
-            scalars = g.parameter_vector(self.k)[: -self.k] if self.k else g.parameter_vector(0)
-            self.params = ca.vertcat(ca.SX(ca.DM(scalars)), z)  # p with the symbolic z
+            self.params = ca.vertcat(ca.SX(ca.DM(g.parameter_vector(0))), z)  # p with the symbolic z
         self.bounds = Bounds(self)
         if export.parametric:  # no QP in the C: u of step 1 or 2; the caller checks it against the limits
             self.bounds.bounded = False
@@ -152,24 +138,23 @@ class StepGraph:
         return self.export.integral or self.export.parametric
 
     def _parametric(self, export: StepExport) -> None:
-        """Gains and z from a run-time input p = [k_P, k_D, α̃, α̂, Ω, μ, k_I, z] (codegen.structured.PARAMS), in
-        the graph as SX (self.gains) and as MX (mx_gain); ρ and ρ_s as the baked export writes them, plus k_I z."""
+        """Gains and z from a run-time input p = [k_P, k_D, α̃, α̂, Ω, μ, k_I, z] (model.controller_parameters), in
+        the graph as SX (self.gains: the runtime parameters symbols, the others the concrete settings) and as MX
+        (mx_gain); ρ and ρ_s as the baked export writes them, plus k_I z."""
         if export.integral:
             raise ExportError("internal: the parametric step carries z in p; it is not the stateful export")
-        from .structured import PARAMS, parameter_size
-
-        size = parameter_size(self.k)
+        size = runtime_size(self.k)
         p = ca.SX.sym("p", size)
         concrete = self.gains
-        self.gains = SymbolicGains(*(p[i] for i in range(len(PARAMS) - 1)), concrete.recovery, concrete.kappa,
-                                   p[len(PARAMS) - 1])
+        view = runtime_view(p, self.k)
+        self.gains = dataclasses.replace(concrete, **view.scalars)
         self.concrete_gains = concrete
         self.sx_inputs.append(p)
         self.input_names.append("p")
         self.inputs.append(ca.MX.sym("p", size))
         self.limits_input = ca.MX.sym("limits", 3 * self.l)
         g, T = self.gains, self.sx
-        z = p[len(PARAMS) :]
+        z = view.z
         self.rho = T["gamma"] + 2.0 * g.omega * g.mu * T["phi_dot"] + g.omega**2 * T["phi"]
         self.rho_s = T["gamma_s"] + 2.0 * g.kd * T["sigma_dot"] + g.kp**2 * T["sigma"] + g.ki * z
         self.params = p
@@ -178,9 +163,7 @@ class StepGraph:
         """A gain where the graph is MX (between the solves): its number, or the parametric input's entry."""
         if not self.export.parametric:
             return getattr(self.gains, name)
-        from .structured import PARAMS
-
-        return self.inputs[-1][PARAMS.index(name)]
+        return runtime_view(self.inputs[-1], self.k).scalars[name]
 
     def prelude(self, outputs: dict[str, ca.SX]) -> dict[str, ca.MX]:
         names = list(outputs)

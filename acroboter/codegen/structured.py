@@ -6,6 +6,8 @@ time (gains, penalty numbers) are an input vector, not constants:
 
     p = [k_P, k_D, α̃, α̂, Ω, μ, k_I, z_1 … z_k]
 
+(the layout acroboter.model.controller_parameters declares and reads by name: `runtime_view`).
+
 z is the integral of the servo-constraints σ over time, held by the controller and written into p
 every step when k_I ≠ 0 (docs/integral_action.md); with k_I = 0 it stays 0 and ρ_s is the PD law's
 bit for bit (ρ + 0·z = ρ exactly in IEEE arithmetic).
@@ -16,19 +18,9 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from ..model.controller_parameters import runtime_view
 from ..model.layout import nominal_coordinates
 from .symbolic import SymbolicModel
-
-PARAMS = ("kp", "kd", "alpha_geometric", "alpha_servo", "omega", "mu", "ki")  # then z, one per servo row
-
-
-def parameter_size(servo_rows: int) -> int:
-    """len(p): the scalar PARAMS, then the integral z of each servo-constraint."""
-    return len(PARAMS) + servo_rows
-
-
-def parameter_names(servo_constraints: list[str]) -> list[str]:
-    return [*PARAMS, *(f"z[{name}]" for name in servo_constraints)]
 
 
 def constant_inverse_mass(model: SymbolicModel) -> ca.DM:
@@ -72,18 +64,21 @@ def cholesky_solve(matrix: ca.SX, rhs: ca.SX) -> ca.SX:
     return ca.horzcat(*columns)
 
 
-def servo_and_constraint_rates(model: SymbolicModel, p: ca.SX) -> tuple[ca.SX, ca.SX]:
-    """ρ = γ + 2Ωμ φ̇ + Ω² φ and ρ_s = γ_s + 2k_D σ̇ + k_P² σ + k_I z (z = ∫σ dt, from p).
+def servo_and_constraint_rates(model: SymbolicModel, *, kp, kd, ki, z, omega, mu) -> tuple[ca.SX, ca.SX]:
+    """ρ = γ + 2Ωμ φ̇ + Ω² φ and ρ_s = γ_s + 2k_D σ̇ + k_P² σ + k_I z (z = ∫σ dt).
 
     Every controller's terms take ρ_s from here, so MLM, the penalty methods, every recovery and the
     bounded distributions see the same servo-error law.
     """
-    kp, kd, omega, mu, ki = p[0], p[1], p[4], p[5], p[6]
-    k = model.sigma.shape[0]
-    z = p[len(PARAMS) : len(PARAMS) + k]
     rho = model.gamma + 2 * omega * mu * model.phi_dot + omega**2 * model.phi
     rho_s = model.gamma_s + 2 * kd * model.sigma_dot + kp**2 * model.sigma + ki * z
     return rho, rho_s
+
+
+def controller_rates(model: SymbolicModel, p: ca.SX) -> tuple[ca.SX, ca.SX]:
+    """ρ and ρ_s with the gains and z of the run-time vector p."""
+    v = runtime_view(p, model.sigma.shape[0])
+    return servo_and_constraint_rates(model, kp=v.kp, kd=v.kd, ki=v.ki, z=v.z, omega=v.omega, mu=v.mu)
 
 
 def mlm_terms(model: SymbolicModel, p: ca.SX) -> dict[str, ca.SX]:
@@ -93,7 +88,7 @@ def mlm_terms(model: SymbolicModel, p: ca.SX) -> dict[str, ca.SX]:
     (C M⁻¹ W) y = r − C M⁻¹ c and q̈ = −M⁻¹(c + W y).
     """
     minv = constant_inverse_mass(model)
-    _, rho_s = servo_and_constraint_rates(model, p)
+    _, rho_s = controller_rates(model, p)
     w = ca.horzcat(model.phi_q.T, -model.input_matrix)
     c = ca.vertcat(model.phi_q, model.sigma_q)
     minv_w = ca.mtimes(minv, w)
@@ -118,8 +113,9 @@ def penalty_terms(model: SymbolicModel, p: ca.SX) -> dict[str, ca.SX]:
     and, with λ̂ = α̂(σ_q Σq̈_i + N ρ_s) after N iterations, the input is
     u = recovery_gain · Σq̈_i + N · recovery_offset.
     """
-    alpha_g, alpha_s = p[2], p[3]
-    rho, rho_s = servo_and_constraint_rates(model, p)
+    v = runtime_view(p, model.sigma.shape[0])
+    alpha_g, alpha_s = v.alpha_geometric, v.alpha_servo
+    rho, rho_s = controller_rates(model, p)
     phi_q, sigma_q = model.phi_q, model.sigma_q
     penalty_matrix = model.mass_matrix + alpha_g * ca.mtimes(phi_q.T, phi_q) + alpha_s * ca.mtimes(sigma_q.T, sigma_q)
     penalty_force = -alpha_g * ca.mtimes(phi_q.T, rho) - alpha_s * ca.mtimes(sigma_q.T, rho_s)
@@ -167,7 +163,7 @@ def mlm_bounded_terms(model: SymbolicModel, p: ca.SX) -> dict[str, ca.SX]:
     is square this is MLM's own solution; with more inputs than servo-constraints it leaves the
     internal forces free, with limits it measures what saturation costs (in servo accelerations).
     """
-    _, rho_s = servo_and_constraint_rates(model, p)
+    _, rho_s = controller_rates(model, p)
     p_cols, gamma_part = _constrained_projections(model, ca.horzcat(model.input_matrix, model.bias_forces))
     l = model.layout.l
     e_map = ca.mtimes(model.sigma_q, p_cols[:, :l])

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import lapack
 
+from ..model.controller_parameters import integral_slice
 from ..model.settings import MLM_RCOND_LIMIT, PENALTY_SECONDARY_WEIGHT, SATURATION_TOLERANCE, Gains
 from ..model.spec import Spec
 from ..model.spec_checks import task_components
@@ -81,7 +82,7 @@ class Controller:
         self.ki = float(gains.ki)
         self.anti_windup = True  # conditional integration: z holds over a period whose input saturated
         self.integral = np.zeros(self.k)  # z
-        self._z = self._p[self._params.size - self.k :]  # z's place in the shared parameter buffer
+        self._z = self._p[integral_slice(self.k)]  # z's place in the parameter buffer
         self._sigma_fn = model.functions["sigma"]
         self._sigma_last = np.zeros(self.k)
         self._t_last: float | None = None

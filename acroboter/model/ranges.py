@@ -256,10 +256,6 @@ MAX_COAST = Range("max_coast_periods", 1, 1000, "control periods", whole=True,
                   why="rejected samples in a row the estimator coasts on its prediction before it declares the "
                       "estimate lost (the controller then holds its last good command)")
 
-# The controller settings a run may override (Crane.gains, run's and export-step's options).
-GAIN_RANGES = {"kp": KP, "kd": KD, "alpha_geometric": ALPHA_GEOMETRIC, "alpha_servo": ALPHA_SERVO, "omega": OMEGA,
-               "mu": MU, "kappa": KAPPA, "ki": KI}
-
 # --- numbers of the command lines only (acroboter.cli; docs/errors.md) --------------------------------------------
 
 MARGIN = Range("margin", 0.0, 0.5, "", high_open=True,

@@ -18,13 +18,13 @@ from pydantic import (
     Discriminator,
     Field,
     Tag,
+    create_model,
     field_validator,
 )
 from pydantic_core import PydanticCustomError
 
+from .controller_parameters import RECOVERIES, SATURATIONS, table_fields  # noqa: F401 (the spec's names)
 from .ranges import (
-    ALPHA_GEOMETRIC,
-    ALPHA_SERVO,
     ANGLE,
     BAUMGARTE_OMEGA,
     BAUMGARTE_ZETA,
@@ -32,25 +32,18 @@ from .ranges import (
     COORDINATE,
     DAMPING,
     DELAY,
-    DWELL,
     GAIN,
     GRAVITY,
     INERTIA,
     INITIAL_YAW,
     ITERATIONS,
-    KAPPA,
-    KD,
-    KI,
-    KP,
     LIMIT,
     MASS,
     MAX_AXIS_RATE,
     MAX_COAST,
     MAX_SPEED,
     MEAN_SPEED,
-    MU,
     NOISE,
-    OMEGA,
     PATH_YAW,
     PREFERRED,
     PROJECTION_ITERATIONS,
@@ -58,7 +51,6 @@ from .ranges import (
     RADIUS,
     RATE,
     REFLECTED_INERTIA,
-    RELEASE_MARGIN,
     SEED,
     STEP,
     VELOCITY_FILTER,
@@ -79,10 +71,6 @@ MIN_PRINCIPAL_MOMENT = 1e-12  # kg·m²: a milligram 1 mm from the axis (the lig
 # this fraction of I3 (a flat lamina, I1 + I2 = I3, makes M singular).
 INERTIA_MARGIN = 1e-6
 PATH_SIGNALS = ("x", "y", "z", "yaw")
-RECOVERIES = ("projected", "eq12", "eq13", "eq15", "kappa")
-# How a controller meets an input limit (docs/saturation.md): the bounded least squares, or the saturated input
-# fixed at its limit and the task reduced by priority (Zelei, Bencsik, Stépán 2017).
-SATURATIONS = ("qp", "underactuation")
 # The task's components, as a saturation priority names them: a position task's x and y, its z, the level
 # task's two rows, the yaw task's row (acroboter.model.spec_checks.task_components).
 TASK_COMPONENTS = ("horizontal", "height", "level", "yaw")
@@ -324,33 +312,27 @@ class PathSpec(_Strict):
     yaw_deg: PATH_YAW.field() = 0.0
 
 
-class Penalty(_Strict):
-    alpha_geometric: ALPHA_GEOMETRIC.field()
-    alpha_servo: ALPHA_SERVO.field()
-    omega: OMEGA.field()
-    mu: MU.field()
-    iterations: Annotated[list[ITERATIONS.field()], Field(min_length=1)] = [3, 4, 5]
-    recovery: Literal[RECOVERIES] = "projected"
-    kappa: KAPPA.field() = 0.5
-
-
-class Underactuation(_Strict):
-    # The task's components, most important first: kept in this order while inputs are held at their limits
-    # (absent: horizontal, level, height, yaw, those the task has); each component of the task once.
-    priority: list[Literal[TASK_COMPONENTS]] | None = None
-    dwell: DWELL.field() = 0.1  # s the full task's input stays within its limits before the full task returns
-    margin: RELEASE_MARGIN.field() = 0.001  # ... inside each limit by this fraction of its magnitude
-
-
-class Controller(_Strict):
-    rate_hz: RATE.field()
-    kp: KP.field()
-    kd: KD.field()
-    # Integral action on the servo-constraints (docs/integral_action.md): 0 is the plain PD law.
-    ki: KI.field() = 0.0
-    penalty: Penalty
-    saturation: Literal[SATURATIONS] = "qp"  # docs/saturation.md
-    underactuation: Underactuation = Field(default_factory=Underactuation)
+# The controller's tables: the parameters declared in acroboter.model.controller_parameters (their ranges, defaults,
+# order) plus the fields that are not a controller parameter.
+Penalty = create_model(
+    "Penalty", __base__=_Strict, __module__=__name__,
+    iterations=(Annotated[list[ITERATIONS.field()], Field(min_length=1)], [3, 4, 5]),
+    **table_fields("controller.penalty"),
+)
+# The task's components, most important first: kept in this order while inputs are held at their limits (absent:
+# horizontal, level, height, yaw, those the task has); each component of the task once.
+Underactuation = create_model(
+    "Underactuation", __base__=_Strict, __module__=__name__,
+    priority=(list[Literal[TASK_COMPONENTS]] | None, None),
+    **table_fields("controller.underactuation"),
+)
+Controller = create_model(
+    "Controller", __base__=_Strict, __module__=__name__,
+    rate_hz=(RATE.field(), ...),
+    penalty=(Penalty, ...),
+    underactuation=(Underactuation, Field(default_factory=Underactuation)),
+    **table_fields("controller"),
+)
 
 
 def integral_gain_problem(kp: float, kd: float, ki: float) -> str | None:

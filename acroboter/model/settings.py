@@ -6,11 +6,14 @@ live below both: the code generator never imports the controllers.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import field, make_dataclass
+from typing import Any
 
 import numpy as np
 
-from .spec import Spec
+from .controller_parameters import OVERRIDES, PARAMETERS, check_override, runtime_vector
+from .ranges import sampled_gain_problems
+from .spec import Spec, integral_gain_problem
 from .spec_checks import resolved_priority
 
 # MLM: a reciprocal condition number below this means a singular system (redundant constraints).
@@ -66,33 +69,54 @@ def command_bounds(spec: Spec) -> tuple[np.ndarray, np.ndarray]:
     return np.maximum(low, -bound), np.minimum(high, bound)
 
 
-@dataclass(frozen=True)
-class Gains:
-    kp: float
-    kd: float
-    alpha_geometric: float
-    alpha_servo: float
-    omega: float
-    mu: float
-    recovery: str
-    kappa: float
-    ki: float = 0.0  # integral action on the servo-constraints (docs/integral_action.md); 0: the PD law
-    # How a limit is met (docs/saturation.md): "qp" (bounded least squares) or "underactuation"; for the latter
-    # the task components most important first, and the hysteresis that brings the full task back.
-    saturation: str = "qp"
-    priority: tuple[str, ...] = ()
-    dwell: float = 0.1
-    release_margin: float = 0.001
+def _from_spec(cls, spec: Spec, **overrides) -> Gains:
+    """The spec's settings, with the `overrides` that are not None (unchecked: `resolve_gains` checks them)."""
+    values = {p.name: p.read(spec) for p in PARAMETERS}
+    values["priority"] = resolved_priority(spec)
+    values.update({k: v for k, v in overrides.items() if v is not None})
+    return cls(**values)
 
-    @classmethod
-    def from_spec(cls, spec: Spec, **overrides) -> Gains:
-        c, p = spec.controller, spec.controller.penalty
-        gains = cls(c.kp, c.kd, p.alpha_geometric, p.alpha_servo, p.omega, p.mu, p.recovery, p.kappa, c.ki,
-                    c.saturation, resolved_priority(spec), c.underactuation.dwell, c.underactuation.margin)
-        return replace(gains, **{k: v for k, v in overrides.items() if v is not None})
 
-    def parameter_vector(self, servo_rows: int) -> np.ndarray:
-        """The generated functions' p = [k_P, k_D, α̃, α̂, Ω, μ, k_I, z] (acroboter.codegen.structured.PARAMS,
-        then the servo-constraints' integral z, one per row, here zero: the controller writes it each step)."""
-        scalars = [self.kp, self.kd, self.alpha_geometric, self.alpha_servo, self.omega, self.mu, self.ki]
-        return np.concatenate([scalars, np.zeros(servo_rows)])
+def _parameter_vector(self, servo_rows: int) -> np.ndarray:
+    """The generated functions' run-time p (acroboter.model.controller_parameters.runtime_names), z zero."""
+    return runtime_vector(self, servo_rows)
+
+
+# The settings a controller runs with: one field per declared controller parameter (their order), then the
+# saturation priority resolved from the spec's task. Derived, so a parameter is declared in one place.
+Gains = make_dataclass(
+    "Gains",
+    [*((p.name, Any) for p in PARAMETERS), ("priority", tuple, field(default=()))],
+    frozen=True,
+    namespace={"from_spec": classmethod(_from_spec), "parameter_vector": _parameter_vector,
+               "__doc__": "A controller's settings: every parameter of acroboter.model.controller_parameters, and the "
+                          "saturation priority (the task's components, most important first)."},
+)
+Gains.__module__ = __name__
+
+
+class GainError(ValueError):
+    """An override a controller cannot run with: `name` is the parameter (as declared), `problem` why."""
+
+    def __init__(self, name: str, problem: str):
+        self.name, self.problem = name, problem
+        super().__init__(f"{name}: {problem}")
+
+
+def resolve_gains(spec: Spec, **overrides) -> Gains:
+    """The spec's settings with `overrides` (None: none) checked and applied, every check in one place: each value
+    in its declared range or choices, the servo law stable sampled at the spec's rate (naming the gain given), ki
+    within Routh–Hurwitz. TypeError for an unknown name; GainError (a ValueError) naming the parameter."""
+    unknown = sorted(set(overrides) - set(OVERRIDES))
+    if unknown:
+        raise TypeError(f"unknown controller setting(s) {', '.join(unknown)}: use {', '.join(OVERRIDES)}")
+    for name, value in overrides.items():
+        if (problem := check_override(name, value)) is not None:
+            raise GainError(name, problem)
+    gains = Gains.from_spec(spec, **overrides)
+    given = (overrides.get("kp") is not None, overrides.get("kd") is not None)
+    for name, problem in sampled_gain_problems(gains.kp, gains.kd, spec.controller.rate_hz, ("kp", "kd"), given):
+        raise GainError(name, problem)
+    if (problem := integral_gain_problem(gains.kp, gains.kd, gains.ki)) is not None:
+        raise GainError("ki", problem)
+    return gains

@@ -24,7 +24,6 @@ import casadi as ca
 import numpy as np
 
 from ..codegen.structured import (
-    PARAMS,
     constant_inverse_mass,
     independent_rows,
     servo_and_constraint_rates,
@@ -50,9 +49,10 @@ class IdealDynamics:
         self.layout = lay
         q, qd, s, sd, sdd = model.inputs
         c = spec.controller
-        params = np.zeros(len(PARAMS) + lay.k)
-        params[[0, 1, 4, 5]] = c.kp, c.kd, spec.simulation.baumgarte_omega, spec.simulation.baumgarte_zeta
-        rho, rho_s = servo_and_constraint_rates(model, ca.DM(params))
+        # the ideal motion keeps φ = 0 as the plant does (its Baumgarte numbers) and σ = 0 as the controller would
+        rho, rho_s = servo_and_constraint_rates(model, kp=c.kp, kd=c.kd, ki=0.0, z=0.0,
+                                                omega=spec.simulation.baumgarte_omega,
+                                                mu=spec.simulation.baumgarte_zeta)
         minv = constant_inverse_mass(model)
         rows = independent_rows(model)
         w = ca.horzcat(model.phi_q[rows, :].T, -model.input_matrix)

@@ -202,7 +202,7 @@ class CompiledModel(SharedInputs):
                 self.buffers.setdefault(name, np.zeros(size))
         self.q, self.qd = self.buffers["q"], self.buffers["qd"]
         self.s, self.sd, self.sdd = self.buffers["s"], self.buffers["sd"], self.buffers["sdd"]
-        self.p = self.buffers["p"]  # solver parameters, acroboter.codegen.structured.PARAMS
+        self.p = self.buffers["p"]  # the controllers' run-time p (model.controller_parameters)
         self.parameters_owner = None  # the controller whose gains are in p
         self._inputs = (self.q, self.qd, self.s, self.sd, self.sdd)
         self.functions: dict[str, BoundFunction] = {
