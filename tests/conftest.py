@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acroboter.model.extras import install_line, missing
 from acroboter.model.layout import Layout, nominal_coordinates
 from acroboter.model.spec import Spec, load_spec
+from acroboter.process.extras import install_line, missing
 from acroboter.runtime.cache import load_model
 from acroboter.runtime.compiled import CompiledModel
 
@@ -206,7 +206,7 @@ def rigid_plant_rhs(model, path, u, zeta: float, omega: float):
 def build_in(root: Path, spec: Spec):
     """(spec, compiled model, desired path) of a test spec, generated and compiled under `root` (a
     temporary folder): test specs are not shipped, so neither their C nor their library is."""
-    from acroboter.codegen.generate import generate
+    from acroboter.codegen.emit_c import generate
     from acroboter.sim.statics import desired_path
 
     generate(spec, root / "generated")

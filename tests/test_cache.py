@@ -12,10 +12,10 @@ import pytest
 from conftest import SPEC_DIR
 
 import acroboter
-from acroboter.model.interrupts import remembered_interrupt
 from acroboter.model.spec import load_spec
-from acroboter.runtime.build import BuildError
+from acroboter.process.interrupts import remembered_interrupt
 from acroboter.runtime.cache import load_model
+from acroboter.runtime.compile_library import BuildError
 
 
 @pytest.fixture(scope="module")

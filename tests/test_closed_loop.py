@@ -13,7 +13,8 @@ from conftest import load_with_start, rigid_plant_rhs
 from scipy.integrate import solve_ivp
 
 from acroboter.control.controllers import Gains, make_controller
-from acroboter.sim.simulation import Scenario, setup_default, simulate, summarize
+from acroboter.sim.records import Scenario, summarize
+from acroboter.sim.simulation import setup_default, simulate
 
 REPO = Path(__file__).resolve().parent.parent
 METHODS = ("mlm", "penalty", "iterative-3", "iterative-4", "iterative-5")

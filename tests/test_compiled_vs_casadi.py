@@ -17,7 +17,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from acroboter.codegen.generate import FUNCTIONS, GenerationContext
+from acroboter.codegen.emit_c import FUNCTIONS, GenerationContext
 from acroboter.model.layout import nominal_coordinates
 from acroboter.model.spec import load_spec
 from acroboter.runtime.cache import load_model
@@ -193,7 +193,7 @@ def test_generation_is_deterministic(name, tmp_path):
     third = tmp_path / "third"
     script = (
         "import sys; from pathlib import Path; from acroboter.model.spec import load_spec; "
-        "from acroboter.codegen.generate import GenerationContext; "
+        "from acroboter.codegen.emit_c import GenerationContext; "
         "GenerationContext(load_spec(sys.argv[1])).register_all().write(Path(sys.argv[2]))"
     )
     env = {**os.environ, "PYTHONHASHSEED": "12345"}

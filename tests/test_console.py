@@ -62,7 +62,7 @@ def test_every_option_has_help_text(command, monkeypatch, capsys):
 
 def test_an_example_s_name_is_a_spec(tmp_path):
     from acroboter.cli.entry import spec_file
-    from acroboter.model.locations import example_spec
+    from acroboter.process.locations import example_spec
 
     assert spec_file("lab_crane") == example_spec("lab_crane")
     assert spec_file("model_spec/lab_crane.toml") == Path("model_spec/lab_crane.toml")  # a path stays a path
@@ -71,7 +71,7 @@ def test_an_example_s_name_is_a_spec(tmp_path):
 
 
 def test_examples_lists_every_example_and_run_takes_a_name(tmp_path):
-    from acroboter.model.locations import example_names
+    from acroboter.process.locations import example_names
 
     listing = subprocess.run([sys.executable, "-m", "acroboter", "examples"], capture_output=True, text=True,
                              timeout=120)

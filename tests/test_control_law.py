@@ -1,6 +1,6 @@
 """Oracles for the control laws themselves (issue 19), computed with numpy from the model's terms
 (`model_terms`: M, c, φ, φ_q, φ̇, γ, σ, σ_q, σ̇, γ_s, H from the symbolic model), never through a
-controller's generated terms (codegen/structured.py) or its recovery code.
+controller's generated terms (codegen/solver_terms.py) or its recovery code.
 
 (a) At recorded states of each method's closed loop on the default crane: MLM's input, put through
     the constrained dynamics (a dense KKT solve), gives σ̈ = −2k_D σ̇ − k_P² σ − k_I z to rounding;
@@ -521,11 +521,11 @@ def test_the_structured_terms_refuse_a_mass_matrix_that_depends_on_the_state():
 
     import casadi as ca
 
-    from acroboter.codegen.structured import constant_inverse_mass
+    from acroboter.codegen.solver_terms import constant_inverse_mass
 
     q, qd, s = ca.SX.sym("q", 2), ca.SX.sym("qd", 2), ca.SX.sym("s", 1)
-    message = ("^the mass matrix depends on the state: natural coordinates give a constant one; the structured "
-               "solver terms assume it$")
+    message = ("^the mass matrix depends on the state: natural coordinates give a constant one; the solver terms "
+               "assume it$")
     for entry in (q[1], qd[0]):  # each of q and q̇ is looked at
         model = SimpleNamespace(inputs=[q, qd, s], mass_matrix=ca.diag(ca.vertcat(2.0 + entry**2, 3.0)))
         with pytest.raises(ValueError, match=message):

@@ -316,7 +316,7 @@ def test_the_factory_passes_the_limits_and_the_distribution_its_weight():
 def test_the_factory_builds_the_fast_path_of_the_method_asked(crane, states):
     """fast=True wraps the reference controller of that method with that caller's limits: u as the reference's
     (to the fast path's 1e-9, docs/fast-path.md), and unlike the neighbouring method's."""
-    from acroboter.control.fast import FastController
+    from acroboter.control.fast_path import FastController
     from acroboter.runtime.casadi_backend import CasadiModel
 
     spec, model, path, _ = crane

@@ -20,7 +20,8 @@ from scipy.optimize import lsq_linear
 
 from acroboter.control.controllers import Gains, make_controller, unbounded
 from acroboter.control.distribution import BoundedInputs
-from acroboter.sim.simulation import Scenario, setup_default, simulate, summarize
+from acroboter.sim.records import Scenario, summarize
+from acroboter.sim.simulation import setup_default, simulate
 
 FOUR_CABLE = REPO / "model_spec" / "acroboter_4cable.toml"
 METHODS = ("penalty", "iterative-3", "mlm")

@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 
 from acroboter.cli.console import main as console
-from acroboter.model import extras
-from acroboter.model.extras import CORE, EXTRAS, MissingExtraError, install_line, missing, require
+from acroboter.process import extras
+from acroboter.process.extras import CORE, EXTRAS, MissingExtraError, install_line, missing, require
 
 REPO = Path(__file__).resolve().parent.parent
 PYPROJECT = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]

@@ -1,6 +1,6 @@
 """The controller a real crane runs fails safe (issue 38): bad samples fed to the exported C controller and to the
-library's Python one (acroboter.sim.stateful), over closed loops recorded through the public API (penalty and MLM,
-one and two periods of delay, integral action on).
+library's Python one (acroboter.sim.stateful_controller), over closed loops recorded through the public API
+(penalty and MLM, one and two periods of delay, integral action on).
 
 Faults are generated (hypothesis): NaN, inf, a unit-axis component zeroed or negated, position jumps from 1 mm to
 1 m, frozen encoders, once or repeated. Properties, in C and in Python alike (and C = Python, code for code):
@@ -404,7 +404,7 @@ def test_the_fast_estimator_makes_the_same_decisions(cases):
 
 def test_the_python_step_codes_are_documented():
     from acroboter.codegen.controller_text import CODES
-    from acroboter.sim.stateful import STEP_CODES
+    from acroboter.sim.stateful_controller import STEP_CODES
 
     assert sorted(CODES.values()) == sorted(STEP_CODES)
     doc = (Path(__file__).resolve().parent.parent / "docs" / "controller.md").read_text()

@@ -1,4 +1,4 @@
-"""The Python controllers' fast path (acroboter.control.fast, issue 23 item 2) against the reference per-term path.
+"""The Python controllers' fast path (acroboter.control.fast_path, issue 23 item 2) against the reference per-term path.
 
 - closed loops with integral action: MLM's results agree to 1e-9 relative; the penalty methods' u to 1e-9 of its
   size, their summaries to 1e-7 (explained, and checked: their step is the more accurate one, against a 40-digit
@@ -21,8 +21,9 @@ from scipy.linalg import lapack
 
 from acroboter.api.crane import Crane
 from acroboter.control.controllers import SingularSystemError, make_controller
-from acroboter.control.fast import FastController
-from acroboter.sim.simulation import Scenario, setup_default, simulate, summarize
+from acroboter.control.fast_path import FastController
+from acroboter.sim.records import Scenario, summarize
+from acroboter.sim.simulation import setup_default, simulate
 
 REPO = Path(__file__).resolve().parent.parent
 SPEC = REPO / "model_spec" / "acroboter.toml"

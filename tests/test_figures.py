@@ -15,7 +15,8 @@ from matplotlib.image import imread
 from acroboter.control.controllers import Gains, make_controller
 from acroboter.report.figures import FIGURE_NAMES, build_figures, magnification, yaw_error_deg
 from acroboter.report.report import format_table, write_figures
-from acroboter.sim.simulation import Scenario, setup_default, simulate, summarize
+from acroboter.sim.records import Scenario, summarize
+from acroboter.sim.simulation import setup_default, simulate
 
 REPO = Path(__file__).resolve().parent.parent
 METHODS = ("mlm", "penalty")

@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 from conftest import REPO, SHIPPED_NAMES, SHIPPED_SPECS, SPEC_DIR, raw_spec
 
-from acroboter.codegen.generate import generate
+from acroboter.codegen.emit_c import generate
 from acroboter.model.fingerprint import codegen_hash
-from acroboter.model.locations import cache_dir, shipped_generated_folder
 from acroboter.model.spec import load_spec, parse_spec
-from acroboter.runtime.build import build, library_path
+from acroboter.process.locations import cache_dir, shipped_generated_folder
 from acroboter.runtime.cache import load_model
+from acroboter.runtime.compile_library import build, library_path
 from acroboter.runtime.compiled import StaleModelError
 
 GENERATED_DIR = shipped_generated_folder()
@@ -104,7 +104,7 @@ def test_generated_files_carry_casadi_version_and_hashes(name):
 
 def test_library_reports_the_hashes_it_was_built_from(crane):
     from acroboter.model.fingerprint import manifest_hash
-    from acroboter.runtime.build import sources_hash
+    from acroboter.runtime.compile_library import sources_hash
 
     folder = crane.model.source_dir
     for what, value in (("spec_model_hash", crane.spec.model_hash()), ("codegen_hash", codegen_hash()),

@@ -18,8 +18,8 @@ from pathlib import Path
 import pytest
 from conftest import REPO, SPEC_DIR
 
-from acroboter.codegen import generate as generation
-from acroboter.codegen.generate import GenerationContext, generate
+from acroboter.codegen import emit_c as generation
+from acroboter.codegen.emit_c import GenerationContext, generate
 from acroboter.model.spec import load_spec
 from acroboter.runtime.cache import load_model
 from acroboter.runtime.compiled import StaleModelError
@@ -157,7 +157,7 @@ def test_generation_checks_the_integrity_of_what_it_wrote(tmp_path, monkeypatch)
         return written
 
     monkeypatch.setattr(GenerationContext, "write", write_then_edit)
-    monkeypatch.setattr("acroboter.runtime.build.build", lambda *a, **k: pytest.fail("compiled"))
+    monkeypatch.setattr("acroboter.runtime.compile_library.build", lambda *a, **k: pytest.fail("compiled"))
     with pytest.raises(cli.GenerationError, match="fails its own integrity check.*phi.c is not what"):
         generate(spec, root, verify=cli.compile_check)
     assert snapshot(root / spec.name) == before
@@ -265,7 +265,7 @@ def test_two_checked_in_specs_with_one_name_are_refused(tmp_path, monkeypatch):
 
 
 def test_a_truncated_library_is_rebuilt_not_loaded(toy_tree, tmp_path):
-    from acroboter.runtime.build import build as build_library
+    from acroboter.runtime.compile_library import build as build_library
 
     spec, root, build = copy_tree(toy_tree, tmp_path)
     lib = build_library(spec.name, root / spec.name, build)  # built, not loaded: this process never maps it

@@ -18,7 +18,7 @@ PACKAGE = REPO / "acroboter"
 
 # The folders of acroboter/, lowest first. A module may import its own folder and the folders below, never
 # one above. Each folder's __init__.py says in one sentence what it holds.
-LAYERS = ["model", "codegen", "runtime", "control", "sim", "planning", "api", "studies", "report", "cli"]
+LAYERS = ["process", "model", "codegen", "runtime", "control", "sim", "planning", "api", "studies", "report", "cli"]
 # acroboter/ itself holds only the public face and forwarding modules (above every layer): __init__.py
 # (acroboter.Crane, ... loaded on first use), __main__.py (`python -m acroboter`) and one module per
 # `python -m acroboter.<command>` form, each a forward to the command's module.
@@ -98,14 +98,14 @@ def test_imports_go_one_way(module):
 def test_the_rule_sees_a_violation(tmp_path):
     """The checker itself: an upward import and a runtime -> codegen import are found and refused."""
     bad = tmp_path / "controllers.py"
-    bad.write_text("from ..codegen.generate import generate\ndef f():\n    from ..api.crane import Crane\n")
+    bad.write_text("from ..codegen.emit_c import generate\ndef f():\n    from ..api.crane import Crane\n")
     found = imports_of("acroboter.control.controllers", bad, set(ALL))
-    assert {"acroboter.codegen.generate", "acroboter.api.crane"} <= found
-    assert layer_of("acroboter.codegen.generate") == "codegen" and layer_of("acroboter.api.crane") == "api"
+    assert {"acroboter.codegen.emit_c", "acroboter.api.crane"} <= found
+    assert layer_of("acroboter.codegen.emit_c") == "codegen" and layer_of("acroboter.api.crane") == "api"
     assert "a layer above it" in check("acroboter.control.controllers", "acroboter.api.crane")
-    assert "code generator" in check("acroboter.control.controllers", "acroboter.codegen.generate")
-    assert "code generator" in check("acroboter.runtime.compiled", "acroboter.codegen.generate")
-    assert check("acroboter.runtime.cache", "acroboter.codegen.generate") is None
+    assert "code generator" in check("acroboter.control.controllers", "acroboter.codegen.emit_c")
+    assert "code generator" in check("acroboter.runtime.compiled", "acroboter.codegen.emit_c")
+    assert check("acroboter.runtime.cache", "acroboter.codegen.emit_c") is None
     assert "a layer above it" in check("acroboter.codegen.symbolic", "acroboter.runtime.compiled")
     assert check("acroboter.cli.run", "acroboter.model.spec") is None
 

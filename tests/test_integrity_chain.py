@@ -24,14 +24,14 @@ import pytest
 
 from acroboter.cli import generate as generate_cli
 from acroboter.cli.entry import guarded
-from acroboter.codegen.generate import generate
+from acroboter.codegen.emit_c import generate
 from acroboter.model import fingerprint
 from acroboter.model.spec import load_spec
-from acroboter.runtime import build as build_module
 from acroboter.runtime import cache as cache_module
+from acroboter.runtime import compile_library as build_module
 from acroboter.runtime import integrity
-from acroboter.runtime.build import build, is_current, library_path, sources_hash
 from acroboter.runtime.cache import load_model
+from acroboter.runtime.compile_library import build, is_current, library_path, sources_hash
 from acroboter.runtime.compiled import DamagedLibraryError, StaleModelError
 
 SPECS = Path(__file__).resolve().parent / "specs"
@@ -244,7 +244,7 @@ def test_a_damaged_library_of_ones_own_crane_does_not_regenerate_its_c(tmp_path,
     def regenerate(*args, **kwargs):
         raise AssertionError("the C was generated again")
 
-    monkeypatch.setattr("acroboter.codegen.generate.generate", regenerate)
+    monkeypatch.setattr("acroboter.codegen.emit_c.generate", regenerate)
     with pytest.raises(DamagedLibraryError, match=f"delete the folder {re.escape(str(lib.parent))}"):
         load_model(spec, cache_dir=cache)
     assert sources.is_dir()

@@ -155,7 +155,7 @@ def test_while_casadi_generates_the_code(tmp_path, group):
     spec.write_text((SPEC_DIR / "lab_crane.toml").read_text().replace("mass = 2.0", "mass = 2.1"))
     cache, out = tmp_path / "cache", tmp_path / "out"
     code, err, _, _ = interrupt(tmp_path, ["run", "--spec", str(spec), "--duration", "0.2", "--out", str(out), "-q"],
-                                ("acroboter.codegen.generate", "GenerationContext", "register_all"), group=group,
+                                ("acroboter.codegen.emit_c", "GenerationContext", "register_all"), group=group,
                                 env={"ACROBOTER_CACHE_DIR": str(cache)})
     assert_interrupted(code, err)
     assert not out.exists() and not staging_left(tmp_path)
@@ -170,7 +170,7 @@ def test_while_the_generated_c_compiles(tmp_path, group):
     tmp.mkdir()
     log_ends = COMPILE_ENDS.format(log=str(ends))
     code, err, _, _ = interrupt(tmp_path, ["generate", str(SPEC_DIR / "lab_crane.toml"), "--out", str(out)],
-                                ("acroboter.runtime.build", "", "build"), group=group, wait_for="cc1",
+                                ("acroboter.runtime.compile_library", "", "build"), group=group, wait_for="cc1",
                                 env={"TMPDIR": str(tmp)}, extra=log_ends, sent_at=sent)
     assert_interrupted(code, err)
     assert not out.exists() and not staging_left(tmp_path)
@@ -182,7 +182,7 @@ def test_while_the_generated_c_compiles(tmp_path, group):
 
 COMPILE_ENDS = """
 import time
-from acroboter.runtime import build as _build
+from acroboter.runtime import compile_library as _build
 _run = _build._Compilers.run
 
 def _logged(self, command):
@@ -259,10 +259,10 @@ def test_an_interrupt_inside_casadi_is_not_swallowed(monkeypatch):
     and the earlier handler held it until the files were written)."""
     import threading
 
-    from acroboter.codegen import generate as codegen
-    from acroboter.codegen import structured
-    from acroboter.model.interrupts import remembered_interrupt
+    from acroboter.codegen import emit_c as codegen
+    from acroboter.codegen import solver_terms as structured
     from acroboter.model.spec import load_spec
+    from acroboter.process.interrupts import remembered_interrupt
 
     wrote = []
     real = structured.penalty_terms
@@ -306,7 +306,7 @@ def test_a_ctrl_c_that_a_weakref_callback_swallows_is_not_lost(capsys):
     remembers such a Ctrl-C: nothing is published after it (deferred_interrupt raises first) and nothing is printed."""
     import weakref
 
-    from acroboter.model.interrupts import deferred_interrupt, remembered_interrupt
+    from acroboter.process.interrupts import deferred_interrupt, remembered_interrupt
 
     class Node:
         pass

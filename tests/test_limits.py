@@ -19,7 +19,8 @@ from conftest import load_with_start
 from acroboter.cli import run
 from acroboter.control.controllers import Gains, make_controller, unbounded
 from acroboter.runtime.cache import load_model
-from acroboter.sim.simulation import Scenario, setup_default, simulate, summarize
+from acroboter.sim.records import Scenario, summarize
+from acroboter.sim.simulation import setup_default, simulate
 from acroboter.sim.statics import desired_path, solve_equilibrium
 
 REPO = Path(__file__).resolve().parent.parent
@@ -224,7 +225,7 @@ def test_a_reversed_winch_reports_its_tension_as_gain_times_u(tmp_path):
     """gain = −1 (reversed mounting): u ≈ −26.75, the cable pulls with +26.75 N and never goes slack."""
     from conftest import raw_spec
 
-    from acroboter.codegen.generate import generate
+    from acroboter.codegen.emit_c import generate
     from acroboter.model.spec import parse_spec
 
     data = raw_spec("acroboter")

@@ -26,10 +26,10 @@ from acroboter.model.controller_parameters import (
     runtime_vector,
     runtime_view,
 )
-from acroboter.model.locations import example_spec
 from acroboter.model.schema import Controller
 from acroboter.model.settings import Gains, resolve_gains
 from acroboter.model.spec import load_spec
+from acroboter.process.locations import example_spec
 
 
 def test_each_parameter_is_a_spec_field_with_its_range_and_default():
@@ -93,7 +93,7 @@ CHECKS = textwrap.dedent('''
     import acroboter
     assert Path(acroboter.__file__).resolve().is_relative_to(Path(sys.argv[1]).resolve()), acroboter.__file__
     from acroboter.api.crane import Crane
-    from acroboter.codegen.generate import GenerationContext
+    from acroboter.codegen.emit_c import GenerationContext
     from acroboter.model.spec import SpecError, load_spec, parse_spec
     spec_path, raw = Path(sys.argv[2]), Path(sys.argv[2]).read_text()
     report = {}
@@ -110,7 +110,7 @@ CHECKS = textwrap.dedent('''
         report["spec_error"] = str(err)
     # the C: the manifest's layout and the generated solver terms' p
     context = GenerationContext(spec)
-    context.register_solver_terms("penalty_terms", __import__("acroboter.codegen.structured",
+    context.register_solver_terms("penalty_terms", __import__("acroboter.codegen.solver_terms",
                                                               fromlist=["penalty_terms"]).penalty_terms)
     k = context.model.layout.k
     report["c_parameters"] = context.manifest()["layout"]["parameters"]

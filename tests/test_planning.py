@@ -211,8 +211,8 @@ def test_a_rest_to_rest_edge_leaves_the_connector_at_rest_where_a_free_one_leave
     REST_TOL of rest, so the ideal motion held at the corner afterwards barely moves it; planned with the swing free
     (`corners="swing"`) the optimum leaves it swinging. Judged on the planner's own dynamics (IdealDynamics,
     independent of the plan's solver): the path held at its end for 3 s from the plan's end state."""
-    from acroboter.planning.dynamics import IdealDynamics, rk4_step
     from acroboter.planning.geometry import PathGeometry
+    from acroboter.planning.ideal_motion import IdealDynamics, rk4_step
     from acroboter.planning.retiming import REST_TOL
 
     text = re.sub(r'(cable = "L\d")', r"\1\nlimits = [5.0, 30.0]", DEFAULT.read_text())

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from scipy.optimize import linprog
 
 import acroboter
-from acroboter.planning.dynamics import IdealDynamics
+from acroboter.planning.ideal_motion import IdealDynamics
 from acroboter.planning.limits import best_spare, spare_constraints
 
 LOW = np.array([5.0, 5.0, 5.0, 5.0, -np.inf, -2.0])

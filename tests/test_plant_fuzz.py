@@ -1,7 +1,7 @@
 """The plant through slack/taut transitions on cases nobody chose (issue 18).
 
 Oracles: MuJoCo (an engine written by others) on the spec's MJCF model, driven by the same inputs
-(acroboter.studies.plant_fuzz), and the plant's own invariants (no slack cable stretched, no taut cable
+(acroboter.studies.plant_differential), and the plant's own invariants (no slack cable stretched, no taut cable
 pushing, the energy balance closed), which it checks itself at every substep. The experiments are
 drawn by hypothesis (a few here; `make plant-fuzz` runs thousands, docs/plant-fuzz.md); the cases
 it shrank to, and the issue's reproduction, are kept below as regression tests.
@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 from acroboter import Crane
 from acroboter.sim import plant as plant_module
 from acroboter.sim.open_loop import OpenLoopError
-from acroboter.studies.plant_fuzz import (
+from acroboter.studies.plant_differential import (
     POSITION_BOUND_M,
     Experiment,
     experiment_of,
@@ -114,7 +114,7 @@ def _check(outcome):
 def test_random_open_loop_experiments_agree_with_mujoco(name, rng):
     """A few of `make plant-fuzz`'s experiments, drawn (and shrunk) by hypothesis, on every spec."""
     template = experiment_of(name, 0)  # the spec's static inputs and winches, as make plant-fuzz sees them
-    from acroboter.studies.plant_fuzz import crane_of
+    from acroboter.studies.plant_differential import crane_of
 
     crane = crane_of(name)
     static = dict(zip(crane.layout.inputs, (float(v) for v in crane.equilibrium().inputs), strict=True))
@@ -127,7 +127,7 @@ def test_random_open_loop_experiments_agree_with_mujoco(name, rng):
 @pytest.mark.needs_mujoco
 def test_seeded_experiments_with_cascades_agree(name, seed):
     """Seeds of make plant-fuzz whose experiments hand loads between cables (dozens of re-tensions)."""
-    from acroboter.studies.plant_fuzz import crane_of
+    from acroboter.studies.plant_differential import crane_of
 
     outcome = run_experiment(experiment_of(name, seed), crane_of(name))
     _check(outcome)
@@ -140,7 +140,7 @@ def test_a_cascade_that_used_to_chatter_forever_resolves():
     impact, was located at θ = 1e-9 where its gap's change (4e-18 m) is round-off; the impact there
     left it slack, and again, 250 times in one step (SimulationError, 'chattering'). The bracket now
     starts where the gap has measurably moved (GAP_RESOLUTION)."""
-    from acroboter.studies.plant_fuzz import crane_of
+    from acroboter.studies.plant_differential import crane_of
 
     experiment = Experiment("acroboter_4input", 1.0, {  # the first second of the draw (4.24 s)
         "tension_1": [["sine", 8.23318235961625, 2.482877079153468, 0.35661655265673553]],
@@ -272,7 +272,7 @@ def _single_snap(crane, slack_m=1e-8, speed=2.0, mujoco_timestep=None, periods=1
     from acroboter.sim.mujoco_plant import MujocoPlant
     from acroboter.sim.open_loop import held_path
     from acroboter.sim.plant import Plant
-    from acroboter.studies.plant_fuzz import MUJOCO_TIMESTEP, cable_dampratio
+    from acroboter.studies.plant_differential import MUJOCO_TIMESTEP, cable_dampratio
 
     spec, lay = crane.spec, crane.layout
     start = crane.equilibrium()
@@ -308,7 +308,7 @@ def _single_snap(crane, slack_m=1e-8, speed=2.0, mujoco_timestep=None, periods=1
 def test_a_single_snap_takes_the_closed_form_energy_in_both_plants(crane):
     """One inelastic impact: the own plant takes ½ m_eff v_n² in no time; MuJoCo's damped compliant limit
     takes the same within the fuzzing's bound (1 %) over the next 20 ms (its constraint forces' work)."""
-    from acroboter.studies.plant_fuzz import IMPACT_ENERGY_REL
+    from acroboter.studies.plant_differential import IMPACT_ENERGY_REL
 
     expected, taut, mj_work = _single_snap(crane)
     assert 0.09 < expected < 0.1  # ≈ ½ · 0.05 kg (the drum) · (2 m/s)²: the bodies are hundreds of times heavier
@@ -326,7 +326,7 @@ def test_seed_906_agrees_once_the_comparator_models_the_same_impact():
     has a restitution of 4.8 % at ζ = 2; the own plant's is 0). With ζ from MuJoCo's step (8 at
     CONFIRM_TIMESTEPS[0]: 0.38 %) it agrees there (measured 16.2 µm), and each of its 15 impacts takes the same
     energy in both plants (worst: 6.140 J against 6.192 J)."""
-    from acroboter.studies.plant_fuzz import crane_of
+    from acroboter.studies.plant_differential import crane_of
 
     outcome = run_experiment(experiment_of("acroboter", 906), crane_of("acroboter"))
     _check(outcome)
@@ -361,7 +361,7 @@ def test_seed_924s_cascade_is_moreaus_impact_and_takes_mujocos_energy(monkeypatc
     import dataclasses
 
     from acroboter.sim.cable_events import CableEvents
-    from acroboter.studies import plant_fuzz
+    from acroboter.studies import plant_differential as plant_fuzz
 
     checked = []
     impact = CableEvents._impact
@@ -397,7 +397,7 @@ def _own_positions(name: str, seed: int, substeps_per_step: int, stop_s: float) 
     bodies' centres at each control instant up to `stop_s`."""
     from acroboter.sim.open_loop import held_path
     from acroboter.sim.plant import Plant
-    from acroboter.studies.plant_fuzz import consistent_velocity, crane_of, input_value
+    from acroboter.studies.plant_differential import consistent_velocity, crane_of, input_value
 
     crane, experiment = crane_of(name), experiment_of(name, seed)
     spec, lay = crane.spec, crane.layout

@@ -4,8 +4,8 @@ rows against its table: the same numbers to the bit, on experiments nobody chose
 Oracle: the reference loop in Python (Plant._advance_python), which the C loop replaces for speed. Both call the
 same generated RK4 step, so any difference at all (a substep skipped, an event missed or taken twice, a tension
 recorded at the wrong substep, a stage row off by one) is a bug. The experiments are the plant fuzzer's open-loop
-drives (acroboter.studies.plant_fuzz.random_experiment), whose cables go slack and snap taut, so the C loop stops
-at events and Python resolves them between its calls.
+drives (acroboter.studies.plant_differential.random_experiment), whose cables go slack and snap taut, so the C loop
+stops at events and Python resolves them between its calls.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from acroboter import Crane
 from acroboter.control.path import DesiredPath
 from acroboter.sim.open_loop import held_path
 from acroboter.sim.plant import InvariantError, Plant, SimulationError
-from acroboter.studies.plant_fuzz import consistent_velocity, experiment_of, input_value
+from acroboter.studies.plant_differential import consistent_velocity, experiment_of, input_value
 
 SPECS = ("acroboter", "acroboter_4cable")
 
@@ -101,7 +101,7 @@ def test_the_loop_falls_back_to_python_where_it_cannot_be_had(cranes, monkeypatc
     """No compiler on a worker (the model's library found in the cache, the loop's not built): Python's loop runs,
     with the same numbers, and the warning is said once per process, not once per plant of a study."""
     from acroboter.runtime import plant_loop
-    from acroboter.runtime.build import BuildError
+    from acroboter.runtime.compile_library import BuildError
     from acroboter.sim import plant as plant_module
 
     crane = cranes["acroboter"]

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 import acroboter
-from acroboter.codegen.generate import generate
+from acroboter.codegen.emit_c import generate
 from acroboter.control.controllers import make_controller
 from acroboter.model.physical import PlantParameterError, parameter_names, parameter_values, resolve
 from acroboter.model.spec import load_spec

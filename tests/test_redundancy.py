@@ -12,7 +12,8 @@ import pytest
 from acroboter.control.controllers import Gains, SingularSystemError, make_controller
 from acroboter.model.spec import load_spec
 from acroboter.runtime.cache import load_model
-from acroboter.sim.simulation import Scenario, setup_default, simulate, summarize
+from acroboter.sim.records import Scenario, summarize
+from acroboter.sim.simulation import setup_default, simulate
 from acroboter.sim.statics import desired_path, solve_equilibrium
 
 SPECS = Path(__file__).resolve().parent.parent / "model_spec"
@@ -97,7 +98,7 @@ def test_noncollocated_recoveries_that_assume_collocation_lose_the_load(recovery
 def test_a_duplicated_cable_is_handled_by_the_penalty_methods(tmp_path):
     """Redundancy the spec does not flag (a second main cable, identical to the first): the code
     generator finds the dependent row, MLM refuses, the penalty methods track as on the default."""
-    from acroboter.codegen.generate import generate
+    from acroboter.codegen.emit_c import generate
 
     text = (SPECS / "acroboter.toml").read_text().replace('name = "acroboter"', 'name = "acroboter_dup"', 1)
     text += '\n[[cables]]\nname = "main_again"\nends = ["climbing_unit", "CC.top"]\nlength = 1.5\n'

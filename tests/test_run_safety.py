@@ -124,11 +124,12 @@ def test_an_equilibrium_solve_gives_up_within_its_time_limit(monkeypatch):
 def test_a_one_input_crane_runs(tmp_path):
     """One actuator: its n x 1 terms stay matrices. The winch lifts the box along the vertical path;
     MLM (one input for three servo-constraints) refuses with its reason."""
-    from acroboter.codegen.generate import generate
+    from acroboter.codegen.emit_c import generate
     from acroboter.control.controllers import Gains, SingularSystemError, make_controller
     from acroboter.model.spec import load_spec
     from acroboter.runtime.cache import load_model
-    from acroboter.sim.simulation import Scenario, setup_default, simulate, summarize
+    from acroboter.sim.records import Scenario, summarize
+    from acroboter.sim.simulation import setup_default, simulate
     from acroboter.sim.statics import desired_path, solve_equilibrium
 
     spec = load_spec(Path(__file__).resolve().parent / "specs" / "one_winch.toml")

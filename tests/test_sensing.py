@@ -28,8 +28,8 @@ import acroboter
 from acroboter.api.crane import Crane
 from acroboter.model.spec import SpecError, parse_spec
 from acroboter.sim.fast_estimator import make_estimator
+from acroboter.sim.records import Scenario
 from acroboter.sim.sensing import Estimator, is_ideal, resolve
-from acroboter.sim.simulation import Scenario
 
 METHODS = ["mlm", "penalty", "iterative-3", "iterative-4", "iterative-5"]
 BASELINE = json.loads((Path(__file__).parent / "data" / "sensing_baseline.json").read_text())

@@ -19,9 +19,10 @@ from pathlib import Path
 import pytest
 
 from acroboter.cli import sweep as sw
-from acroboter.model.extras import MissingExtraError
-from acroboter.studies import grid, judging
+from acroboter.process.extras import MissingExtraError
+from acroboter.studies import grid
 from acroboter.studies import penalty_grid as pg
+from acroboter.studies import run_verdicts as judging
 
 REPO = Path(__file__).resolve().parent.parent
 SPEC = REPO / "model_spec" / "acroboter.toml"

@@ -392,7 +392,7 @@ def _evaluator(name: str):
     """(function name, q, qd, s, sd, sdd) -> outputs: the compiled C for a shipped spec, else CasADi's VM."""
     if name in SHIPPED:
         return load_model(oracle_for(name).spec).evaluate
-    from acroboter.codegen.generate import GenerationContext
+    from acroboter.codegen.emit_c import GenerationContext
 
     functions = GenerationContext(oracle_for(name).spec).register_all().functions
 

@@ -27,8 +27,9 @@ from acroboter.control.controllers import Gains, make_controller
 from acroboter.model.spec import load_spec, parse_spec
 from acroboter.runtime.cache import load_model
 from acroboter.sim.plant import Plant
+from acroboter.sim.records import Scenario, summarize
 from acroboter.sim.result import Result
-from acroboter.sim.simulation import Scenario, setup_default, simulate, summarize
+from acroboter.sim.simulation import setup_default, simulate
 from acroboter.sim.statics import desired_path, solve_equilibrium
 
 REPO = Path(__file__).resolve().parent.parent

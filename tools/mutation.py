@@ -11,7 +11,7 @@ check and not the cross-implementation comparisons, which compare against a seco
 of the same code rather than an oracle). Compiled libraries come from the checkout's build/cache/
 (ACROBOTER_CACHE_DIR, as `make` sets it).
 
-Generator modules (codegen/symbolic.py, structured.py, plant.py): a mutant of the generator changes
+Generator modules (codegen/symbolic.py, solver_terms.py, plant_step.py): a mutant of the generator changes
 nothing in the compiled C, and regenerating and compiling every spec per mutant (tens of seconds per spec)
 is out of reach on a shared 2-core machine. Their selection runs with ACROBOTER_TEST_MODELS=casadi
 (tests/conftest.py): every model the tests load is the generator's functions evaluated by CasADi's VM in
@@ -42,7 +42,7 @@ CORE = [
     "control/controllers.py", "control/recovery.py", "control/distribution.py",
     "sim/plant.py", "sim/cable_events.py", "sim/sensing.py",
 ]
-GENERATOR = ["codegen/symbolic.py", "codegen/structured.py", "codegen/plant.py"]
+GENERATOR = ["codegen/symbolic.py", "codegen/solver_terms.py", "codegen/plant_step.py"]
 # The generator's judges: each runs on the CasADi VM's models and compares with an oracle of its own.
 GENERATOR_TESTS = [
     "tests/test_sympy_oracle.py", "tests/test_control_law.py", "tests/test_controller_contract.py",

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from acroboter.api.crane import Crane
-from acroboter.codegen.generate import generate
-from acroboter.model.locations import example_spec
+from acroboter.codegen.emit_c import generate
+from acroboter.process.locations import example_spec
 from acroboter.runtime.cache import load_model
 from acroboter.sim.plant import Plant
 

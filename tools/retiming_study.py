@@ -1,4 +1,4 @@
-"""How fast can the paper's path be flown? Every case of acroboter.studies.retiming (the default and the
+"""How fast can the paper's path be flown? Every case of acroboter.studies.planned_flights (the default and the
 four-cable crane, winch limits [5, 30], [5, 60], [5, 120] N): the retiming's plan and MLM, Penalty and Iterative
 Penalty (3) flying it. Writes into docs/planning/ (or --out): results.csv (one row per case and method),
 results.json (the cases with the date, machine and versions) and speed.png (the planned path fraction s(t)
@@ -36,8 +36,8 @@ def main(argv=None) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from acroboter.planning.dynamics import PlanningError
-    from acroboter.studies.retiming import CASES, run_case
+    from acroboter.planning.ideal_motion import PlanningError
+    from acroboter.studies.planned_flights import CASES, run_case
 
     chosen = [CASES[int(i)] for i in args.cases.split(",") if i.strip()] or list(CASES)
     if args.assemble:

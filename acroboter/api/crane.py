@@ -29,7 +29,6 @@ import numpy as np
 
 from ..control.controllers import make_controller
 from ..control.path import DesiredPath, SampledTrajectory, TrajectoryPath
-from ..model.locations import example_spec
 from ..model.physical import parameter_names, parameter_values
 from ..model.plausibility import plausibility_warnings
 from ..model.ranges import delay_problem
@@ -41,15 +40,17 @@ from ..model.spec import (
     SpecError,
     load_spec,
 )
+from ..process.locations import example_spec
 from ..runtime.cache import load_model
 from ..runtime.compiled import CompiledModel
 from ..sim.fast_estimator import make_estimator
 from ..sim.feasibility import Feasibility, check_path
 from ..sim.open_loop import held_path, simulate_open_loop
+from ..sim.records import Scenario
 from ..sim.result import Result
 from ..sim.sensing import check_measurable
 from ..sim.sensing import resolve as resolve_sensing
-from ..sim.simulation import Scenario, setup_default, simulate
+from ..sim.simulation import setup_default, simulate
 from ..sim.statics import Equilibrium, desired_path, inputs_outside_limits, solve_equilibrium, start_targets
 from .dynamics import evaluate
 
@@ -269,9 +270,9 @@ class Crane:
 
     def stateful_controller(self, method: str = "penalty", sensing=None, iterations: int | None = None,
                             fast: bool = False, **overrides):
-        """The exported C controller's step in Python (acroboter.sim.stateful.StatefulController): `init(q0)`,
-        `code = step(y, t)` with the command in `.u`, `reset()`, `reinit()`; replays a run's `result.measurements`
-        as the C would (docs/controller.md). `sensing` as in `simulate` (none: y = [q; q̇])."""
+        """The exported C controller's step in Python (acroboter.sim.stateful_controller.StatefulController):
+        `init(q0)`, `code = step(y, t)` with the command in `.u`, `reset()`, `reinit()`; replays a run's
+        `result.measurements` as the C would (docs/controller.md). `sensing` as in `simulate` (none: y = [q; q̇])."""
         from .stateful import stateful_controller
 
         return stateful_controller(self, method, sensing, iterations, fast, overrides)
@@ -306,7 +307,7 @@ class Crane:
         edges solved one by one; "swing", the swing carried over the corners, `window` phases optimised together in
         a receding window (default 2; 0: the whole path in one solve, slow on long paths; docs/planning.md)."""
         from ..model.ranges import MARGIN, PLAN_ACCEL, PLAN_INTERVALS, PLAN_SPEED, PLAN_WINDOW
-        from ..planning.plan import plan
+        from ..planning.planner import plan
 
         MARGIN.check(margin, "margin")
         PLAN_INTERVALS.check(intervals, "intervals")

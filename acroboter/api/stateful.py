@@ -7,9 +7,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..control.controllers import make_controller
-from ..control.fast import path_table
+from ..control.fast_path import path_table
 from ..sim.fast_estimator import make_estimator
-from ..sim.stateful import StatefulController
+from ..sim.stateful_controller import StatefulController
 
 __all__ = ["export_controller", "stateful_controller"]
 

@@ -1,5 +1,5 @@
 /* @NAME@: the stateful controller (see @NAME@.h). Generated from acroboter/c/controller.c by
- * `acroboter export-step --stateful`: do not edit, re-export. acroboter.sim.stateful.StatefulController is the
+ * `acroboter export-step --stateful`: do not edit, re-export. acroboter.sim.stateful_controller.StatefulController is the
  * same step in Python, statement for statement. */
 #include <math.h>
 #include "@NAME@.h"

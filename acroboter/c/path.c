@@ -1,5 +1,5 @@
 /* The spec's desired path as C: acroboter.control.path.DesiredPath.flat, statement for statement (the same IEEE
- * operations in the same order: the same bits), from the path's numbers in a table (acroboter.control.fast
+ * operations in the same order: the same bits), from the path's numbers in a table (acroboter.control.fast_path
  * path_table): rest-to-rest quintic edges through the waypoints, the yaw one quintic over the whole path, the moving
  * anchors following the path's x and y.
  *

@@ -28,8 +28,8 @@ import time
 from functools import partial
 from pathlib import Path
 
-from ..model.extras import require
 from ..model.ranges import FPS, GIF_FPS, GIF_SPEED, GIF_WIDTH, HEIGHT, SPEED, WIDTH, frames_problem
+from ..process.extras import require
 from ..report.animation import matplotlib_frames, mujoco_frames
 from ..report.animation.encode import write_complete, write_gif, write_mp4
 from ..report.animation.mujoco_frames import GL_FIX, RendererUnavailable, mujoco_ready, probe_gl

@@ -30,9 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..model.locations import example_spec
 from ..model.ranges import CASADI_STATES, MC_SAMPLES, REPEATS
 from ..model.spec import MAX_ITERATIONS
+from ..process.locations import example_spec
 from ..report.paper import PAPER_MATLAB_US
 from .entry import guarded, ranged, spec_file
 from .outputs import ResultsFolder, out_path, results_folder

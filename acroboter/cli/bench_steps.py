@@ -3,7 +3,7 @@
 Per method, in the same interleaved passes over the states of the scenario (one pass = every state, each call
 timed on its own with time.perf_counter):
   - the Python step on its reference path (per-term generated call, LAPACK through scipy) and on its fast path
-    (acroboter.control.fast: one compiled function, the spec's path evaluated in it), both
+    (acroboter.control.fast_path: one compiled function, the spec's path evaluated in it), both
     `controller.compute(q, q̇, t)` with the path's signals evaluated at t;
   - the exported C step (acroboter.codegen.export_step, as `acroboter export-step` writes it: gains baked in),
     compiled here (-O2 -fPIC, no fast-math) and called in-process through ctypes, the signals already loaded;

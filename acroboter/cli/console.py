@@ -107,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     configure_logging(verbosity)
     module, function, prefix = COMMANDS[args.command]
     # A broken install (a core dependency missing): one line, not a traceback from deep in an import.
-    from ..model.extras import missing_core
+    from ..process.extras import missing_core
 
     if (problem := missing_core()) is not None:
         print(f"acroboter: {problem}", file=sys.stderr)

@@ -12,7 +12,7 @@ and the documented exit code, never a traceback:
          complete, no staging folder is left behind
 
 A helper library's warning (numpy's, Dask's) or log line never reaches the terminal: -v shows it as a
-debug line (acroboter.model.quiet).
+debug line (acroboter.process.quiet).
 
 A core dependency that does not import is one line naming it and its `pip install` (exit 3). An error no
 class names (a bug) is reported the same way, as "internal error", with exit 3; set ACROBOTER_TRACEBACK=1 to
@@ -45,9 +45,9 @@ EXIT_INTERRUPTED = 130
 
 
 def _bad_input_errors() -> tuple[type[BaseException], ...]:
-    from ..model.extras import MissingExtraError
     from ..model.physical import PlantParameterError
     from ..model.spec import SpecError
+    from ..process.extras import MissingExtraError
     from ..runtime.compiled import StaleModelError  # imported late: `--help` stays instant
     from ..sim.statics import EquilibriumError
     from .outputs import OutputFolderError
@@ -59,7 +59,7 @@ def _cannot_run_errors() -> tuple[type[BaseException], ...]:
     from ..control.controllers import SingularSystemError
     from ..control.distribution import DistributionError
     from ..control.recovery import RecoveryError
-    from ..runtime.build import BuildError
+    from ..runtime.compile_library import BuildError
     from ..sim.plant import SimulationError
     from .outputs import OutputFolderBusy
 
@@ -72,13 +72,13 @@ def guarded(main: Callable[..., int]) -> Callable[..., int]:
 
     @functools.wraps(main)
     def wrapper(*args, **kwargs) -> int:
-        from ..model.interrupts import remembered_interrupt
-        from ..model.quiet import contained
+        from ..process.interrupts import remembered_interrupt
+        from ..process.quiet import contained
 
         interrupt = None
         try:
-            # a helper library's warning or log line: -v only (acroboter.model.quiet); Ctrl-C at once, or as soon
-            # as CasADi returns (acroboter.model.interrupts: inside it, it would be swallowed)
+            # a helper library's warning or log line: -v only (acroboter.process.quiet); Ctrl-C at once, or as soon
+            # as CasADi returns (acroboter.process.interrupts: inside it, it would be swallowed)
             with contained(), remembered_interrupt() as interrupt:
                 return main(*args, **kwargs)
         except KeyboardInterrupt:
@@ -110,7 +110,7 @@ def guarded(main: Callable[..., int]) -> Callable[..., int]:
 def core_import_problem(err: BaseException) -> str | None:
     """The one line for an installed package that does not import (a broken install: a core dependency
     missing, or one of theirs), None for any other error (also an ImportError of the package itself: a bug)."""
-    from ..model.extras import MissingExtraError, core_line, is_core
+    from ..process.extras import MissingExtraError, core_line, is_core
 
     if not isinstance(err, ImportError) or isinstance(err, MissingExtraError) or not err.name:
         return None
@@ -210,7 +210,7 @@ def spec_file(text: str) -> Path:
     nearest example."""
     import difflib
 
-    from ..model.locations import example_names, example_spec
+    from ..process.locations import example_names, example_spec
 
     path = Path(text)
     if path.suffix == ".toml" or (path.exists() and not path.is_dir()) or os.sep in text:  # (a folder is no spec:

@@ -7,8 +7,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..model.locations import example_names, example_spec
 from ..model.spec import load_spec
+from ..process.locations import example_names, example_spec
 from .entry import guarded, spec_file
 
 

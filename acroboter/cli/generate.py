@@ -17,10 +17,10 @@ import sys
 import tempfile
 from pathlib import Path
 
-from ..codegen.generate import generate
-from ..model.interrupts import remembered_interrupt
-from ..model.locations import checkout_root, example_spec, shipped_generated_folder, spec_folder
+from ..codegen.emit_c import generate
 from ..model.spec import Spec, SpecError, load_spec
+from ..process.interrupts import remembered_interrupt
+from ..process.locations import checkout_root, example_spec, shipped_generated_folder, spec_folder
 from .entry import add_parameter_options, as_option_text, check_out_folder, guarded, spec_file
 from .outputs import OutputFolderError, folder_lock, no_empty_folder_left, out_path, results_folder
 
@@ -83,7 +83,7 @@ def compile_check(folder: Path) -> None:
     """The generated C passes the integrity chain's checks, compiles and links into a library that embeds
     what the bindings will expect (acroboter.runtime.integrity)."""
     # the CLI composes both; codegen itself stays below the runtime
-    from ..runtime.build import BuildError, build, sources_hash
+    from ..runtime.compile_library import BuildError, build, sources_hash
     from ..runtime.integrity import StaleModelError, check_library, expected_embedded, verify_sources
 
     spec_name = json.loads((folder / "manifest.json").read_text())["spec"]
@@ -107,7 +107,7 @@ class GenerationError(RuntimeError):
     pass
 
 
-# The code generator's staging and retired folders (acroboter.codegen.generate): .<spec>.new-<8 characters>,
+# The code generator's staging and retired folders (acroboter.codegen.emit_c): .<spec>.new-<8 characters>,
 # .<spec>.old-<pid>
 STAGING = re.compile(r"\.[A-Za-z0-9_]+\.(new-[a-z0-9_]{8}|old-(\d+))")
 
@@ -159,7 +159,7 @@ def cmd_generate(spec_paths: list[Path], out_root: Path, check_compiles: bool = 
     refuse_foreign(specs, out_root)
     out_root.mkdir(parents=True, exist_ok=True)
     # One command at a time writes into --out (a second one: exit 3, naming it); Ctrl-C at once, inside CasADi as
-    # soon as it returns, and never after a folder was half replaced (acroboter.codegen.generate swaps whole)
+    # soon as it returns, and never after a folder was half replaced (acroboter.codegen.emit_c swaps whole)
     with folder_lock(out_root), remembered_interrupt() as interrupt:
         remove_stale_staging(out_root)
 
@@ -324,9 +324,9 @@ def export_step_main(argv: list[str] | None = None) -> int:
 
 @guarded
 def build_main(argv: list[str] | None = None) -> int:
-    """`acroboter build`: compile the examples' libraries into the cache (acroboter.runtime.build), with the
+    """`acroboter build`: compile the examples' libraries into the cache (acroboter.runtime.compile_library), with the
     error boundary of every command."""
-    from ..runtime.build import main as build
+    from ..runtime.compile_library import main as build
 
     return build(argv)
 

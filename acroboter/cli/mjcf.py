@@ -57,14 +57,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 @guarded
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    from ..model.extras import require
+    from ..process.extras import require
 
     require("mujoco", "acroboter mjcf (MuJoCo loads the XML before it is written)",
             "acroboter.Crane.from_toml(SPEC).mjcf() writes the XML without loading it")  # exit 2, before any work
     import mujoco
 
-    from ..model.locations import example_spec
     from ..model.spec import load_spec
+    from ..process.locations import example_spec
 
     spec_path = args.spec if args.spec is not None else example_spec("acroboter")
     spec = load_spec(spec_path)

@@ -35,7 +35,7 @@ import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-from ..model.interrupts import deferred_interrupt
+from ..process.interrupts import deferred_interrupt
 
 MANIFEST = ".acroboter-outputs.json"
 STAGING_PREFIX = ".acroboter-staging-"

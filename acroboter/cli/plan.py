@@ -17,8 +17,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..model.locations import example_spec
 from ..model.ranges import MARGIN, PLAN_ACCEL, PLAN_INTERVALS, PLAN_SPEED, PLAN_WINDOW
+from ..process.locations import example_spec
 from .entry import carrying, guarded, ranged, spec_file
 from .outputs import out_path, results_folder
 
@@ -102,7 +102,7 @@ def _plan(args: argparse.Namespace, folder) -> int:
     from ..control.trajectory_file import read_trajectory_csv
     from ..model.spec import SpecError
     from ..planning.checks import StaticLimitError
-    from ..planning.dynamics import PlanningError
+    from ..planning.ideal_motion import PlanningError
     from ..runtime.compiled import StaleModelError
     from ..sim.statics import EquilibriumError
     from .run import provenance

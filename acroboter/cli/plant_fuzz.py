@@ -1,6 +1,6 @@
 """`acroboter plant-fuzz` (`make plant-fuzz`, `python -m acroboter.plant_fuzz`): many generated open-loop
 experiments on every example spec, the own plant against MuJoCo, on a local Dask cluster, with a report
-of the verdict and the worst case of each measure (acroboter.studies.plant_fuzz, docs/plant.md). It needs the
+of the verdict and the worst case of each measure (acroboter.studies.plant_differential, docs/plant.md). It needs the
 mujoco extra, and the dask extra for more than one worker (docs/extras.md)."""
 
 from __future__ import annotations
@@ -12,13 +12,13 @@ from contextlib import nullcontext
 from functools import partial
 from pathlib import Path
 
-from ..model.extras import require
-from ..model.locations import example_names, example_spec
 from ..model.ranges import FUZZ_CASES, FUZZ_SEED, FUZZ_TIMESTEP, WORKERS
 from ..model.spec import load_spec
+from ..process.extras import require
+from ..process.locations import example_names, example_spec
 from ..sim.simulation import check_mujoco_timestep
 from ..studies.grid import open_client, run_cases, write_rows
-from ..studies.plant_fuzz import COLUMNS, MUJOCO_TIMESTEP, crane_of, report, run_case
+from ..studies.plant_differential import COLUMNS, MUJOCO_TIMESTEP, crane_of, report, run_case
 from .entry import EXIT_BAD_INPUT, guarded, progress_disabled, ranged
 from .outputs import ResultsFolder, out_path, results_folder
 
@@ -76,7 +76,7 @@ def _fuzz(args: argparse.Namespace, folder: ResultsFolder) -> int:
         crane_of(name)
     cases = [(names[i % len(names)], args.seed + i) for i in range(args.cases)]
     t0 = time.perf_counter()
-    # The task lives in an importable module (acroboter.studies.plant_fuzz): it pickles as a reference
+    # The task lives in an importable module (acroboter.studies.plant_differential): it pickles as a reference
     # however this one is started, without the cranes loaded here.
     task = partial(run_case, mujoco_timestep=args.mujoco_timestep)
     with (open_client(None, args.workers) if args.workers > 1 else nullcontext(None)) as client, \

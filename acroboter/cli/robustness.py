@@ -30,7 +30,6 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
-from ..model.locations import example_spec
 from ..model.ranges import (
     CONNECT_TIMEOUT,
     DELAY,
@@ -42,6 +41,7 @@ from ..model.ranges import (
     WORKERS_OR_NONE,
     delay_problem,
 )
+from ..process.locations import example_spec
 from ..studies.grid import (
     MAX_RUNS,
     GridError,
@@ -187,8 +187,8 @@ def prebuild(spec, methods, sensing, fast: bool) -> None:
     estimator of the sensing the runs use (--sensing-*, else the spec's section). A method the fast path cannot have
     runs on its reference path in the workers too (make_controller says why)."""
     from ..control.controllers import Gains
-    from ..runtime.build import BuildError
     from ..runtime.cache import load_model
+    from ..runtime.compile_library import BuildError
     from ..runtime.fast_library import FastPathUnavailable, load_fast_estimator, load_fast_step
     from ..runtime.plant_loop import load_plant_loop
     from ..sim.sensing import is_ideal, resolve

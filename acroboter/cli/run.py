@@ -18,8 +18,8 @@ import sys
 from pathlib import Path
 
 from ..model.controller_parameters import OVERRIDES
-from ..model.locations import example_spec
 from ..model.spec import MAX_CONTROL_STEPS
+from ..process.locations import example_spec
 from .entry import as_option_text, guarded, progress_disabled
 from .outputs import ResultsFolder, results_folder
 from .run_args import expand_methods, parse_args

@@ -7,8 +7,6 @@ import argparse
 from pathlib import Path
 
 from ..model.controller_parameters import PARAMETERS
-from ..model.extras import require
-from ..model.locations import example_spec
 from ..model.ranges import (
     DELAY,
     DURATION,
@@ -19,6 +17,8 @@ from ..model.ranges import (
     SEED,
 )
 from ..model.spec import MAX_ITERATIONS
+from ..process.extras import require
+from ..process.locations import example_spec
 from .entry import add_parameter_options, named_number, ranged, ranged_list, spec_file
 from .outputs import out_path
 

@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..model.locations import spec_folder
 from ..model.ranges import STUDY_DURATION
 from ..model.spec import MAX_CONTROL_STEPS
+from ..process.locations import spec_folder
 from ..report.study_figures import case_label, position_error_figure
 from ..studies.grid import run_cases, setup
 from .entry import guarded, progress_disabled, ranged
@@ -43,7 +43,8 @@ def run_case(spec_name: str, method: str, duration: float | None, **overrides) -
     from ..control.controllers import Gains, SingularSystemError, make_controller
     from ..control.recovery import RecoveryError
     from ..model.spec import load_spec
-    from ..sim.simulation import simulate, summarize
+    from ..sim.records import summarize
+    from ..sim.simulation import simulate
 
     ctx = setup(load_spec(SPECS / f"{spec_name}.toml"))  # loaded (built if needed) once per spec
     spec, model, path, start, plant, scenario = ctx.spec, ctx.model, ctx.path, ctx.start, ctx.plant, ctx.scenario

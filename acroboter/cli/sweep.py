@@ -12,7 +12,7 @@ never compile). dask is an optional extra: `pip install 'acroboter[dask]'`.
 Writes <out>/sweep.csv (one row per run: acroboter.studies.penalty_grid.COLUMNS) and the figures
 sweep_tracking_error.png, sweep_constraints.png and sweep_condition.png (acroboter.report.study_figures);
 prints a table of the tracking error and the α range over which each method stays within a factor
-(--tolerance, 2) of MLM's error, and how it breaks down outside it (acroboter.studies.judging).
+(--tolerance, 2) of MLM's error, and how it breaks down outside it (acroboter.studies.run_verdicts).
 """
 
 from __future__ import annotations
@@ -26,7 +26,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..model.controller_parameters import parameter
-from ..model.locations import example_spec
 from ..model.ranges import (
     ALPHA,
     CONNECT_TIMEOUT,
@@ -37,6 +36,7 @@ from ..model.ranges import (
     WORKERS,
     Range,
 )
+from ..process.locations import example_spec
 from ..report.study_figures import sweep_figures
 from ..studies.grid import (
     MAX_RUNS,
@@ -49,7 +49,6 @@ from ..studies.grid import (
     worker_count,
     write_rows,
 )
-from ..studies.judging import findings, format_table, ok
 from ..studies.penalty_grid import (
     ALPHA_MODES,
     COLUMNS,
@@ -60,6 +59,7 @@ from ..studies.penalty_grid import (
     parse_iterations,
     run_case,
 )
+from ..studies.run_verdicts import findings, format_table, ok
 from .entry import (
     EXIT_BAD_INPUT,
     EXIT_CANNOT_RUN,

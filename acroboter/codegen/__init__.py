@@ -1,1 +1,1 @@
-"""Spec -> CasADi symbolic model -> generated C (see acroboter.codegen.generate)."""
+"""Spec -> CasADi symbolic model -> generated C (see acroboter.codegen.emit_c)."""

@@ -10,7 +10,7 @@ writes four files for the robot's real-time computer:
   of acroboter.sim.sensing.Estimator, each one SX function with shared subexpressions: max |φ| over the
   independent rows, the minimal-norm Gauss–Newton step φ_qᵀ(φ_q φ_qᵀ)⁻¹φ, the unmeasured coordinates'
   least-squares step (a_Uᵀa_U)⁻¹a_Uᵀφ, the rate correction φ_qᵀ(φ_q φ_qᵀ)⁻¹φ̇ and σ (SX Cholesky, as
-  codegen.structured.cholesky_solve);
+  codegen.solver_terms.cholesky_solve);
 - <name>.c/.h: the hand-written wrapper (acroboter/c/controller.c and .h, the estimator's
   estimator.c, the path's path.c, filled in by acroboter.codegen.controller_text) with a state struct and
   init(state, q0, signals), step(state, y, t, signals, u), reset(state), reinit(state) and path(t, signals):
@@ -36,12 +36,12 @@ from ..model.schema import Sensing
 from ..model.sensing_layout import is_ideal, measured_groups, measured_indices
 from ..model.settings import Gains, command_bounds
 from ..model.spec import Spec, load_spec
+from .emit_c import INPUT_NAMES
 from .estimator_c import EstimatorExport, build_estimator
 from .export_step import ExportError, build_step, step_name
-from .generate import INPUT_NAMES
+from .solver_terms import independent_rows
 from .stack_usage import measure_stack
 from .step_graph import StepExport
-from .structured import independent_rows
 from .symbolic import build_symbolic_model
 
 RANK_TOLERANCE = 1e-9  # as acroboter.sim.sensing.RANK_TOLERANCE
@@ -71,7 +71,7 @@ class ControllerExport:
     groups: list[tuple[str, str, float, float]]  # per measurement: group, unit, noise, quantisation step
     period: float
     start_q: np.ndarray  # the spec's static equilibrium at the path's start: the header's <name>_q0
-    path_numbers: np.ndarray  # the spec's path as acroboter.control.fast.path_table's numbers (<name>_path)
+    path_numbers: np.ndarray  # the spec's path as acroboter.control.fast_path.path_table's numbers (<name>_path)
     command_low: np.ndarray  # the limits intersected with the sanity bound (acroboter.model.settings)
     command_high: np.ndarray
     n_constraints: int  # rows of phi (init's check)
@@ -114,7 +114,7 @@ def build_controller(spec: Spec, method: str, gains: Gains, sensing: Sensing | N
                      start_q: np.ndarray | None = None, path_numbers: np.ndarray | None = None) -> ControllerExport:
     """Build the core step (with z, q̈ and the saturation judgement), σ, φ and the estimator's SX functions for
     `sensing` (resolved, e.g. acroboter.sim.sensing.resolve; None: the state is measured). `start_q` (the static
-    equilibrium) and `path_numbers` (acroboter.control.fast.path_table of the spec's path) become the header's
+    equilibrium) and `path_numbers` (acroboter.control.fast_path.path_table of the spec's path) become the header's
     constants: the library computes them (acroboter.api.crane.Crane.export_controller)."""
     if start_q is None or path_numbers is None:
         raise ExportError("the stateful controller needs its start state and the path's numbers: export it through "

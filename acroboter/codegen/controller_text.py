@@ -21,7 +21,7 @@ from .step_qp import QP_PLUGIN
 
 # qrqp's default iteration limit (CasADi 3.x 'max_iter'): the bounded QP's worst case, where a spec has limits.
 QP_MAX_ITER = 1000
-# init's q0 check and the command check (as acroboter.sim.stateful.INIT_TOLERANCE, COMMAND_TOLERANCE).
+# init's q0 check and the command check (as acroboter.sim.stateful_controller.INIT_TOLERANCE, COMMAND_TOLERANCE).
 INIT_TOLERANCE = 1e-6
 COMMAND_TOLERANCE = 1e-9
 # After a fault the checks rejected, the commands are back within 0.1 N of an undisturbed run's within this many
@@ -29,7 +29,7 @@ COMMAND_TOLERANCE = 1e-9
 RECOVERY_PERIODS = 10
 # A step more than this many periods after the last one does not integrate z over the gap.
 MAX_GAP_PERIODS = 10
-# The step's return codes (acroboter.sim.stateful.STEP_CODES says the same in Python).
+# The step's return codes (acroboter.sim.stateful_controller.STEP_CODES says the same in Python).
 CODES = {"OK": 0, "NOT_INITIALISED": 1, "CORE_FAILED": 2, "UNTRUSTED": 3, "COASTING": 4, "LOST": 5,
          "UNSAFE_COMMAND": 6, "INVALID_Q0": 7, "NO_STATIC_COMMAND": 8}
 _MATH = ("sqrt", "sin", "cos", "tan", "asin", "acos", "atan", "atan2", "exp", "log", "pow", "fabs", "fmin", "fmax",

@@ -36,7 +36,7 @@ from ..model.sensing_layout import (
     sample_checks,
 )
 from ..model.spec import Spec
-from .structured import cholesky_solve, independent_rows
+from .solver_terms import cholesky_solve, independent_rows
 from .symbolic import build_symbolic_model
 
 __all__ = ["EstimatorExport", "OFFSET_FIELDS", "build_estimator", "estimator_key", "estimator_text",

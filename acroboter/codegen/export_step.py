@@ -42,7 +42,7 @@ honoured as the Python controllers do (acroboter.control.distribution.BoundedInp
 C gives their u also where a limit binds:
 - no more inputs than servo-constraints: the unbounded u above if it is within the limits (bit for bit
   the unbounded export); otherwise, in a CasADi Switch that the C evaluates only then, the recovery's
-  least squares ½uᵀGu + gᵀu (projected: G = HᵀPH, g = HᵀPσ_qᵀλ̂, codegen.structured.penalty_bounded_terms;
+  least squares ½uᵀGu + gᵀu (projected: G = HᵀPH, g = HᵀPσ_qᵀλ̂, codegen.solver_terms.penalty_bounded_terms;
   MLM: ½|E u − e|², mlm_bounded_terms; eq12/eq13: G = HᵀH), its unbounded minimiser if within, else a
   box QP; eq15/kappa (explicit maps, G = I): the clip onto the limits.
 - more inputs than servo-constraints (internal forces, e.g. the four-cable crane): always distributed.
@@ -70,7 +70,7 @@ import casadi as ca
 
 from ..model.settings import Gains
 from ..model.spec import MAX_ITERATIONS, RECOVERIES, Spec, load_spec
-from .generate import INPUT_NAMES
+from .emit_c import INPUT_NAMES
 from .step_c import write_step
 from .step_graph import ExportError, StepExport, StepGraph
 from .step_methods import mlm_step, penalty_step

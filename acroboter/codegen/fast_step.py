@@ -13,7 +13,7 @@ inputs than servo-constraints, the distribution's closed-form step 2) with two d
 - the input limits and preferred values are a run-time input, limits = [lower; upper; preferred] (±inf for none),
   and there is no QP in the C: `within` is 1 when u lies within the limits (step 1 or 2 of
   acroboter.control.distribution), 0 otherwise or for a NaN, and then the controller computes that step on its
-  reference path (control/fast.py), which distributes it exactly as it always did (DAQP, limit_state, the
+  reference path (control/fast_path.py), which distributes it exactly as it always did (DAQP, limit_state, the
   saturation judgement).
 
 q̈ is the commanded acceleration (controller.qdd: the estimator's prediction); MLM's rcond is the exact reciprocal
@@ -44,7 +44,7 @@ __all__ = ["FAST_OUTPUTS", "FastStep", "build_fast_step", "fast_key", "fast_name
 # Version of the fast step's interface (inputs, outputs): part of the key.
 FAST_INTERFACE = 1
 # The code generator's files that shape the step's C (beside codegen_hash's).
-STEP_SOURCES = ("export_step.py", "step_graph.py", "step_methods.py", "step_qp.py", "fast_step.py", "structured.py")
+STEP_SOURCES = ("export_step.py", "step_graph.py", "step_methods.py", "step_qp.py", "fast_step.py", "solver_terms.py")
 
 
 @dataclass
@@ -97,6 +97,6 @@ def write_fast_step(fast: FastStep, folder: Path) -> Path:
 
 def path_source(name: str) -> str:
     """<name>_flat(table, t, out): acroboter.control.path.DesiredPath.flat in C, statement for statement (the same
-    IEEE operations in the same order: the same bits), from the path's numbers in `table` (control/fast.py
+    IEEE operations in the same order: the same bits), from the path's numbers in `table` (control/fast_path.py
     path_table); <name>_run(table, t, signals, arg, res, iw, w): the signals at t into `signals`, then the step."""
     return render("fast_step_path.c", NAME=name, PATH=render("path.c", NAME=name, API=""))

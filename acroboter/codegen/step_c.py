@@ -24,7 +24,7 @@ SYSTEM_TEXT = {
     "matrix": "each iteration solves A qdd_{i+1} = M qdd_i + f, A = M + alpha_geometric phi_q^T phi_q "
     "+ alpha_servo sigma_q^T sigma_q",
     "servo_least_squares": "more inputs than servo-constraints: no Schur system; the servo-constraints' "
-    "accelerations E u = e on the constraint manifold (codegen.structured.mlm_bounded_terms), as controllers.MLM",
+    "accelerations E u = e on the constraint manifold (codegen.solver_terms.mlm_bounded_terms), as controllers.MLM",
 }
 
 

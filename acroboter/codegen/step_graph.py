@@ -21,7 +21,7 @@ from ..model.controller_parameters import runtime_size, runtime_view
 from ..model.layout import Layout, nominal_coordinates
 from ..model.settings import Gains
 from ..model.spec import Spec
-from .generate import INPUT_NAMES
+from .emit_c import INPUT_NAMES
 from .step_qp import Bounds
 from .symbolic import SymbolicModel
 
@@ -53,7 +53,7 @@ class StepExport:
     system: str  # MLM: reduced | full; penalty methods: multipliers | matrix
     integral: bool = False  # stateful export: z = ∫σ dt is a sixth input and the step also returns q̈
     # The Python controllers' fast path (acroboter.codegen.fast_step): the gains and z are a run-time input p
-    # (codegen.structured's parameter vector) and the limits and preferred values another; no QP in the C.
+    # (codegen.solver_terms's parameter vector) and the limits and preferred values another; no QP in the C.
     parametric: bool = False
     linear_solvers: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
@@ -114,7 +114,7 @@ class StepGraph:
         # ρ = γ + 2Ωμ φ̇ + Ω² φ (geometric penalty); ρ_s = γ_s + 2 k_D σ̇ + k_P² σ (servo error dynamics)
         self.rho = T["gamma"] + 2.0 * g.omega * g.mu * T["phi_dot"] + g.omega**2 * T["phi"]
         self.rho_s = T["gamma_s"] + 2.0 * g.kd * T["sigma_dot"] + g.kp**2 * T["sigma"]
-        self.params = ca.DM(g.parameter_vector(self.k))  # codegen.structured's p, as constants (z = 0)
+        self.params = ca.DM(g.parameter_vector(self.k))  # codegen.solver_terms's p, as constants (z = 0)
         self.qdd: ca.MX | None = None  # the commanded acceleration, set by the method (stateful export)
         self.limits_input: ca.MX | None = None  # parametric: [lower; upper; preferred], a run-time input
         self.outputs: dict[str, ca.MX] = {}  # parametric: further outputs a method adds (MLM's rcond)
@@ -125,7 +125,7 @@ class StepGraph:
             self.sx_inputs.append(z)
             self.input_names.append("z")
             self.inputs.append(ca.MX.sym("z", self.k))
-            self.rho_s = self.rho_s + g.ki * z  # + k_I z, as codegen.structured.servo_and_constraint_rates
+            self.rho_s = self.rho_s + g.ki * z  # + k_I z, as codegen.solver_terms.servo_and_constraint_rates
             self.params = ca.vertcat(ca.SX(ca.DM(g.parameter_vector(0))), z)  # p with the symbolic z
         self.bounds = Bounds(self)
         if export.parametric:  # no QP in the C: u of step 1 or 2; the caller checks it against the limits

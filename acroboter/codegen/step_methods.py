@@ -13,9 +13,9 @@ import casadi as ca
 import numpy as np
 
 from ..model.settings import MLM_RCOND_LIMIT, PENALTY_SECONDARY_WEIGHT, RANK_TOLERANCE
+from .solver_terms import mlm_bounded_terms, penalty_bounded_terms
 from .step_graph import LINSOL_GENERAL, LINSOL_SPD, ExportError, StepGraph, constant
 from .step_qp import symmetric, symmetric_numeric
-from .structured import mlm_bounded_terms, penalty_bounded_terms
 
 # Relative singular value below which the projected recovery's least-squares matrix counts as rank
 # deficient (redundant constraints): then, and only then, a Tikhonov term makes its normal equations solvable.
@@ -105,7 +105,7 @@ def mlm_step(graph: StepGraph, system: str) -> ca.MX:
     check_nonsingular(graph, terms["hessian"], "MLM's servo-constraint least squares E^T E")
     export.distribution.append(
         "u = MLM's solution if within the limits; otherwise (a Switch, evaluated only then) the bounded least "
-        "squares of the servo-constraints, 1/2 |E u - e|^2 (codegen.structured.mlm_bounded_terms, "
+        "squares of the servo-constraints, 1/2 |E u - e|^2 (codegen.solver_terms.mlm_bounded_terms, "
         "E = sigma_q P H), over lower <= u <= upper: its unbounded minimiser -(E^T E)^-1 E^T e (SX Cholesky) if "
         "within, else the QP"
     )
@@ -142,7 +142,7 @@ def _mlm_bounded_qdd(graph: StepGraph, P: dict, x: ca.MX, u: ca.MX, u0: ca.MX) -
 def _mlm_internal_forces(graph: StepGraph) -> ca.MX:
     """MLM with more inputs than servo-constraints: E u = e has a family of solutions (internal forces).
 
-    As controllers.MLM: always the distribution of codegen.structured.mlm_bounded_terms, lexicographic
+    As controllers.MLM: always the distribution of codegen.solver_terms.mlm_bounded_terms, lexicographic
     (the servo-constraints exactly, then the internal forces at the preferred values), within the limits.
     """
     export, bounds, k, l = graph.export, graph.bounds, graph.k, graph.l
@@ -160,7 +160,7 @@ def _mlm_internal_forces(graph: StepGraph) -> ca.MX:
     export.system = "servo_least_squares"
     export.linear_solvers.append(
         f"SX Cholesky of the {k}x{k} matrix E E^T of MLM's servo-constraints E u = e (E = sigma_q P H, "
-        f"codegen.structured.mlm_bounded_terms; smallest/largest eigenvalue {ratio:.1e} at the nominal "
+        f"codegen.solver_terms.mlm_bounded_terms; smallest/largest eigenvalue {ratio:.1e} at the nominal "
         "configuration): no Schur system, as the Python controller with more inputs than servo-constraints"
     )
     export.distribution.append(
@@ -258,8 +258,8 @@ def penalty_step(graph: StepGraph, iterations: int, system: str) -> ca.MX:
     bounds = graph.bounds
     if kind == "projected" and l > k:
         # More inputs than servo-constraints: as controllers.Penalty, always the distribution of the fit
-        # ½uᵀGu + gᵀu, G = HᵀPH, g = servo_map λ̂ (codegen.structured.penalty_bounded_terms), lexicographic in
-        # the servo accelerations E u (E from codegen.structured.mlm_bounded_terms).
+        # ½uᵀGu + gᵀu, G = HᵀPH, g = servo_map λ̂ (codegen.solver_terms.penalty_bounded_terms), lexicographic in
+        # the servo accelerations E u (E from codegen.solver_terms.mlm_bounded_terms).
         return bounds.task(P["bounded_hessian"], ca.mtimes(P["bounded_servo_map"], lam_hat), P["bounded_task_map"])
     if kind == "projected":
         size = P["normal"].shape[0]
@@ -284,7 +284,7 @@ def penalty_step(graph: StepGraph, iterations: int, system: str) -> ca.MX:
 
 def _bounded_projected(graph: StepGraph, u0: ca.MX, lam_hat: ca.MX) -> ca.MX:
     """Projected recovery, no more inputs than servo-constraints: u0 if within the limits, else the same fit
-    ½uᵀGu + gᵀu (G = HᵀPH, g = servo_map λ̂, codegen.structured.penalty_bounded_terms) bounded, lexicographic."""
+    ½uᵀGu + gᵀu (G = HᵀPH, g = servo_map λ̂, codegen.solver_terms.penalty_bounded_terms) bounded, lexicographic."""
     bounds, model = graph.bounds, graph.model
     if not bounds.bounded:
         return u0
@@ -294,7 +294,7 @@ def _bounded_projected(graph: StepGraph, u0: ca.MX, lam_hat: ca.MX) -> ca.MX:
     outputs = [symmetric(terms["hessian"]), ca.mtimes(terms["servo_map"], lam_sx)]
     graph.export.distribution.append(
         "u = the projected recovery if within the limits; otherwise (a Switch, evaluated only then) the same fit "
-        "1/2 u^T G u + g^T u, G = H^T P H, g = H^T P sigma_q^T lambda_hat (codegen.structured.penalty_bounded_terms) "
+        "1/2 u^T G u + g^T u, G = H^T P H, g = H^T P sigma_q^T lambda_hat (codegen.solver_terms.penalty_bounded_terms) "
         "over lower <= u <= upper: its unbounded minimiser -G^-1 g (SX Cholesky) if within, else the QP"
     )
 
@@ -359,7 +359,7 @@ def _recovery_prelude(graph: StepGraph) -> dict[str, ca.SX]:
         graph.export.linear_solvers.append(
             f"SX Cholesky of the {k}x{k} matrices E G E^T (smallest/largest eigenvalue {ratio:.1e} at the nominal "
             "configuration) and E E^T of the input distribution (G = H^T P H, "
-            "codegen.structured.penalty_bounded_terms; E = sigma_q P H, codegen.structured.mlm_bounded_terms; "
+            "codegen.solver_terms.penalty_bounded_terms; E = sigma_q P H, codegen.solver_terms.mlm_bounded_terms; "
             "P through an SX Cholesky of phi_q M^-1 phi_q^T)"
         )
         graph.export.distribution.append(

@@ -12,7 +12,7 @@ import casadi as ca
 import numpy as np
 
 from ..model.settings import SATURATION_TOLERANCE, SECONDARY_WEIGHT
-from .structured import cholesky_solve, mlm_bounded_terms
+from .solver_terms import cholesky_solve, mlm_bounded_terms
 
 # --- Input limits: acroboter.control.distribution's bounded distribution, in the graph ----------------------------
 #
@@ -162,7 +162,7 @@ class Bounds:
 
     def saturation(self, ran: ca.MX, u2: ca.MX) -> ca.MX:
         """controllers.Controller.saturation in the graph, evaluated only where the QP ran (a Switch): the servo
-        accelerations a = E u2 of step 2's minimiser (E = sigma_q P H, codegen.structured.mlm_bounded_terms) asked
+        accelerations a = E u2 of step 2's minimiser (E = sigma_q P H, codegen.solver_terms.mlm_bounded_terms) asked
         of the limits in the bounded least squares min |E u - a|^2 (BoundedInputs, lexicographic); saturated (1)
         if its input misses a by more than SATURATION_TOLERANCE * max(1, max |a|)."""
         graph = self.graph

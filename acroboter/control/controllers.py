@@ -1,7 +1,7 @@
 """The three inverse-dynamics controllers of the paper (docs/model.md §6), fed only by the compiled model.
 
 Every controller maps (q, q̇, t) to the input u. One call into the compiled library gives what
-the method needs at the state (acroboter.codegen.structured); the remaining linear algebra is LAPACK through
+the method needs at the state (acroboter.codegen.solver_terms); the remaining linear algebra is LAPACK through
 scipy on preallocated arrays.
 
   ρ   = γ   + 2Ωμ φ̇ + Ω² φ               (geometric constraints, penalty dynamics)
@@ -98,7 +98,7 @@ class Controller:
         elif gains.saturation != "qp":
             raise ValueError(f"saturation: expected 'qp' or 'underactuation', found {gains.saturation!r}")
         self._t_now = 0.0
-        # False when a wrapper advances z itself before _compute (acroboter.control.fast.FastController)
+        # False when a wrapper advances z itself before _compute (acroboter.control.fast_path.FastController)
         self._integrate_in_load = True
 
     def reset(self) -> None:
@@ -110,7 +110,7 @@ class Controller:
 
     def hold_integral(self) -> None:
         """Do not integrate z over the period that ends at the next compute(): the estimate it reads is a
-        prediction, not a measurement (acroboter.sim.stateful; the exported controller does the same)."""
+        prediction, not a measurement (acroboter.sim.stateful_controller; the exported controller does the same)."""
         self._hold = True
 
     def _integrate(self, t: float) -> None:
@@ -331,7 +331,7 @@ class Penalty(Controller):
         self.iterations = iterations
         self.name = "penalty" if iterations == 1 else f"iterative-{iterations}"
         n = self.n
-        # M is constant in natural coordinates (acroboter.codegen.structured checks it): take it once.
+        # M is constant in natural coordinates (acroboter.codegen.solver_terms checks it): take it once.
         self.mass = model.term("mass_matrix").copy()
         self._qdd_sum = np.zeros(n)
         self._qdd_last = np.zeros(n)
@@ -432,11 +432,11 @@ class Penalty(Controller):
 def make_controller(method: str, model, path: DesiredPath, gains: Gains, limits=None, fast: bool = False):
     """'mlm', 'penalty' or 'iterative-N'; `limits` (min, max, preferred) default to the spec's.
 
-    fast=True: the fast path (acroboter.control.fast: one compiled function per step, generated and compiled on
+    fast=True: the fast path (acroboter.control.fast_path: one compiled function per step, generated and compiled on
     first use) around this reference controller; where it cannot be built, the reference itself, its
     `fast_refusal` saying why."""
     if fast:
-        from .fast import make_fast
+        from .fast_path import make_fast
 
         return make_fast(make_controller(method, model, path, gains, limits), method)
     if method == "mlm":

@@ -8,7 +8,7 @@
   them arbitrarily, and in trials let the SU tilt by 3° where this metric keeps it under 0.2°.
   The generated code solves the normal equations (BᵀM⁻¹B) x = −(BᵀM⁻¹σ_qᵀ) λ̂, B = [H, −φ_qᵀ] over the
   independent constraint rows, by Cholesky, and hands over u as a linear map of Σq̈ (see
-  acroboter.codegen.structured.penalty_terms); should they be singular (dependent actuators and reactions:
+  acroboter.codegen.solver_terms.penalty_terms); should they be singular (dependent actuators and reactions:
   the map comes out non-finite), a pivoted QR of M^(-1/2) B gives the minimum-norm solution.
 - eq12: u = −(HᵀH)⁻¹Hᵀ σ_qᵀ λ̂
 - eq13: u = (HᵀH)⁻¹Hᵀ (M q̈ + c + φ_qᵀ λ)
@@ -88,7 +88,7 @@ class InputRecovery:
 
         eq12 and eq13 are least squares in H u: bounded, they stay the same fit. eq15 and kappa are
         explicit maps: bounded, they give the input within the limits closest to their u.
-        (The projected recovery has its own terms: acroboter.codegen.structured.penalty_bounded_terms.)
+        (The projected recovery has its own terms: acroboter.codegen.solver_terms.penalty_bounded_terms.)
         """
         H = terms["input_matrix"]
         if self.kind in ("eq12", "eq13"):
@@ -107,7 +107,7 @@ class InputRecovery:
         return self._hth, self._hrhs
 
     def recover(self, terms: dict, lam_hat: np.ndarray, qdd: np.ndarray, lam: np.ndarray) -> np.ndarray:
-        """u from the penalty step's terms (acroboter.codegen.structured.penalty_terms), λ̂, q̈ and λ."""
+        """u from the penalty step's terms (acroboter.codegen.solver_terms.penalty_terms), λ̂, q̈ and λ."""
         kind = self.kind
         if kind == "projected":
             self._projected(terms, lam_hat)

@@ -1,2 +1,2 @@
-"""The crane as data: the TOML spec (validated), the index layout, physical parameters, gains, the MJCF
-model, the generator's fingerprint, where files live. Imports nothing else of the package."""
+"""The crane as data: the TOML spec (validated), the index layout, physical parameters, the controller's parameters
+and settings, the MJCF model, the generator's fingerprint, the package's C sources. Imports only acroboter.process."""

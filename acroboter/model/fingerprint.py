@@ -16,7 +16,7 @@ PACKAGE_DIR = Path(__file__).resolve().parent.parent  # acroboter/ (this file is
 # Sources whose content decides the generated code (besides the spec and CasADi's version), relative
 # to the package: the same bytes in a checkout and in an installed wheel give the same hash.
 CODEGEN_SOURCES = (
-    "codegen/symbolic.py", "codegen/structured.py", "codegen/plant.py", "codegen/generate.py", "model/spec.py",
+    "codegen/symbolic.py", "codegen/solver_terms.py", "codegen/plant_step.py", "codegen/emit_c.py", "model/spec.py",
     "model/schema.py", "model/spec_checks.py", "model/spec_errors.py", "model/controller_parameters.py",
     "model/layout.py", "model/fingerprint.py", "model/physical.py", "model/mjcf_model.py",
 )

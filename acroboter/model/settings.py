@@ -18,7 +18,7 @@ from .spec_checks import resolved_priority
 
 # MLM: a reciprocal condition number below this means a singular system (redundant constraints).
 MLM_RCOND_LIMIT = 1e-13
-# The fast path (acroboter.control.fast): its MLM step estimates the reciprocal condition number from two fixed
+# The fast path (acroboter.control.fast_path): its MLM step estimates the reciprocal condition number from two fixed
 # probe vectors (never below the true one, like gecon's, but cruder: up to the system's size, 22 on the default
 # crane, above it); a step whose estimate is below MLM_RCOND_LIMIT times this margin goes to the reference path,
 # whose gecon decides as it always did.

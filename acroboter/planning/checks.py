@@ -12,10 +12,11 @@ import numpy as np
 
 from ..control.controllers import Gains, make_controller, unbounded
 from ..control.path import DesiredPath
-from ..sim.simulation import Scenario, setup_default, simulate
+from ..sim.records import Scenario
+from ..sim.simulation import setup_default, simulate
 from ..sim.statics import EquilibriumError, solve_equilibrium
-from .dynamics import PlanningError
 from .geometry import PathGeometry
+from .ideal_motion import PlanningError
 from .limits import margin_achieved
 
 # Places along the path where the statics are checked (besides every waypoint of a spec path).

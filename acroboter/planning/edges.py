@@ -24,7 +24,7 @@ import sys
 import numpy as np
 
 from ..runtime.progress import progress_disabled
-from .dynamics import PlanningError
+from .ideal_motion import PlanningError
 from .retiming import MAX_SLOWDOWN, MIN_PHASE_INTERVALS, REST_TOL, Part, Retiming
 from .windows import PHASE_BISECTION, _substeps, _warm, bisect_factor, phase_factor
 

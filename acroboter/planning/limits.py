@@ -65,7 +65,7 @@ def active_intervals(times: np.ndarray, inputs: np.ndarray, low: np.ndarray, hig
 def best_spare(base: np.ndarray, directions: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
     """The inputs u = base + directions·z with the spare inputs z chosen per sample to keep every input as far
     inside [low, high] as it can (the smallest largest excess, relative to each input's span): the retiming's
-    choice of an internal force (acroboter.planning.dynamics). `base`: samples x l (z = 0); `directions`:
+    choice of an internal force (acroboter.planning.ideal_motion). `base`: samples x l (z = 0); `directions`:
     samples x l x spares (u's change per unit of each spare input). One spare input: exact, the minimum of a
     convex piecewise-linear function is at a crossing of two of its lines; more: a linear program per sample."""
     base, directions = np.asarray(base, float), np.asarray(directions, float)

@@ -4,7 +4,7 @@ parameter σ (acroboter.planning.geometry), solved by direct shooting with IPOPT
 Decision variables: the duration T_j of each phase (each edge of a waypoint path; a user trajectory is one
 phase) and, on a grid of intervals of T_j / N_j per phase, the path acceleration σ̈ held over each interval.
 The state x = (q, q̇, σ, σ̇) is the integration of the ideal motion's dynamics from the static start
-(acroboter.planning.dynamics: σ ≡ 0 for the servo-constraints, so the connector's swing is integrated as the
+(acroboter.planning.ideal_motion: σ ≡ 0 for the servo-constraints, so the connector's swing is integrated as the
 internal dynamics it is, not assumed at rest; RK4, `substeps` steps per interval). Single shooting: the
 internal dynamics are stable and damped, and with the redundant natural coordinates as variables (multiple
 shooting) IPOPT wandered. Constraints:
@@ -29,8 +29,8 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from .dynamics import IdealDynamics, PlanningError, inputs_at, rk4_step
 from .geometry import PathGeometry
+from .ideal_motion import IdealDynamics, PlanningError, inputs_at, rk4_step
 from .limits import best_spare, spare_constraints
 
 # The uniform slowdown's check: interval of the integration (s) and RK4 steps per interval.

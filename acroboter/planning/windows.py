@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from .dynamics import PlanningError
+from .ideal_motion import PlanningError
 from .retiming import CHECK_INTERVAL_S, CHECK_SUBSTEPS, MAX_SLOWDOWN, MAX_STEP_S, Part, Retiming
 
 # The phase-wise slowdown's bisection: relative resolution of each edge's factor.

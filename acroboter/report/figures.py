@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..sim.simulation import RunResult, Scenario, position_error_mm, tilt_deg, yaw_error_deg
+from ..sim.records import RunResult, Scenario, position_error_mm, tilt_deg, yaw_error_deg
 from .paper import PAPER_MATLAB_US
 
 # The files write_figures writes, in this order (run.py's FIGURES lists the same names).

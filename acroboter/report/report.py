@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..sim.simulation import RunResult, Scenario
+from ..sim.records import RunResult, Scenario
 from .paper import PAPER_MATLAB_US
 
 

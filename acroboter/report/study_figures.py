@@ -12,8 +12,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..studies.judging import mlm_row, ok, penalty_methods
 from ..studies.penalty_grid import x_key, x_label
+from ..studies.run_verdicts import mlm_row, ok, penalty_methods
 
 
 def _pyplot():

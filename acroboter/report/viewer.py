@@ -37,7 +37,7 @@ def display_problem() -> str | None:
 def replay(model, path, results: dict, speed: float = 1.0) -> None:
     """Show each method's run (name -> acroboter.sim.result.Result) in turn in one viewer window (the mujoco
     extra: MissingExtraError without it)."""
-    from ..model.extras import require
+    from ..process.extras import require
 
     require("mujoco", "MuJoCo's viewer")
     import mujoco.viewer

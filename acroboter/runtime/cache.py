@@ -9,7 +9,7 @@ The generated C of a spec comes from, in order:
    spec's model hash and the code generator's hash (which covers CasADi's version), written into a
    temporary folder and renamed into place under a lock.
 
-The library is then compiled into the cache (acroboter.runtime.build), keyed by the sources and flags;
+The library is then compiled into the cache (acroboter.runtime.compile_library), keyed by the sources and flags;
 every link from the spec to the library is checked before use (acroboter.runtime.integrity).
 This is the one runtime module that may call the code generator: controllers, plant and
 simulation only ever see the CompiledModel it returns.
@@ -25,11 +25,11 @@ import tempfile
 from pathlib import Path
 
 from ..model.fingerprint import codegen_hash
-from ..model.interrupts import remembered_interrupt
-from ..model.locations import cache_dir as resolve_cache_dir
-from ..model.locations import shipped_generated_folder
 from ..model.spec import Spec
-from .build import BuildError, cache_lock, cache_write_error, remove_stale_staging
+from ..process.interrupts import remembered_interrupt
+from ..process.locations import cache_dir as resolve_cache_dir
+from ..process.locations import shipped_generated_folder
+from .compile_library import BuildError, cache_lock, cache_write_error, remove_stale_staging
 from .compiled import CompiledModel, DamagedLibraryError, NotBuiltError, StaleModelError
 
 log = logging.getLogger(__name__)
@@ -102,7 +102,7 @@ def _generate_into(spec: Spec, folder: Path, source: Path) -> Path:
     """Generate `spec` into `folder` (called under its lock): a staging folder, then one rename."""
     if (source / "manifest.json").is_file():  # another process generated it while we waited
         return source
-    from ..codegen.generate import generate  # only here: loading a shipped model never imports CasADi
+    from ..codegen.emit_c import generate  # only here: loading a shipped model never imports CasADi
 
     log.info("generating the C of spec '%s' into %s (once per spec version) ...", spec.name, folder)
     folder.parent.mkdir(parents=True, exist_ok=True)

@@ -50,7 +50,7 @@ class CasadiModel(SharedInputs):
     generator in this process (no C, no compiler), so a change to the generator acts at once."""
 
     def __init__(self, spec: Spec):
-        from acroboter.codegen.generate import GenerationContext  # CasADi symbolics: only this backend needs them
+        from acroboter.codegen.emit_c import GenerationContext  # CasADi symbolics: only this backend needs them
 
         self.spec = spec
         self.layout = build_layout(spec)

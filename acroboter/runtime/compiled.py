@@ -17,7 +17,7 @@ import numpy as np
 
 from ..model.layout import Layout, build_layout
 from ..model.spec import Spec
-from .build import ensure_built, is_current, library_path, sources_hash
+from .compile_library import ensure_built, is_current, library_path, sources_hash
 from .integrity import (
     DamagedLibraryError,
     StaleModelError,

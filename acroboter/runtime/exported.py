@@ -1,7 +1,7 @@
 """The exported stateful controller (acroboter.codegen.controller_c) compiled and bound in-process with ctypes, for
 the bench and the tests that feed it what a Python run recorded: `load_exported_controller(folder, name)`.
 
-`compile_shared` compiles C sources with the project's flags (acroboter.runtime.build.CFLAGS: -O2 -fPIC, never
+`compile_shared` compiles C sources with the project's flags (acroboter.runtime.compile_library.CFLAGS: -O2 -fPIC, never
 fast-math) into a shared library and loads it.
 """
 
@@ -22,7 +22,7 @@ __all__ = ["ExportedController", "compile_shared", "load_exported_controller"]
 def compile_shared(sources: list[Path], lib_path: Path, what: str) -> ctypes.CDLL:
     """`sources` compiled into the shared library `lib_path` (the project's flags: -O2 -fPIC, no fast-math; headers
     from the sources' folder), loaded."""
-    from .build import CFLAGS
+    from .compile_library import CFLAGS
 
     include = str(sources[0].parent)
     done = subprocess.run([os.environ.get("CC", "cc"), *CFLAGS, "-shared", "-I", include, *map(str, sources), "-o",

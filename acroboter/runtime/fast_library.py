@@ -1,7 +1,7 @@
 """The fast path's compiled step (acroboter.codegen.fast_step), found or made on first use: `load_fast_step`.
 
 Its C is generated into ``<cache>/generated/fast-<name>/<name>/`` (a staging folder renamed into place under a
-lock, as acroboter.runtime.cache does for a spec's model) and compiled by acroboter.runtime.build into
+lock, as acroboter.runtime.cache does for a spec's model) and compiled by acroboter.runtime.compile_library into
 ``<cache>/lib/<name>-<sources hash>/lib<name>.so`` (-O2 -fPIC, never fast-math; the library carries its build key
 and checksum like the model's). The name carries the key of everything the C depends on (fast_step.fast_key):
 the gains, z and the limits are run-time inputs, so one library serves every gain set of a method.
@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..model.interrupts import remembered_interrupt
 from ..model.settings import Gains
-from .build import BuildError, cache_lock, cache_write_error, ensure_built, remove_stale_staging
+from ..process.interrupts import remembered_interrupt
+from .compile_library import BuildError, cache_lock, cache_write_error, ensure_built, remove_stale_staging
 from .compiled import BoundFunction, CompiledModel, DamagedLibraryError
 
 log = logging.getLogger(__name__)

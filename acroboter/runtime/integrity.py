@@ -13,7 +13,7 @@
    compiles every *.c of the folder).
 4. files -> library: the build compiles into a folder named by the sources' hash (the compiler's name, its
    flags, every file of the folder) and embeds that hash in full, its build key, and writes the library's
-   SHA-256 beside it (acroboter.runtime.build); a library without its checksum or its build key is rebuilt.
+   SHA-256 beside it (acroboter.runtime.compile_library); a library without its checksum or its build key is rebuilt.
    Loaded, its embedded spec_model_hash, codegen_hash, manifest_hash and build key must be the expected ones.
 
 Links 1-3 are checked before anything is compiled (`verify_sources`): a tamper costs no compile and leaves
@@ -32,7 +32,7 @@ import json
 from pathlib import Path
 
 from ..model.fingerprint import EMBEDDED, codegen_hash, manifest_hash, meta_file, meta_source
-from ..model.locations import cache_dir, checkout_root, shipped_generated_folder
+from ..process.locations import cache_dir, checkout_root, shipped_generated_folder
 
 
 class StaleModelError(RuntimeError):

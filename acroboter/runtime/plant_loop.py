@@ -1,7 +1,7 @@
 """The plant's substep loop in C: a control period's RK4 substeps in one foreign call (`load_plant_loop`).
 
 A control period holds the input for `substeps` RK4 steps of the plant (10 on the default crane). Each
-step is one call of the generated `plant_step` (acroboter.codegen.plant); run from Python, the loop
+step is one call of the generated `plant_step` (acroboter.codegen.plant_step); run from Python, the loop
 around it (re-point the stage signals, call, compare the two event indicators, copy the state) costs
 about as much as the step itself. This loop is the same statements in C, for every substep up to the
 first one whose step flags a cable event: it returns that substep, the caller (Plant.advance) resolves
@@ -11,7 +11,7 @@ inputs, the same comparisons (a NaN indicator is no event in either), the same c
 
 The C is fixed text (acroboter/c/plant_loop.c), not generated from a spec: it takes the step as a function
 pointer with CasADi's calling convention. It is compiled once into the cache like the fast path's libraries
-(acroboter.runtime.build: -O2 -fPIC, no fast-math, a checksum and a build key).
+(acroboter.runtime.compile_library: -O2 -fPIC, no fast-math, a checksum and a build key).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import hashlib
 from pathlib import Path
 
 from ..model.c_templates import FOLDER
-from .build import ensure_built
+from .compile_library import ensure_built
 from .fast_library import _generated, _open
 
 NAME = "acroboter_plant_loop"

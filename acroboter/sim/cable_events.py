@@ -53,7 +53,7 @@ penetration) and the integration between events is the unchanged smooth RK4.
 
 Limits: slack onset at step granularity (above); re-tension located to ~1e-12 m in gap; a gap that
 goes positive and back within one substep is not seen; a cable whose row is dependent
-(left out of the plant, acroboter.codegen.structured.independent_rows) is never switched and reports
+(left out of the plant, acroboter.codegen.solver_terms.independent_rows) is never switched and reports
 tension 0. Stage signals at fractional times come from `path` (a hand-made table is taken to follow
 `path` when an event happens). No consistent state within max_events_per_step events raises
 SimulationError (simulate reports it as a divergence).

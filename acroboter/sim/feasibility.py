@@ -3,7 +3,7 @@
 The ideal motion is the one on which every servo-constraint holds exactly (σ ≡ 0 from the static
 start): MLM's inverse dynamics, simulated on the plant, because the internal dynamics (the
 connector's swing) are part of it and known only by simulating. It is run with the spec's limits
-(MLM through E u = e, acroboter.codegen.structured.mlm_bounded_terms, bounded by acroboter.control.distribution):
+(MLM through E u = e, acroboter.codegen.solver_terms.mlm_bounded_terms, bounded by acroboter.control.distribution):
 while an input within the limits realises the servo-constraint accelerations, the motion is the
 ideal one; with more inputs than servo-constraints the distribution looks for such an input among
 all that realise them, so redundancy that can absorb a weak winch is not reported as a failure.

@@ -29,7 +29,7 @@ constraint space (its impedance is constant, 0.9999, so force and stretch r are 
 energy is ½·f·r (f its force, r = −efc_pos its stretch). Left out, a taut cable whose load changes books
 that storage as constraint work (measured: +1.6e-5 J over 8 ms before a snap of acroboter seed 924, the
 tensions swinging under a 2 Hz sine; 3e-7 J with it). So over a window around a re-tension W_constraint
-is the energy its impact took, compared with the own plant's T⁺ − T⁻ (acroboter.studies.plant_fuzz)."""
+is the energy its impact took, compared with the own plant's T⁺ − T⁻ (acroboter.studies.plant_differential)."""
 
 from __future__ import annotations
 

@@ -36,7 +36,7 @@ class DrumCapacityError(SimulationError):
 
 def _mujoco():
     """mujoco, or MissingExtraError (an ImportError naming `pip install 'acroboter[mujoco]'`) without it."""
-    from ..model.extras import require
+    from ..process.extras import require
 
     require("mujoco", "the MuJoCo plant (MujocoPlant)")
     try:
@@ -131,7 +131,7 @@ class MujocoPlant:
         taut of a limit with no load behind it rebounds with a restitution that depends on the ratio
         alone (13.5 % at 1, 4.8 % at 2, 0.38 % at 8; the own plant's impact has 0); a larger ratio lowers
         the limit's stiffness instead, and the stretch a snap leaves creeps back over ~2·timeconst·ratio²
-        (acroboter.studies.plant_fuzz.cable_dampratio). The time constant (two steps) is kept."""
+        (acroboter.studies.plant_differential.cable_dampratio). The time constant (two steps) is kept."""
         if not (math.isfinite(ratio) and ratio > 0):
             raise ValueError(f"cable damping ratio: expected a positive number, found {ratio}")
         self.mj_model.tendon_solref_lim[self._cable_tendon, 1] = ratio

@@ -20,7 +20,8 @@ from collections.abc import Callable
 import numpy as np
 
 from ..control.path import DesiredPath, TrajectoryPath
-from .simulation import RunResult, simulate
+from .records import RunResult
+from .simulation import simulate
 
 OPEN_LOOP = "open loop"
 

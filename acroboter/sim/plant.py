@@ -5,7 +5,7 @@ cables that only pull.
     [φ_q  0 ] [λ] = [−γ − 2ζ_B ω_B φ̇ − ω_B² φ]      over the rigid rows and the TAUT cables
 
 integrated with fixed-step RK4 for a held input u. The whole RK4 step is one generated C function
-(acroboter.codegen.plant.plant_step_function), written independently of the controllers: it shares only the
+(acroboter.codegen.plant_step.plant_step_function), written independently of the controllers: it shares only the
 symbolic model. Alongside q and q̇ it integrates the work of the inputs, the work of the moving
 anchors through the constraint forces (λᵀφ_t) and the energy dissipated by damping. State
 x = [q, q̇, W_u, W_anchor, E_d].
@@ -164,7 +164,7 @@ class Plant(CableEvents):
     def _compiled_loop(self, model):
         """(the C substep loop, its buffers) over this plant's bound step (acroboter.runtime.plant_loop), or
         None: another backend's step, or no library (Python's loop then runs: the same numbers, slower)."""
-        from ..runtime.build import BuildError
+        from ..runtime.compile_library import BuildError
         from ..runtime.compiled import BoundFunction, DamagedLibraryError
         from ..runtime.plant_loop import LoopBuffers, load_plant_loop
 

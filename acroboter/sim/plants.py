@@ -47,7 +47,7 @@ def setup_default(model: CompiledModel, path: DesiredPath, plant_params=None, pl
         return Plant(model, path, sim.baumgarte_zeta, sim.baumgarte_omega, plant_params)
     if plant != "mujoco":
         raise ValueError(f"plant: expected one of {', '.join(PLANTS)}, found {plant!r}")
-    from ..model.extras import require
+    from ..process.extras import require
 
     require("mujoco", "plant='mujoco'", "plant='own' needs no extra")  # MissingExtraError, an ImportError
     from ..model.mjcf_model import DEFAULT_TIMESTEP

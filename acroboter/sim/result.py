@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..model.layout import Layout
-from .simulation import RunResult, Scenario, position_error_mm, realized_yaw, summarize, tilt_deg
+from .records import RunResult, Scenario, position_error_mm, realized_yaw, summarize, tilt_deg
 
 
 def _unit_suffix(unit: str) -> str:
@@ -145,7 +145,7 @@ class Result:
 
     @property
     def step_codes(self) -> np.ndarray | None:
-        """Per instant the stateful step's code (acroboter.sim.stateful.STEP_CODES: 0 the sample accepted, 4
+        """Per instant the stateful step's code (acroboter.sim.stateful_controller.STEP_CODES: 0 the sample accepted, 4
         rejected and the prediction used; a run stops at any other)."""
         return self.run.step_code
 

@@ -11,7 +11,7 @@ the redundancy study, a robustness Monte Carlo):
 - `open_client`: a Client to a running scheduler or to a LocalCluster on 127.0.0.1;
 - `write_rows` / `read_rows`: a grid's flat rows as CSV.
 
-dask is an optional extra (`pip install 'acroboter[dask]'`, acroboter.model.extras): it is imported only
+dask is an optional extra (`pip install 'acroboter[dask]'`, acroboter.process.extras): it is imported only
 where a cluster is used, so importing this module, and every command's --help, works without it.
 """
 
@@ -102,7 +102,7 @@ def require_dask(what: str, hint: str | None = None) -> None:
     """Raise MissingExtraError (an ImportError: the missing package and `pip install 'acroboter[dask]'`)
     unless dask and distributed are installed. Called before any work, so a missing extra costs no build and
     no half-written folder; the command lines call it while checking their options (exit 2)."""
-    from ..model.extras import require
+    from ..process.extras import require
 
     require("dask", what, hint)
 
@@ -177,7 +177,7 @@ def _parse(spec_text: str, source: str):
 
 
 def _cached(key: str, get_spec: Callable[[], object], build: bool) -> Setup:
-    from ..model.locations import cache_dir
+    from ..process.locations import cache_dir
 
     key += f"\n{cache_dir()}"  # the same spec in another cache is another library
     cache = getattr(_LOCAL, "setups", None)
@@ -196,7 +196,8 @@ def _cached(key: str, get_spec: Callable[[], object], build: bool) -> Setup:
 def _load(spec, build: bool) -> Setup:
     from ..runtime.cache import load_model
     from ..runtime.compiled import NotBuiltError
-    from ..sim.simulation import Scenario, setup_default
+    from ..sim.records import Scenario
+    from ..sim.simulation import setup_default
     from ..sim.statics import desired_path, solve_equilibrium
 
     try:

@@ -147,7 +147,8 @@ def run_case(spec_text: str, source: str, case: Case, duration: float | None, co
     from ..control.controllers import Gains, SingularSystemError, make_controller
     from ..control.recovery import RecoveryError
     from ..sim.plant import SimulationError
-    from ..sim.simulation import simulate, summarize
+    from ..sim.records import summarize
+    from ..sim.simulation import simulate
 
     worker = worker_name()
     ctx = setup_text(spec_text, source)  # never compiles: MissingLibraryError if the worker has no library

@@ -88,7 +88,7 @@ def limited_spec_text(text: str, upper: float, lower: float | None = None) -> st
 
 def scenario_spec_text(scenario: Scenario) -> str:
     """The scenario's spec as TOML: the shipped one with its winches' limits and, if given, its waypoints."""
-    from ..model.locations import example_spec
+    from ..process.locations import example_spec
 
     text = limited_spec_text(example_spec(scenario.spec).read_text(), scenario.upper, scenario.lower)
     if scenario.waypoints is not None:

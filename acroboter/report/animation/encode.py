@@ -22,7 +22,7 @@ from ...runtime.progress import progress_disabled
 def write_mp4(frames: Iterator[np.ndarray], path: Path, fps: float, total: int, quiet: bool) -> int:
     """H.264 in yuv420p (plays everywhere); even frame sizes, so no resizing. Returns the frame count. Needs the
     animation extra (imageio and its ffmpeg): MissingExtraError without it."""
-    from ...model.extras import require
+    from ...process.extras import require
 
     require("animation", "an MP4", "a GIF needs no extra")
     import imageio.v2 as imageio

@@ -53,7 +53,7 @@ def probe_gl(timeout: float = 60.0) -> tuple[str | None, str]:
     """(MUJOCO_GL value that works, why) by creating a tiny mujoco.Renderer in a subprocess (a failing GL
     library can abort the process; this one stays clean). MUJOCO_GL from the environment is tried alone.
     mujoco is not imported here: it picks its GL backend from MUJOCO_GL once, when first imported."""
-    from ...model.extras import install_line, missing
+    from ...process.extras import install_line, missing
 
     if missing("mujoco") is not None:
         return None, f"mujoco is not installed ({install_line('mujoco')})"
@@ -80,7 +80,7 @@ def _mujoco_module():
     """mujoco with the GL backend of MUJOCO_GL (set by choose_renderer). mujoco reads MUJOCO_GL when first
     imported: where it was imported before (by another part of the program), its context class is replaced.
     Without the mujoco extra: MissingExtraError."""
-    from ...model.extras import require
+    from ...process.extras import require
 
     require("mujoco", "the MuJoCo renderer", "the matplotlib renderer needs no extra")
     backend = os.environ.setdefault("MUJOCO_GL", "egl")

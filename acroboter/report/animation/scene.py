@@ -118,8 +118,8 @@ def _recorded_spec(text: str, provenance: dict, summary: Path):
 def spec_of_run(summary: dict, folder: Path, override: Path | None = None):
     """The spec the run used: its TOML text in the provenance if there; else --spec; else the recorded path,
     else the example of that name, each only if its model (bodies, points, cables, anchors) is the run's."""
-    from ...model.locations import example_spec
     from ...model.spec import load_spec
+    from ...process.locations import example_spec
 
     provenance = summary.get("provenance") or {}
     wanted = provenance.get("spec_model_hash")

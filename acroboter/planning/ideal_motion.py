@@ -23,7 +23,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from ..codegen.structured import (
+from ..codegen.solver_terms import (
     constant_inverse_mass,
     independent_rows,
     servo_and_constraint_rates,

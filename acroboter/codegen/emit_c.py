@@ -18,10 +18,10 @@ import casadi as ca
 
 from ..model.controller_parameters import runtime_names, runtime_size
 from ..model.fingerprint import codegen_hash, file_digest, meta_file, meta_source, source_header
-from ..model.interrupts import deferred_interrupt
 from ..model.mjcf_model import mjcf_xml
 from ..model.spec import Spec
-from . import plant, structured
+from ..process.interrupts import deferred_interrupt
+from . import plant_step, solver_terms
 from .symbolic import SymbolicModel, build_symbolic_model
 
 INPUT_NAMES = ("q", "qd", "s", "sd", "sdd")
@@ -109,22 +109,23 @@ class GenerationContext:
     def register_all(self) -> GenerationContext:
         for name, terms in FUNCTIONS.items():
             self.register(name, terms)
-        self.register_solver_terms("mlm_terms", structured.mlm_terms)
-        self.register_solver_terms("penalty_terms", structured.penalty_terms)
+        self.register_solver_terms("mlm_terms", solver_terms.mlm_terms)
+        self.register_solver_terms("penalty_terms", solver_terms.penalty_terms)
         # Called only where inputs are redundant or a limit is hit: the unbounded hot path stays as it was.
-        self.register_solver_terms("mlm_bounded_terms", structured.mlm_bounded_terms)
-        self.register_solver_terms("penalty_bounded_terms", structured.penalty_bounded_terms)
-        self.functions["penalty_iteration"] = structured.penalty_iteration_function(
+        self.register_solver_terms("mlm_bounded_terms", solver_terms.mlm_bounded_terms)
+        self.register_solver_terms("penalty_bounded_terms", solver_terms.penalty_bounded_terms)
+        self.functions["penalty_iteration"] = solver_terms.penalty_iteration_function(
             self.model, f"{self.spec.name}_penalty_iteration"
         )
         for name, terms in PLANT_FUNCTIONS.items():
             self.register_plant(name, terms)
-        rows = structured.independent_rows(self.model)
-        self.functions["plant_step"] = plant.plant_step_function(self.plant_model, f"{self.spec.name}_plant_step", rows)
+        rows = solver_terms.independent_rows(self.model)
+        self.functions["plant_step"] = plant_step.plant_step_function(self.plant_model, f"{self.spec.name}_plant_step",
+                                                                      rows)
         if self.plant_model is not self.model:
             # The plant of the spec's own numbers, folded as the controllers' (an empty plant_params):
             # the nominal plant, bit for bit what it was before parameters were an input, and cheaper.
-            self.functions["plant_step_folded"] = plant.plant_step_function(
+            self.functions["plant_step_folded"] = plant_step.plant_step_function(
                 self.model, f"{self.spec.name}_plant_step_folded", rows)
         return self
 
@@ -146,7 +147,7 @@ class GenerationContext:
                 "input_units": lay.input_units,
                 "signals": lay.signals,
                 "redundant_constraint_rows": list(lay.redundant_rows),
-                "independent_constraint_rows": structured.independent_rows(self.model),
+                "independent_constraint_rows": solver_terms.independent_rows(self.model),
                 "plant_parameters": list(self.plant_model.parameter_names),
                 "parameters": runtime_names(lay.servo_constraints),
             },

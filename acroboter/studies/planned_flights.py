@@ -63,7 +63,7 @@ def run_case(case: Case, folder: Path, margin: float = 0.05, intervals: int = 12
              methods=METHODS) -> tuple[CaseResult, object, dict]:
     """Plan `case` and fly it with every method: (the figures, the Plan, {method: Result})."""
     from ..api.crane import Crane
-    from ..model.locations import example_spec
+    from ..process.locations import example_spec
 
     folder.mkdir(parents=True, exist_ok=True)
     spec_path = folder / f"{case.spec}_{case.lower:g}_{case.upper:g}.toml"

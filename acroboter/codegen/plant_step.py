@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import casadi as ca
 
-from .structured import cholesky_solve, constant_inverse_mass
+from .solver_terms import cholesky_solve, constant_inverse_mass
 from .symbolic import SymbolicModel
 
 

@@ -1,4 +1,4 @@
-"""Solver-shaped terms: what each controller needs per step, in one generated call (plant: codegen/plant.py).
+"""Solver-shaped terms: what each controller needs per step, in one generated call (plant: codegen/plant_step.py).
 
 The mass matrix of natural coordinates is constant, so M⁻¹ is a numeric (sparse) constant here and
 every product with it is folded into the generated code. Parameters that a user may change at run
@@ -28,7 +28,7 @@ def constant_inverse_mass(model: SymbolicModel) -> ca.DM:
     if ca.depends_on(model.mass_matrix, ca.vertcat(q, qd)):
         raise ValueError(
             "the mass matrix depends on the state: natural coordinates give a constant one; "
-            "the structured solver terms assume it"
+            "the solver terms assume it"
         )
     mass = np.array(ca.evalf(model.mass_matrix))
     inverse = np.linalg.inv(mass)

@@ -20,9 +20,9 @@ import numpy as np
 from ..control.path import DesiredPath, SampledTrajectory, TrajectoryPath
 from ..control.trajectory_file import write_trajectory_csv
 from .checks import Certificate, certify, check_statics
-from .dynamics import IdealDynamics, PlanningError
 from .edges import EdgeRetiming
 from .geometry import PathGeometry
+from .ideal_motion import IdealDynamics, PlanningError
 from .limits import active_intervals, margin_achieved, tightened
 from .retiming import Retiming, Solution
 from .windows import WindowedRetiming

@@ -31,8 +31,8 @@ from concurrent.futures import ThreadPoolExecutor, as_completed
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
-from ..model.locations import cache_dir, shipped_generated_folder, spec_folder
 from ..model.spec import load_spec
+from ..process.locations import cache_dir, shipped_generated_folder, spec_folder
 from .integrity import verify_sources
 from .progress import announce, progress_disabled
 

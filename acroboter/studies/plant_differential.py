@@ -108,7 +108,7 @@ class Experiment:
             step = f" --mujoco-timestep {mujoco_timestep:g}" if mujoco_timestep != MUJOCO_TIMESTEP else ""
             return (f"python -m acroboter.plant_fuzz --spec {self.spec} --seed {self.seed} --cases 1 --workers 1 "
                     f"--out results/plant_fuzz/replay-{self.spec}-{self.seed}{step}")
-        return ("python -c 'from acroboter.studies.plant_fuzz import Experiment, run_experiment; "
+        return ("python -c 'from acroboter.studies.plant_differential import Experiment, run_experiment; "
                 f"print(run_experiment(Experiment(**{asdict(self)!r})))'")
 
 

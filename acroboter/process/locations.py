@@ -19,7 +19,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-PACKAGE_DIR = Path(__file__).resolve().parent.parent  # acroboter/ (this file is acroboter/model/locations.py)
+PACKAGE_DIR = Path(__file__).resolve().parent.parent  # acroboter/ (this file is acroboter/process/locations.py)
 CACHE_ENV = "ACROBOTER_CACHE_DIR"
 _PACKAGED = PACKAGE_DIR / "examples"  # only in an installed wheel
 
