@@ -111,37 +111,95 @@ def main(argv: list[str] | None = None) -> int:
         return _bench(args, methods, folder)
 
 
+class _CannotTime(Exception):
+    """The benchmark cannot run as asked: the text (printed as 'error: …') and the exit status."""
+
+    def __init__(self, text: str, status: int):
+        super().__init__(text)
+        self.status = status
+
+
 def _bench(args: argparse.Namespace, methods: list[str], folder: ResultsFolder) -> int:
-    from ..api.crane import Crane
-    from ..control.controllers import SingularSystemError, make_controller
-    from ..control.recovery import RecoveryError
-    from ..model.spec import SpecError, load_spec
-    from ..runtime.casadi_backend import CasadiModel
+    """The phases: the crane loaded and checked, the model terms timed, the methods that run on it, their closed
+    loops and control steps timed (against the casadi.Function path), the limits, the step forms, the loops and the
+    Monte Carlo, the plant's step; bench.json written."""
+    from ..control.controllers import SingularSystemError
+    from ..model.spec import SpecError
     from ..runtime.compiled import StaleModelError
     from ..sim.plant import SimulationError
-    from ..sim.simulation import setup_default, simulate
-    from ..sim.statics import desired_path
+
+    try:
+        crane, start = _loaded(args)
+        print(f"benchmarking on {_processor()}, {crane.spec.name}, {crane.path.duration:g} s scenario ...",
+              file=sys.stderr)
+        model_terms_us = time_model_terms(crane.model, start.q, crane.path)
+        controllers = runnable_controllers(crane, methods, start)
+        methods = list(controllers)
+        runs, walls = _closed_loops(crane, controllers, start)
+    except _CannotTime as err:
+        print(f"error: {err}", file=sys.stderr)
+        return err.status
+    results, states = _step_results(args, crane, controllers, runs, walls, start)
+    print(format_table(results))
+    print(f"all model terms at one state (model_terms, one ctypes call): median {model_terms_us['median']:.2f} us, "
+          f"p99 {model_terms_us['p99']:.2f} us")
+    try:
+        limits = bench_limits(args.limits_spec, methods, args.repeats)
+    except (SpecError, StaleModelError, SimulationError, SingularSystemError) as err:
+        print(f"error: cannot time the input limits on {args.limits_spec}: {err}", file=sys.stderr)
+        return 3
+    print(format_limits_table(limits))
+    from .bench_steps import bench_loops, bench_monte_carlo, bench_steps, format_steps
+
+    steps = bench_steps(crane, methods, states, args.repeats)
+    loops = bench_loops(crane, methods)
+    mc = bench_monte_carlo(crane, methods, args.mc_samples) if args.mc_samples else None
+    print(format_steps(steps, loops, mc))
+    plant_step = bench_plant_step(crane, start.q, start.inputs)
+    print(f"plant RK4 step (one ctypes call): spec's numbers folded in {plant_step['folded_us']:.2f} us, physical "
+          f"parameters as an input {plant_step['parametric_us']:.2f} us (x{plant_step['ratio']:.2f}, quietest of "
+          f"{plant_step['passes']} interleaved passes)")
+    doc = {
+        "spec": crane.spec.name,
+        "machine": {"processor": _processor(), "machine": platform.machine(),
+                    "python": platform.python_version(), "cores": _cores()},
+        "date": time.strftime("%Y-%m-%d"),
+        "model_terms_us": model_terms_us,
+        "methods": results,
+        "limits": limits,
+        "plant_step": plant_step,
+        "steps": steps,
+        "closed_loop": loops,
+        "monte_carlo": mc,
+    }
+    (folder.staging / "bench.json").write_text(json.dumps(doc, indent=2) + "\n")
+    folder.publish()
+    print(f"written {args.out / 'bench.json'}")
+    return 0
+
+
+def _loaded(args: argparse.Namespace):
+    """The crane (and the limits' spec) validated, a scenario long enough, its static start."""
+    from ..api.crane import Crane
+    from ..model.spec import SpecError, load_spec
+    from ..runtime.compiled import StaleModelError
 
     try:
         load_spec(args.limits_spec)  # validated before any work too
         crane = Crane.from_toml(args.spec)
     except (SpecError, StaleModelError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    spec, model = crane.spec, crane.model
-    gains = crane.gains()
-    path = crane.path
-    rate, h = spec.controller.rate_hz, spec.simulation.step
+        raise _CannotTime(str(err), 2) from None
+    path, rate = crane.path, crane.spec.controller.rate_hz
     if path.duration * rate < MIN_INSTANTS:
-        print(f"error: the scenario of {spec.name} has {path.duration * rate:.0f} control instants, the benchmark "
-              f"needs at least {MIN_INSTANTS}: lengthen the path (or lower path.mean_speed)", file=sys.stderr)
-        return 2
-    start = crane.equilibrium()
-    plant = setup_default(model, path)
-    results = {}
-    # Every model term (M, c, φ, φ_q, φ̇, γ, σ, σ_q, σ̇, γ_s, H) at one state: one pre-bound C call.
+        raise _CannotTime(f"the scenario of {crane.spec.name} has {path.duration * rate:.0f} control instants, the "
+                          f"benchmark needs at least {MIN_INSTANTS}: lengthen the path (or lower path.mean_speed)", 2)
+    return crane, crane.equilibrium()
+
+
+def time_model_terms(model, q: np.ndarray, path) -> dict:
+    """Every model term (M, c, φ, φ_q, φ̇, γ, σ, σ_q, σ̇, γ_s, H) at one state: one pre-bound C call, timed."""
     terms = model.functions["model_terms"]
-    model.set_inputs(start.q, np.zeros(model.layout.n), *path.signal_arrays(3.0))
+    model.set_inputs(q, np.zeros(model.layout.n), *path.signal_arrays(3.0))
     clock = time.perf_counter
     samples = np.empty((5, 4000))
     for row in samples:
@@ -149,35 +207,58 @@ def _bench(args: argparse.Namespace, methods: list[str], folder: ResultsFolder) 
             t0 = clock()
             terms.call()
             row[i] = clock() - t0
-    model_terms_us = stats(samples)
-    print(f"benchmarking on {_processor()}, {spec.name}, "
-          f"{path.duration:g} s scenario ...", file=sys.stderr)
+    return stats(samples)
+
+
+def runnable_controllers(crane, methods: list[str], start) -> dict:
+    """{method: controller} of the methods that run on this crane; one that cannot is left out, with its reason."""
+    from ..control.controllers import SingularSystemError, make_controller
+    from ..control.recovery import RecoveryError
+
     controllers = {}
-    for m in methods:  # a method that cannot handle this spec is left out, with its reason
+    for m in methods:
         try:
-            controllers[m] = make_controller(m, model, path, gains)
-            controllers[m].compute(start.q, np.zeros(model.layout.n), 0.0)
+            controllers[m] = make_controller(m, crane.model, crane.path, crane.gains())
+            controllers[m].compute(start.q, np.zeros(crane.layout.n), 0.0)
         except (SingularSystemError, RecoveryError) as err:
             controllers.pop(m, None)
             print(f"  {m} left out: {err}", file=sys.stderr)
-    methods = list(controllers)
-    if not methods:
-        print("error: no method can run on this spec", file=sys.stderr)
-        return 3
-    casadi_model = CasadiModel(spec)
-    casadi_path = desired_path(casadi_model)
-    slow = {m: make_controller(m, casadi_model, casadi_path, gains) for m in methods}
-    # Whole closed loops, best of 3 (interleaved, so a slow stretch of the machine hits all alike).
-    runs, walls = {}, {m: [] for m in methods}
+    if not controllers:
+        raise _CannotTime("no method can run on this spec", 3)
+    return controllers
+
+
+def _closed_loops(crane, controllers: dict, start) -> tuple[dict, dict]:
+    """Whole closed loops, best of 3 (interleaved, so a slow stretch of the machine hits all alike)."""
+    from ..sim.plant import SimulationError
+    from ..sim.simulation import setup_default, simulate
+
+    spec, path = crane.spec, crane.path
+    plant = setup_default(crane.model, path)
+    runs, walls = {}, {m: [] for m in controllers}
     try:
         for _ in range(3):
             for m, controller in controllers.items():
-                runs[m] = simulate(model, path, controller, plant, start.q, path.duration, rate, h)
+                runs[m] = simulate(crane.model, path, controller, plant, start.q, path.duration,
+                                   spec.controller.rate_hz, spec.simulation.step)
                 walls[m].append(runs[m].sim_wall_s)
     except SimulationError as err:
-        print(f"error: the scenario does not run to the end, nothing to time: {err}", file=sys.stderr)
-        return 3
-    # The states of the real scenario (MLM's run) for every method's control-step timing.
+        raise _CannotTime(f"the scenario does not run to the end, nothing to time: {err}", 3) from None
+    return runs, walls
+
+
+def _step_results(args, crane, controllers: dict, runs: dict, walls: dict, start) -> tuple[dict, list]:
+    """Per method the compiled and casadi.Function control steps on the states of the real scenario (the first
+    method's run), whether they agree, the loop's real-time factor, the bytes retained per step; and those states."""
+    from ..control.controllers import make_controller
+    from ..runtime.casadi_backend import CasadiModel
+    from ..sim.simulation import setup_default
+    from ..sim.statics import desired_path
+
+    methods, h = list(controllers), crane.spec.simulation.step
+    casadi_model = CasadiModel(crane.spec)
+    casadi_path = desired_path(casadi_model)
+    slow = {m: make_controller(m, casadi_model, casadi_path, crane.gains()) for m in methods}
     reference = runs[methods[0]]
     states = list(zip(reference.q, reference.qd, reference.t, strict=True))
     stride = max(1, len(states) // args.casadi_states)
@@ -188,8 +269,10 @@ def _bench(args: argparse.Namespace, methods: list[str], folder: ResultsFolder) 
             fast_times[m].append(time_steps(controllers[m], states, 1)[0])
             if r < 3:
                 slow_times[m].append(time_steps(slow[m], states[::stride], 1)[0])
+    plant = setup_default(crane.model, crane.path)
     x = plant.initial_state(start.q)
     table = plant.stage_table(0.0, h, 1000)
+    results = {}
     for method in methods:
         controller = controllers[method]
         # Same solver, other backend: the inputs must agree (to round-off of two evaluators).
@@ -213,43 +296,7 @@ def _bench(args: argparse.Namespace, methods: list[str], folder: ResultsFolder) 
         }
         r = results[method]
         r["speedup_median"] = r["casadi_function_us"]["median"] / r["compiled_us"]["median"]
-
-    print(format_table(results))
-    print(f"all model terms at one state (model_terms, one ctypes call): median {model_terms_us['median']:.2f} us, "
-          f"p99 {model_terms_us['p99']:.2f} us")
-    try:
-        limits = bench_limits(args.limits_spec, methods, args.repeats)
-    except (SpecError, StaleModelError, SimulationError, SingularSystemError) as err:
-        print(f"error: cannot time the input limits on {args.limits_spec}: {err}", file=sys.stderr)
-        return 3
-    print(format_limits_table(limits))
-    from .bench_steps import bench_loops, bench_monte_carlo, bench_steps, format_steps
-
-    steps = bench_steps(crane, methods, states, args.repeats)
-    loops = bench_loops(crane, methods)
-    mc = bench_monte_carlo(crane, methods, args.mc_samples) if args.mc_samples else None
-    print(format_steps(steps, loops, mc))
-    plant_step = bench_plant_step(crane, start.q, start.inputs)
-    print(f"plant RK4 step (one ctypes call): spec's numbers folded in {plant_step['folded_us']:.2f} us, physical "
-          f"parameters as an input {plant_step['parametric_us']:.2f} us (x{plant_step['ratio']:.2f}, quietest of "
-          f"{plant_step['passes']} interleaved passes)")
-    doc = {
-        "spec": spec.name,
-        "machine": {"processor": _processor(), "machine": platform.machine(),
-                    "python": platform.python_version(), "cores": _cores()},
-        "date": time.strftime("%Y-%m-%d"),
-        "model_terms_us": model_terms_us,
-        "methods": results,
-        "limits": limits,
-        "plant_step": plant_step,
-        "steps": steps,
-        "closed_loop": loops,
-        "monte_carlo": mc,
-    }
-    (folder.staging / "bench.json").write_text(json.dumps(doc, indent=2) + "\n")
-    folder.publish()
-    print(f"written {args.out / 'bench.json'}")
-    return 0
+    return results, states
 
 
 def bench_plant_step(crane, q0: np.ndarray, u0: np.ndarray, passes: int = 15, calls: int = 2000) -> dict:

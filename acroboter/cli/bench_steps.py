@@ -64,120 +64,164 @@ def exported_controller(crane, method: str, gains, sensing, folder: Path):
 
 def bench_steps(crane, methods: list[str], states, repeats: int) -> dict:
     """Interleaved passes: per method the reference, fast and exported C steps, and the estimator, timed."""
-    from ..codegen.step_graph import ExportError
-    from ..control.controllers import make_controller
-    from ..sim.fast_estimator import make_estimator
-
-    model, path, gains = crane.model, crane.path, crane.gains()
-    reference = {m: make_controller(m, model, path, gains) for m in methods}
-    fast = {m: make_controller(m, model, path, gains, fast=True) for m in methods}
-    sensing = crane.sensing(None) or crane.sensing(DEFAULT_SENSING)
-    estimators = {"estimator": make_estimator(model, path, sensing),
-                  "estimator_fast": make_estimator(model, path, sensing, fast=True)}
-    signals = [path.flat(t).copy() for _, _, t in states]
-    clock = time.perf_counter
-    times = {(m, kind): [] for m in methods for kind in ("reference", "fast", "c")}
-    times[("estimator", "estimator")], times[("estimator", "estimator_fast")] = [], []
-    times[("path", "path")] = []  # the path's signals at t: part of both Python steps, not of the C step's timing
-    # The measurements the stateful C controller reads: the Python sensor's (noise, quantisation; one row per state)
-    sensor = estimators["estimator"]
-    measurements = []
-    if sensor is not None:
-        sensor.reset(states[0][0])
-        for q, _, _ in states:
-            y = np.zeros(sensor.index.size)
-            sensor._sample(q, y)
-            measurements.append(y)
-    signal_arrays = [np.array(row) for row in signals]
-    refused: dict[str, str] = {}  # method -> why it has no stateful exported controller
-    step_codes: dict[str, dict[int, int]] = {}  # method -> the stateful controller's return codes, counted
-    start_q = crane.equilibrium().q
-    for m in methods:
-        times[(m, "c_estimator")] = []
+    bench = _StepBench(crane, methods, states)
     with tempfile.TemporaryDirectory(prefix="acroboter-bench-") as tmp:
-        exported = {m: exported_step(crane, m, gains, Path(tmp) / m) for m in methods}
-        stateful = {}
-        for m in methods if sensor is not None else ():
-            try:
-                stateful[m] = exported_controller(crane, m, gains, sensing, Path(tmp) / f"{m}-controller")
-            except ExportError as err:  # e.g. MLM with internal forces has no q̈ for the estimator: said, not timed
-                refused[m] = str(err)
+        bench.compile(Path(tmp))
         for _ in range(repeats):
             for m in methods:
-                for kind, controller in (("reference", reference[m]), ("fast", fast[m])):
-                    row, compute = np.empty(len(states)), controller.compute
-                    for i, (q, qd, t) in enumerate(states):
-                        t0 = clock()
-                        compute(q, qd, t)
-                        row[i] = clock() - t0
-                    times[(m, kind)].append(row)
-                row, call, q_buf, qd_buf, sig_buf = np.empty(len(states)), exported[m].call, model.q, model.qd, \
-                    model.signals
-                for i, (q, qd, _) in enumerate(states):
-                    q_buf[:], qd_buf[:], sig_buf[:] = q, qd, signals[i]
-                    t0 = clock()
-                    call()
-                    row[i] = clock() - t0
-                times[(m, "c")].append(row)
-                if m in stateful:  # the stateful exported controller: estimator and step, one C call
-                    row, controller = np.empty(len(states)), stateful[m]
-                    # from the static start (states need not be a run's: their codes are counted, not refused)
-                    if controller.init(start_q, controller.path(0.0).copy()) != 0:
-                        raise RuntimeError(f"the exported {m} controller refused the static start")
-                    step, codes = controller.step, step_codes.setdefault(m, {})
-                    for i, (_, _, t) in enumerate(states):
-                        y, sig = measurements[i], signal_arrays[i]
-                        t0 = clock()
-                        rc = step(y, t, sig)
-                        row[i] = clock() - t0
-                        codes[rc] = codes.get(rc, 0) + 1
-                    times[(m, "c_estimator")].append(row)
-            row, flat = np.empty(len(states)), path.flat
-            for i, (_, _, t) in enumerate(states):
+                bench.time_python(m)
+                bench.time_exported(m)
+                bench.time_stateful(m)
+            bench.time_path()
+            bench.time_estimators()
+    return bench.summary()
+
+
+class _StepBench:
+    """The steps `bench_steps` times, over the same states, each call timed on its own (`times[(what, kind)]`:
+    one row of seconds per pass)."""
+
+    def __init__(self, crane, methods: list[str], states):
+        from ..control.controllers import make_controller
+        from ..sim.fast_estimator import make_estimator
+
+        self.crane, self.methods, self.states = crane, methods, states
+        self.model, self.path, self.gains = crane.model, crane.path, crane.gains()
+        model, path, gains = self.model, self.path, self.gains
+        self.reference = {m: make_controller(m, model, path, gains) for m in methods}
+        self.fast = {m: make_controller(m, model, path, gains, fast=True) for m in methods}
+        self.sensing = crane.sensing(None) or crane.sensing(DEFAULT_SENSING)
+        self.estimators = {"estimator": make_estimator(model, path, self.sensing),
+                           "estimator_fast": make_estimator(model, path, self.sensing, fast=True)}
+        self.signals = [path.flat(t).copy() for _, _, t in states]
+        self.times = {(m, kind): [] for m in methods for kind in ("reference", "fast", "c", "c_estimator")}
+        self.times[("estimator", "estimator")], self.times[("estimator", "estimator_fast")] = [], []
+        self.times[("path", "path")] = []  # the path's signals at t: part of both Python steps, not of the C step's
+        # The measurements the stateful C controller reads: the Python sensor's (noise, quantisation; one per state)
+        self.sensor = sensor = self.estimators["estimator"]
+        self.measurements = []
+        if sensor is not None:
+            sensor.reset(states[0][0])
+            for q, _, _ in states:
+                y = np.zeros(sensor.index.size)
+                sensor._sample(q, y)
+                self.measurements.append(y)
+        self.refused: dict[str, str] = {}  # method -> why it has no stateful exported controller
+        self.step_codes: dict[str, dict[int, int]] = {}  # method -> the stateful controller's return codes, counted
+        self.start_q = crane.equilibrium().q
+        self.exported: dict = {}
+        self.stateful: dict = {}
+
+    def compile(self, folder: Path) -> None:
+        """The exported C steps, and with sensing the stateful exported controllers, compiled into `folder`."""
+        from ..codegen.step_graph import ExportError
+
+        self.exported = {m: exported_step(self.crane, m, self.gains, folder / m) for m in self.methods}
+        for m in self.methods if self.sensor is not None else ():
+            try:
+                self.stateful[m] = exported_controller(self.crane, m, self.gains, self.sensing,
+                                                       folder / f"{m}-controller")
+            except ExportError as err:  # e.g. MLM with internal forces has no q̈ for the estimator: said, not timed
+                self.refused[m] = str(err)
+
+    def time_python(self, m: str) -> None:
+        clock = time.perf_counter
+        for kind, controller in (("reference", self.reference[m]), ("fast", self.fast[m])):
+            row, compute = np.empty(len(self.states)), controller.compute
+            for i, (q, qd, t) in enumerate(self.states):
                 t0 = clock()
-                flat(t)
+                compute(q, qd, t)
                 row[i] = clock() - t0
-            times[("path", "path")].append(row)
-            for kind, estimator in estimators.items():
-                if estimator is None:
-                    continue
-                row, rest = np.empty(len(states)), np.zeros(states[0][0].size)
-                estimator.reset(states[0][0])
-                for i, (q, _, t) in enumerate(states):
-                    t0 = clock()
-                    estimator.estimate(q, t)
-                    row[i] = clock() - t0
-                    estimator.applied(rest)
-                times[("estimator", kind)].append(row)
-    out = {"methods": {}, "fast_path": {}}
-    for m in methods:
-        r = {kind: percentiles(times[(m, kind)]) for kind in ("reference", "fast", "c")}
-        r["ratio_fast_to_c"] = r["fast"]["p50"] / r["c"]["p50"]
-        r["ratio_reference_to_c"] = r["reference"]["p50"] / r["c"]["p50"]
-        r["ratio_reference_to_fast"] = r["reference"]["p50"] / r["fast"]["p50"]
-        out["methods"][m] = r
-        out["fast_path"][m] = getattr(fast[m], "fast_refusal", None) or "compiled step"
-    est, est_fast = times[("estimator", "estimator")], times[("estimator", "estimator_fast")]
-    out["estimator"] = percentiles(est) if est else None
-    out["estimator_fast"] = percentiles(est_fast) if est_fast else None
-    if est and est_fast:
-        out["estimator_ratio_reference_to_fast"] = out["estimator"]["p50"] / out["estimator_fast"]["p50"]
-    for m in methods:  # the issue's target: the fast step with the estimator against the C step with the estimator
-        r = out["methods"][m]
-        if times[(m, "c_estimator")]:
-            r["c_estimator"] = percentiles(times[(m, "c_estimator")])
+            self.times[(m, kind)].append(row)
+
+    def time_exported(self, m: str) -> None:
+        """The exported C step, its inputs loaded before each timed call."""
+        clock, model, signals = time.perf_counter, self.model, self.signals
+        row, call, q_buf, qd_buf, sig_buf = np.empty(len(self.states)), self.exported[m].call, model.q, model.qd, \
+            model.signals
+        for i, (q, qd, _) in enumerate(self.states):
+            q_buf[:], qd_buf[:], sig_buf[:] = q, qd, signals[i]
+            t0 = clock()
+            call()
+            row[i] = clock() - t0
+        self.times[(m, "c")].append(row)
+
+    def time_stateful(self, m: str) -> None:
+        """The stateful exported controller: estimator and step, one C call, from the static start (the states need
+        not be a run's: its codes are counted, not refused)."""
+        if m not in self.stateful:
+            return
+        clock, controller = time.perf_counter, self.stateful[m]
+        row = np.empty(len(self.states))
+        if controller.init(self.start_q, controller.path(0.0).copy()) != 0:
+            raise RuntimeError(f"the exported {m} controller refused the static start")
+        step, codes = controller.step, self.step_codes.setdefault(m, {})
+        signal_arrays = [np.array(sig) for sig in self.signals]
+        for i, (_, _, t) in enumerate(self.states):
+            y, sig = self.measurements[i], signal_arrays[i]
+            t0 = clock()
+            rc = step(y, t, sig)
+            row[i] = clock() - t0
+            codes[rc] = codes.get(rc, 0) + 1
+        self.times[(m, "c_estimator")].append(row)
+
+    def time_path(self) -> None:
+        clock, row, flat = time.perf_counter, np.empty(len(self.states)), self.path.flat
+        for i, (_, _, t) in enumerate(self.states):
+            t0 = clock()
+            flat(t)
+            row[i] = clock() - t0
+        self.times[("path", "path")].append(row)
+
+    def time_estimators(self) -> None:
+        clock, states = time.perf_counter, self.states
+        for kind, estimator in self.estimators.items():
+            if estimator is None:
+                continue
+            row, rest = np.empty(len(states)), np.zeros(states[0][0].size)
+            estimator.reset(states[0][0])
+            for i, (q, _, t) in enumerate(states):
+                t0 = clock()
+                estimator.estimate(q, t)
+                row[i] = clock() - t0
+                estimator.applied(rest)
+            self.times[("estimator", kind)].append(row)
+
+    def summary(self) -> dict:
+        """Percentiles per method and kind, and the ratios of the medians."""
+        times, out = self.times, {"methods": {}, "fast_path": {}}
+        for m in self.methods:
+            r = {kind: percentiles(times[(m, kind)]) for kind in ("reference", "fast", "c")}
+            r["ratio_fast_to_c"] = r["fast"]["p50"] / r["c"]["p50"]
+            r["ratio_reference_to_c"] = r["reference"]["p50"] / r["c"]["p50"]
+            r["ratio_reference_to_fast"] = r["reference"]["p50"] / r["fast"]["p50"]
+            out["methods"][m] = r
+            out["fast_path"][m] = getattr(self.fast[m], "fast_refusal", None) or "compiled step"
+        est, est_fast = times[("estimator", "estimator")], times[("estimator", "estimator_fast")]
+        out["estimator"] = percentiles(est) if est else None
+        out["estimator_fast"] = percentiles(est_fast) if est_fast else None
+        if est and est_fast:
+            out["estimator_ratio_reference_to_fast"] = out["estimator"]["p50"] / out["estimator_fast"]["p50"]
+        for m in self.methods:
+            self._with_estimator(out, m)
+        out["path_evaluation"] = percentiles(times[("path", "path")])
+        out["sensing"] = "the spec's [sensing]" if self.crane.sensing(None) is not None else f"{DEFAULT_SENSING}"
+        return out
+
+    def _with_estimator(self, out: dict, m: str) -> None:
+        """The issue's target: the fast step with the estimator against the C step with the estimator."""
+        r, fast_estimator = out["methods"][m], out["estimator_fast"]
+        if self.times[(m, "c_estimator")]:
+            r["c_estimator"] = percentiles(self.times[(m, "c_estimator")])
             # its return codes over all passes (0: the sample accepted; 4, 5: rejected, the states not a run's)
-            r["c_estimator_codes"] = {str(code): count for code, count in sorted(step_codes[m].items())}
-        elif m in refused:
-            r["c_estimator_refused"] = refused[m]
-        if est_fast:
-            r["ratio_fast_with_estimator_to_c"] = (r["fast"]["p50"] + out["estimator_fast"]["p50"]) / r["c"]["p50"]
+            r["c_estimator_codes"] = {str(code): count for code, count in sorted(self.step_codes[m].items())}
+        elif m in self.refused:
+            r["c_estimator_refused"] = self.refused[m]
+        if fast_estimator is not None:
+            r["ratio_fast_with_estimator_to_c"] = (r["fast"]["p50"] + fast_estimator["p50"]) / r["c"]["p50"]
             if "c_estimator" in r:
                 r["ratio_fast_with_estimator_to_c_with_estimator"] = (
-                    (r["fast"]["p50"] + out["estimator_fast"]["p50"]) / r["c_estimator"]["p50"])
-    out["path_evaluation"] = percentiles(times[("path", "path")])
-    out["sensing"] = "the spec's [sensing]" if crane.sensing(None) is not None else f"{DEFAULT_SENSING}"
-    return out
+                    (r["fast"]["p50"] + fast_estimator["p50"]) / r["c_estimator"]["p50"])
 
 
 def bench_loops(crane, methods: list[str], passes: int = 2) -> dict:

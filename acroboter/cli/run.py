@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..model.controller_parameters import OVERRIDES
@@ -53,160 +54,220 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
-def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
-    # Imports after parsing: --help stays instant.
-    import numpy as np
-    from tqdm import tqdm
+class _Refused(Exception):
+    """A run that cannot be done as asked: `text` (printed as 'error: …') and the exit status."""
 
-    from ..api.crane import Crane
-    from ..control.controllers import SingularSystemError
+    def __init__(self, text: str, status: int = 2):
+        super().__init__(text)
+        self.status = status
+
+
+@dataclass
+class _Setup:
+    """Everything a run was checked to need, before any simulation."""
+
+    crane: object
+    trajectory: object
+    sensing: object
+    methods: list[str]
+    gains: object
+    path: object
+    duration: float
+    steps: int
+    overrides: dict
+    start: object = None
+    feasibility: object = None
+    warnings: list[str] = field(default_factory=list)
+
+
+def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
+    """The run's phases: checked (every option and the spec, before any work), simulated (each method), written
+    (staged, then published in one go), reported (the table on screen, the exit status)."""
     from ..control.path import TrajectoryError
-    from ..control.recovery import RecoveryError
-    from ..control.trajectory_file import read_trajectory_csv
-    from ..model.physical import PlantParameterError, with_parameters
-    from ..model.ranges import delay_problem
+    from ..model.physical import PlantParameterError
     from ..model.spec import SpecError
-    from ..report.report import format_table, write_figures, write_summary
     from ..runtime.compiled import StaleModelError
-    from ..sim.plant import SimulationError
-    from ..sim.sensing import SensingError
-    from ..sim.simulation import check_mujoco_timestep
     from ..sim.statics import EquilibriumError
 
-    overrides = {name: getattr(args, name) for name in OVERRIDES}
     try:
-        crane = Crane.from_toml(args.spec, cache_dir=args.cache_dir)
-        spec = crane.spec
-        trajectory = read_trajectory_csv(args.trajectory) if args.trajectory is not None else None
-        with_parameters(spec, args.plant_params)  # names and values checked before any work (exit 2)
-        if args.mujoco_timestep is not None:
-            try:
-                check_mujoco_timestep(spec.simulation.step, args.mujoco_timestep, 1.0 / spec.controller.rate_hz)
-            except ValueError as err:
-                print(f"error: {as_option_text(err)}", file=sys.stderr)
-                return 2
-        sensing = crane.sensing(args.sensing)  # SpecError naming the field (exit 2), before any work
-        methods = expand_methods(args.method, args.iterations or spec.controller.penalty.iterations)
-        # a file of the user's under a result's name: refused now, before the simulation (exit 2)
-        folder.claim([f"{m}.csv" for m in methods] + ([] if args.no_plots else list(FIGURES)))
-        try:
-            gains = crane.gains(**overrides)
-        except ValueError as err:  # e.g. --kd outside what the control rate samples, --ki past Routh–Hurwitz
-            print(f"error: {as_option_text(err)}", file=sys.stderr)
-            return 2
-        path = crane.desired(trajectory)
-        duration = args.duration if args.duration is not None else path.duration
-        rate, step = spec.controller.rate_hz, spec.simulation.step
-        steps = int(round(duration * rate))
-        if not 1 <= steps <= MAX_CONTROL_STEPS:
-            print(f"error: --duration {duration:g} s is {steps} control steps at {rate:g} Hz: give between one "
-                  f"({1 / rate:g} s) and {MAX_CONTROL_STEPS} ({MAX_CONTROL_STEPS / rate:g} s)", file=sys.stderr)
-            return 2
-        if sensing and (problem := delay_problem(sensing.delay_periods, rate, duration)) is not None:
-            given = isinstance(args.sensing, dict) and "delay_periods" in args.sensing
-            where = "--sensing-delay" if given else "sensing.delay_periods (the spec's)"
-            print(f"error: {where}: {problem}", file=sys.stderr)
-            return 2
-        start = crane.equilibrium(trajectory)
-        results, summaries, warnings = {}, {}, [f"spec: {w}" for w in crane.warnings]
-        # Before the run: can the path be followed within the limits at all?
-        feasibility = crane.check_path(duration, trajectory=trajectory, **overrides)
-        if feasibility.feasible is False:
-            warnings.append(f"the desired path is {feasibility.message}")
-        with tqdm(total=steps * len(methods), unit="step", disable=progress_disabled(args.quiet),
-                  desc="simulating", file=sys.stderr) as bar:
-            for method in methods:
-                bar.set_postfix_str(method)
-                try:
-                    r = crane.simulate(method, duration=duration, trajectory=trajectory, progress=bar.update,
-                                       plant_params=args.plant_params, sensing=sensing or False, plant=args.plant,
-                                       mujoco_timestep=args.mujoco_timestep, fast=args.fast, **overrides)
-                except (SingularSystemError, RecoveryError, SimulationError) as err:
-                    # This method cannot handle this system (e.g. MLM and redundant constraints), or
-                    # failed at its first step: say why, and go on with the others.
-                    summaries[method] = {"error": str(err)}
-                    cause = "with this sensing" if isinstance(err, SensingError) else "on this spec"
-                    warnings.append(f"{method} cannot run {cause}: {err}")
-                    bar.update(steps)
-                    continue
-                results[method] = r
-                summaries[method] = r.summary()
-                if r.diverged_at is not None:
-                    warnings.append(f"{method} diverged at t = {r.diverged_at:.2f} s: {r.run.divergence}")
-                    bar.update(steps - len(r.time) + 1)
-                for cable, c in summaries[method]["cables"].items():  # the plant's cables, not the inputs
-                    if c["time_slack_s"] > 0 or c["transitions"] > 0:
-                        warnings.append(f"{method}: cable {cable} was slack for {c['time_slack_s']:.3g} s "
-                                        f"({c['transitions']} slack/taut transitions)")
+        setup = _checked(args, folder)
+        results, summaries = _simulated(args, setup)
+    except _Refused as refused:
+        print(f"error: {refused}", file=sys.stderr)
+        return refused.status
     except (SpecError, StaleModelError, EquilibriumError, PlantParameterError, TrajectoryError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 3
-
     if not results:  # nothing to show: the earlier results in --out stay as they were
-        for w in warnings:
+        for w in setup.warnings:
             print(f"warning: {w}", file=sys.stderr)
         print("error: no method could run (see the warnings above); nothing was written",
               file=sys.stderr)
         return 3
-    args.sensing_used = sensing
-    out: Path = folder.staging  # published into args.out at the end, in one go
-    paper = is_paper_crane(spec)
+    _written(args, folder, setup, results, summaries)
+    return _reported(args, setup, results, summaries)
+
+
+def _checked(args: argparse.Namespace, folder: ResultsFolder) -> _Setup:
+    """The crane, its inputs and every option checked against the spec, before any simulation (_Refused: exit 2)."""
+    from ..api.crane import Crane
+    from ..control.trajectory_file import read_trajectory_csv
+    from ..model.physical import with_parameters
+    from ..model.ranges import delay_problem
+    from ..sim.simulation import check_mujoco_timestep
+
+    overrides = {name: getattr(args, name) for name in OVERRIDES}
+    crane = Crane.from_toml(args.spec, cache_dir=args.cache_dir)
+    spec = crane.spec
+    trajectory = read_trajectory_csv(args.trajectory) if args.trajectory is not None else None
+    with_parameters(spec, args.plant_params)  # names and values checked before any work (exit 2)
+    if args.mujoco_timestep is not None:
+        try:
+            check_mujoco_timestep(spec.simulation.step, args.mujoco_timestep, 1.0 / spec.controller.rate_hz)
+        except ValueError as err:
+            raise _Refused(as_option_text(err)) from None
+    sensing = crane.sensing(args.sensing)  # SpecError naming the field (exit 2), before any work
+    methods = expand_methods(args.method, args.iterations or spec.controller.penalty.iterations)
+    # a file of the user's under a result's name: refused now, before the simulation (exit 2)
+    folder.claim([f"{m}.csv" for m in methods] + ([] if args.no_plots else list(FIGURES)))
+    try:
+        gains = crane.gains(**overrides)
+    except ValueError as err:  # e.g. --kd outside what the control rate samples, --ki past Routh–Hurwitz
+        raise _Refused(as_option_text(err)) from None
+    path = crane.desired(trajectory)
+    duration = args.duration if args.duration is not None else path.duration
+    rate = spec.controller.rate_hz
+    steps = int(round(duration * rate))
+    if not 1 <= steps <= MAX_CONTROL_STEPS:
+        raise _Refused(f"--duration {duration:g} s is {steps} control steps at {rate:g} Hz: give between one "
+                       f"({1 / rate:g} s) and {MAX_CONTROL_STEPS} ({MAX_CONTROL_STEPS / rate:g} s)")
+    if sensing and (problem := delay_problem(sensing.delay_periods, rate, duration)) is not None:
+        given = isinstance(args.sensing, dict) and "delay_periods" in args.sensing
+        where = "--sensing-delay" if given else "sensing.delay_periods (the spec's)"
+        raise _Refused(f"{where}: {problem}")
+    return _Setup(crane, trajectory, sensing, methods, gains, path, duration, steps, overrides,
+                  warnings=[f"spec: {w}" for w in crane.warnings])
+
+
+def _simulated(args: argparse.Namespace, setup: _Setup) -> tuple[dict, dict]:
+    """Each method's run ({method: Result}) and summary ({method: figures or its error}); the warnings in setup."""
+    from tqdm import tqdm
+
+    from ..control.controllers import SingularSystemError
+    from ..control.recovery import RecoveryError
+    from ..sim.plant import SimulationError
+    from ..sim.sensing import SensingError
+
+    crane, steps, warnings = setup.crane, setup.steps, setup.warnings
+    setup.start = crane.equilibrium(setup.trajectory)
+    # Before the run: can the path be followed within the limits at all?
+    setup.feasibility = crane.check_path(setup.duration, trajectory=setup.trajectory, **setup.overrides)
+    if setup.feasibility.feasible is False:
+        warnings.append(f"the desired path is {setup.feasibility.message}")
+    results, summaries = {}, {}
+    with tqdm(total=steps * len(setup.methods), unit="step", disable=progress_disabled(args.quiet),
+              desc="simulating", file=sys.stderr) as bar:
+        for method in setup.methods:
+            bar.set_postfix_str(method)
+            try:
+                r = crane.simulate(method, duration=setup.duration, trajectory=setup.trajectory, progress=bar.update,
+                                   plant_params=args.plant_params, sensing=setup.sensing or False, plant=args.plant,
+                                   mujoco_timestep=args.mujoco_timestep, fast=args.fast, **setup.overrides)
+            except (SingularSystemError, RecoveryError, SimulationError) as err:
+                # This method cannot handle this system (e.g. MLM and redundant constraints), or
+                # failed at its first step: say why, and go on with the others.
+                summaries[method] = {"error": str(err)}
+                cause = "with this sensing" if isinstance(err, SensingError) else "on this spec"
+                warnings.append(f"{method} cannot run {cause}: {err}")
+                bar.update(steps)
+                continue
+            results[method] = r
+            summaries[method] = r.summary()
+            if r.diverged_at is not None:
+                warnings.append(f"{method} diverged at t = {r.diverged_at:.2f} s: {r.run.divergence}")
+                bar.update(steps - len(r.time) + 1)
+            for cable, c in summaries[method]["cables"].items():  # the plant's cables, not the inputs
+                if c["time_slack_s"] > 0 or c["transitions"] > 0:
+                    warnings.append(f"{method}: cable {cable} was slack for {c['time_slack_s']:.3g} s "
+                                    f"({c['transitions']} slack/taut transitions)")
+    return results, summaries
+
+
+def _written(args: argparse.Namespace, folder: ResultsFolder, setup: _Setup, results: dict, summaries: dict) -> None:
+    """The CSVs, summary.json and the figures, staged and published into --out in one go."""
+    from ..report.report import write_figures, write_summary
+
+    args.sensing_used = setup.sensing
+    spec, lay = setup.crane.spec, setup.crane.layout
+    out: Path = folder.staging
     for name, r in results.items():
         r.to_csv(out / f"{name}.csv", state=args.state)
-    limits = input_limits_summary(spec, crane.layout)
-    write_summary(out / "summary.json", spec.name, summaries, duration, warnings,
-                  extra={"input_limits": limits, "path_feasibility": feasibility.to_dict(),
-                         "provenance": provenance(args, spec, gains, methods, duration)})
+    write_summary(out / "summary.json", spec.name, summaries, setup.duration, setup.warnings,
+                  extra={"input_limits": input_limits_summary(spec, lay),
+                         "path_feasibility": setup.feasibility.to_dict(),
+                         "provenance": provenance(args, spec, setup.gains, setup.methods, setup.duration)})
     if not args.no_plots:
-        lay = crane.layout
         input_labels = [f"{name} [{unit}]" for name, unit in zip(lay.inputs, lay.input_units, strict=True)]
-        write_figures(out, {m: r.run for m, r in results.items()}, crane.scenario,
+        write_figures(out, {m: r.run for m, r in results.items()}, setup.crane.scenario,
                       {m: s for m, s in summaries.items() if m in results},
-                      input_labels, lay.servo_constraints, input_limits=spec.input_limits()[:2], paper=paper)
+                      input_labels, lay.servo_constraints, input_limits=spec.input_limits()[:2],
+                      paper=is_paper_crane(spec))
     folder.publish()
-    # Printed once the results are in place: a table on screen always has its files.
+
+
+def _reported(args: argparse.Namespace, setup: _Setup, results: dict, summaries: dict) -> int:
+    """The run on screen, printed once the results are in place (a table on screen always has its files), and the
+    exit status: 3 when a method diverged (its results up to there are written)."""
+    import numpy as np
+
+    from ..report.report import format_table
+
+    spec, sensing = setup.crane.spec, setup.sensing
     engine = plant_provenance(args, spec)
-    plant_text = (f"plant RK4 h = {step * 1e3:g} ms" if engine["engine"] == "own" else
+    plant_text = (f"plant RK4 h = {spec.simulation.step * 1e3:g} ms" if engine["engine"] == "own" else
                   f"plant MuJoCo {engine['mujoco_version']} RK4 h = {engine['step_s'] * 1e3:g} ms")
-    print(f"spec {spec.name}: {duration:g} s at {rate:g} Hz, {plant_text}; "
-          f"start tensions {np.array2string(start.inputs, precision=4)}")
+    print(f"spec {spec.name}: {setup.duration:g} s at {spec.controller.rate_hz:g} Hz, {plant_text}; "
+          f"start tensions {np.array2string(setup.start.inputs, precision=4)}")
     if args.plant_params:
         print("plant differs from the model: " + ", ".join(f"{k}={v:g}" for k, v in args.plant_params.items()))
     if sensing is not None:
         print("controller measures (docs/sensing.md): " + "; ".join(
             f"{g.name} noise {g.noise:g}" + (f" step {g.quantization:g}" if g.quantization else "")
             for g in sensing.groups) + f"; delay {sensing.delay_periods} period(s), seed {sensing.seed}")
-    print(format_table(summaries, paper=paper))
+    print(format_table(summaries, paper=is_paper_crane(spec)))
     if engine["engine"] == "mujoco":
         print("step times with --plant mujoco are of a cold cache (MuJoCo's steps run between two control steps): "
               "time the controllers on the own plant or with `acroboter bench` (docs/mujoco.md)")
-    for w in warnings:
+    for w in setup.warnings:
         print(f"warning: {w}")
     print(f"results in {args.out}/")
     if args.view:
         from ..report.viewer import replay
 
-        replay(crane.model, path, results)
-    saturated = [m for m, s in summaries.items() if s.get("saturated")]
-    if feasibility.feasible is False or saturated:
-        if feasibility.feasible is False:
-            reason = feasibility.message.removeprefix("not feasible with these limits: ")
-        elif feasibility.feasible is None:
-            reason = f"the check before the run could not decide ({feasibility.message})"
-        else:
-            reason = "the check before the run found the ideal motion feasible, but the closed loop needed more"
-        held = f"; saturated: {', '.join(saturated)}" if saturated else ""
-        print(f"the path was not feasible with these limits: {reason}{held}")
+        replay(setup.crane.model, setup.path, results)
+    _say_feasibility(setup.feasibility, [m for m, s in summaries.items() if s.get("saturated")])
     diverged = [m for m, r in results.items() if r.diverged_at is not None]
-    if diverged:  # the results up to there are written; the run did not do what was asked
-        for m in diverged:
-            print(f"error: {m} diverged at t = {results[m].diverged_at:.2f} s: {results[m].run.divergence}",
-                  file=sys.stderr)
-        return 3
-    return 0
+    for m in diverged:  # the results up to there are written; the run did not do what was asked
+        print(f"error: {m} diverged at t = {results[m].diverged_at:.2f} s: {results[m].run.divergence}",
+              file=sys.stderr)
+    return 3 if diverged else 0
+
+
+def _say_feasibility(feasibility, saturated: list[str]) -> None:
+    """One line when the path was not feasible within the limits, or a method saturated: why."""
+    if not (feasibility.feasible is False or saturated):
+        return
+    if feasibility.feasible is False:
+        reason = feasibility.message.removeprefix("not feasible with these limits: ")
+    elif feasibility.feasible is None:
+        reason = f"the check before the run could not decide ({feasibility.message})"
+    else:
+        reason = "the check before the run found the ideal motion feasible, but the closed loop needed more"
+    held = f"; saturated: {', '.join(saturated)}" if saturated else ""
+    print(f"the path was not feasible with these limits: {reason}{held}")
 
 
 def provenance(args: argparse.Namespace, spec, gains, methods: list[str], duration: float) -> dict:

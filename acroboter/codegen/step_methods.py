@@ -182,80 +182,100 @@ def penalty_step(graph: StepGraph, iterations: int, system: str) -> ca.MX:
     A q̈₁ = −c + f, A q̈_{i+1} = M q̈_i + f with A = M + α̃ φ_qᵀφ_q + α̂ σ_qᵀσ_q, f = −α̃ φ_qᵀρ − α̂ σ_qᵀρ_s;
     λ̂ = α̂ (σ_q Σq̈_i + N ρ_s) and λ = α̃ (φ_q Σq̈_i + N ρ) (eqs. 17-18 summed), as in controllers.Penalty.
     """
-    export, g, T = graph.export, graph.gains, graph.sx
-    n, k, l = graph.n, graph.k, graph.l
-    kind = g.recovery
+    k, l, kind = graph.k, graph.l, graph.gains.recovery
     if kind in ("eq15", "kappa") and k != l:
         raise ExportError(
             f"recovery '{kind}' needs as many servo-constraints as inputs (found {k} for {l}): "
             "use 'projected' or 'eq12'"
         )
-    phi_q, sigma_q, c = T["phi_q"], T["sigma_q"], T["bias_forces"]
-    mass_mx = ca.MX(graph.mass_dm)
     recovery = _recovery_prelude(graph)
+    mass_mx = ca.MX(graph.mass_dm)  # one constant node: the iterations' M q̈ and eq13's M q̈ share it
     if system == "matrix":
-        mass = ca.SX(graph.mass_dm)
-        a = mass + g.alpha_geometric * ca.mtimes(phi_q.T, phi_q) + g.alpha_servo * ca.mtimes(sigma_q.T, sigma_q)
-        force = -g.alpha_geometric * ca.mtimes(phi_q.T, graph.rho) - g.alpha_servo * ca.mtimes(sigma_q.T, graph.rho_s)
-        pre = {"a": a, "force": force, "rhs": force - c, "sigma_q": sigma_q, "rho_s": graph.rho_s}
-        if kind == "eq13":
-            pre.update({"bias_forces": c, "phi_q": phi_q, "rho": graph.rho})
-        P = graph.prelude(pre | recovery)
-        # CasADi's MX linsol node factors A at every solve: the iterations refactor the same matrix
-        # (identical numbers, so the same result as factoring once; only the cost differs).
-        x = ca.solve(P["a"], P["rhs"], LINSOL_SPD)
-        total = x
-        for _ in range(iterations - 1):
-            x = ca.solve(P["a"], ca.mtimes(mass_mx, x) + P["force"], LINSOL_SPD)
-            total = total + x
-        export.linear_solvers.append(
-            f"'{LINSOL_SPD}' (sparse LDL^T) on the {n}x{n} penalty matrix A, {iterations} solve(s)"
-        )
-        lam_hat = graph.mx_gain("alpha_servo") * (ca.mtimes(P["sigma_q"], total) + iterations * P["rho_s"])
-        if kind == "eq13":
-            lam = graph.mx_gain("alpha_geometric") * (ca.mtimes(P["phi_q"], total) + iterations * P["rho"])
+        P, lam, lam_hat, x = _penalty_matrix_form(graph, iterations, recovery, mass_mx)
     else:
-        # Multiplier form. With J = [φ_q; σ_q], D = diag(α̃ I, α̂ I), ρ_J = [ρ; ρ_s]: A = M + JᵀDJ, and
-        # A q̈_{i+1} = M q̈_i − JᵀDρ_J is M q̈_{i+1} = M q̈_i − JᵀΔΛ_{i+1} with ΔΛ_{i+1} = D(J q̈_{i+1} + ρ_J)
-        # the increment of [λ; λ̂] (eqs. 17-18). Eliminating q̈_{i+1}: K ΔΛ_{i+1} = J q̈_i + ρ_J with
-        # K = D⁻¹ + J M⁻¹ Jᵀ, where J q̈₀ + ρ_J = ρ_J − J M⁻¹c and, by the definition of ΔΛ_i, J q̈_i + ρ_J
-        # = D⁻¹ΔΛ_i for i ≥ 1. The same iterates as the matrix form (Woodbury's identity), but the
-        # multipliers are solved for directly instead of as α times a residual of size 1/α.
-        m = graph.m
-        jac = ca.vertcat(phi_q, sigma_q)
-        minv = ca.SX(graph.inv_mass_dm)
-        minv_jt = ca.mtimes(minv, jac.T)
-        if export.parametric:  # D⁻¹ from the run-time gains
-            inv_sx = ca.vertcat(*([1.0 / g.alpha_geometric] * m + [1.0 / g.alpha_servo] * k))
-            matrix = ca.diag(inv_sx) + ca.mtimes(jac, minv_jt)
-        else:
-            inv_penalty = np.array([1.0 / g.alpha_geometric] * m + [1.0 / g.alpha_servo] * k)
-            matrix = ca.SX(constant(np.diag(inv_penalty))) + ca.mtimes(jac, minv_jt)
-        qdd0 = -ca.mtimes(minv, c)
-        pre = {"k": matrix, "rhs": ca.vertcat(graph.rho, graph.rho_s) + ca.mtimes(jac, qdd0)}
-        if export.parametric:
-            pre["inv_penalty"] = inv_sx
-        if kind == "eq13":
-            pre.update({"minv_jt": minv_jt, "qdd0": qdd0, "bias_forces": c, "phi_q": phi_q})
-        elif graph.wants_qdd:
-            pre.update({"minv_jt": minv_jt, "qdd0": qdd0})
-        P = graph.prelude(pre | recovery)
-        step = ca.solve(P["k"], P["rhs"], LINSOL_SPD)
-        multipliers = step
-        for _ in range(iterations - 1):
-            step = ca.solve(P["k"], (P["inv_penalty"] if export.parametric else ca.DM(inv_penalty)) * step, LINSOL_SPD)
-            multipliers = multipliers + step
-        if kind == "eq13" or graph.wants_qdd:
-            x = P["qdd0"] - ca.mtimes(P["minv_jt"], multipliers)  # q̈_N
-        size = m + k
-        export.linear_solvers.append(
-            f"'{LINSOL_SPD}' (sparse LDL^T) on the {size}x{size} multiplier matrix D^-1 + J M^-1 J^T, "
-            f"{iterations} solve(s)"
-        )
-        lam, lam_hat = multipliers[:m], multipliers[m:]
+        P, lam, lam_hat, x = _penalty_multiplier_form(graph, iterations, recovery)
     if graph.wants_qdd:
         graph.qdd = x  # q̈_N, the acceleration the method commands (controllers.Penalty.qdd)
-    bounds = graph.bounds
+    return _recovered_input(graph, P, lam, lam_hat, x, mass_mx)
+
+
+def _penalty_matrix_form(graph: StepGraph, iterations: int, recovery: dict, mass_mx: ca.MX) -> tuple:
+    """(P, λ, λ̂, q̈_N) of the n x n penalty matrix A = M + α̃ φ_qᵀφ_q + α̂ σ_qᵀσ_q, `iterations` solves."""
+    export, g, T, n = graph.export, graph.gains, graph.sx, graph.n
+    kind, lam = g.recovery, None
+    phi_q, sigma_q, c = T["phi_q"], T["sigma_q"], T["bias_forces"]
+    mass = ca.SX(graph.mass_dm)
+    a = mass + g.alpha_geometric * ca.mtimes(phi_q.T, phi_q) + g.alpha_servo * ca.mtimes(sigma_q.T, sigma_q)
+    force = -g.alpha_geometric * ca.mtimes(phi_q.T, graph.rho) - g.alpha_servo * ca.mtimes(sigma_q.T, graph.rho_s)
+    pre = {"a": a, "force": force, "rhs": force - c, "sigma_q": sigma_q, "rho_s": graph.rho_s}
+    if kind == "eq13":
+        pre.update({"bias_forces": c, "phi_q": phi_q, "rho": graph.rho})
+    P = graph.prelude(pre | recovery)
+    # CasADi's MX linsol node factors A at every solve: the iterations refactor the same matrix
+    # (identical numbers, so the same result as factoring once; only the cost differs).
+    x = ca.solve(P["a"], P["rhs"], LINSOL_SPD)
+    total = x
+    for _ in range(iterations - 1):
+        x = ca.solve(P["a"], ca.mtimes(mass_mx, x) + P["force"], LINSOL_SPD)
+        total = total + x
+    export.linear_solvers.append(
+        f"'{LINSOL_SPD}' (sparse LDL^T) on the {n}x{n} penalty matrix A, {iterations} solve(s)"
+    )
+    lam_hat = graph.mx_gain("alpha_servo") * (ca.mtimes(P["sigma_q"], total) + iterations * P["rho_s"])
+    if kind == "eq13":
+        lam = graph.mx_gain("alpha_geometric") * (ca.mtimes(P["phi_q"], total) + iterations * P["rho"])
+    return P, lam, lam_hat, x
+
+
+def _penalty_multiplier_form(graph: StepGraph, iterations: int, recovery: dict) -> tuple:
+    """(P, λ, λ̂, q̈_N or None) of the (m+k) x (m+k) multiplier matrix K = D⁻¹ + J M⁻¹ Jᵀ.
+
+    With J = [φ_q; σ_q], D = diag(α̃ I, α̂ I), ρ_J = [ρ; ρ_s]: A = M + JᵀDJ, and A q̈_{i+1} = M q̈_i − JᵀDρ_J is
+    M q̈_{i+1} = M q̈_i − JᵀΔΛ_{i+1} with ΔΛ_{i+1} = D(J q̈_{i+1} + ρ_J) the increment of [λ; λ̂] (eqs. 17-18).
+    Eliminating q̈_{i+1}: K ΔΛ_{i+1} = J q̈_i + ρ_J, where J q̈₀ + ρ_J = ρ_J − J M⁻¹c and, by the definition of
+    ΔΛ_i, J q̈_i + ρ_J = D⁻¹ΔΛ_i for i ≥ 1. The same iterates as the matrix form (Woodbury's identity), but the
+    multipliers are solved for directly instead of as α times a residual of size 1/α.
+    """
+    export, g, T = graph.export, graph.gains, graph.sx
+    m, k, kind, x = graph.m, graph.k, g.recovery, None
+    phi_q, sigma_q, c = T["phi_q"], T["sigma_q"], T["bias_forces"]
+    jac = ca.vertcat(phi_q, sigma_q)
+    minv = ca.SX(graph.inv_mass_dm)
+    minv_jt = ca.mtimes(minv, jac.T)
+    if export.parametric:  # D⁻¹ from the run-time gains
+        inv_sx = ca.vertcat(*([1.0 / g.alpha_geometric] * m + [1.0 / g.alpha_servo] * k))
+        matrix = ca.diag(inv_sx) + ca.mtimes(jac, minv_jt)
+    else:
+        inv_penalty = np.array([1.0 / g.alpha_geometric] * m + [1.0 / g.alpha_servo] * k)
+        matrix = ca.SX(constant(np.diag(inv_penalty))) + ca.mtimes(jac, minv_jt)
+    qdd0 = -ca.mtimes(minv, c)
+    pre = {"k": matrix, "rhs": ca.vertcat(graph.rho, graph.rho_s) + ca.mtimes(jac, qdd0)}
+    if export.parametric:
+        pre["inv_penalty"] = inv_sx
+    if kind == "eq13":
+        pre.update({"minv_jt": minv_jt, "qdd0": qdd0, "bias_forces": c, "phi_q": phi_q})
+    elif graph.wants_qdd:
+        pre.update({"minv_jt": minv_jt, "qdd0": qdd0})
+    P = graph.prelude(pre | recovery)
+    step = ca.solve(P["k"], P["rhs"], LINSOL_SPD)
+    multipliers = step
+    for _ in range(iterations - 1):
+        step = ca.solve(P["k"], (P["inv_penalty"] if export.parametric else ca.DM(inv_penalty)) * step, LINSOL_SPD)
+        multipliers = multipliers + step
+    if kind == "eq13" or graph.wants_qdd:
+        x = P["qdd0"] - ca.mtimes(P["minv_jt"], multipliers)  # q̈_N
+    size = m + k
+    export.linear_solvers.append(
+        f"'{LINSOL_SPD}' (sparse LDL^T) on the {size}x{size} multiplier matrix D^-1 + J M^-1 J^T, "
+        f"{iterations} solve(s)"
+    )
+    return P, multipliers[:m], multipliers[m:], x
+
+
+def _recovered_input(graph: StepGraph, P: dict, lam, lam_hat, x, mass_mx: ca.MX) -> ca.MX:
+    """u from the multipliers by the spec's recovery, within the limits."""
+    export, g, k, l = graph.export, graph.gains, graph.k, graph.l
+    kind, bounds = g.recovery, graph.bounds
     if kind == "projected" and l > k:
         # More inputs than servo-constraints: as controllers.Penalty, always the distribution of the fit
         # ½uᵀGu + gᵀu, G = HᵀPH, g = servo_map λ̂ (codegen.solver_terms.penalty_bounded_terms), lexicographic in

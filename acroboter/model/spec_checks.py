@@ -47,9 +47,21 @@ def listing(names) -> str:
 
 
 def check_references(spec: Spec) -> list[tuple[str, str]]:
-    problems: list[tuple[str, str]] = []
+    """Every problem across the spec's tables, in the spec's order: names, cables, actuators, the task, the path and
+    the timing, the controller, the sensing."""
+    refs = _References(spec)
+    problems = _duplicate_names(spec)
+    problems += refs.cable_problems()
+    problems += refs.actuator_problems()
+    problems += refs.task_problems()
+    problems += _path_and_timing_problems(spec)
+    problems += _controller_problems(spec)
+    return problems
 
-    # Names: bodies and anchors share one namespace (a cable end names either).
+
+def _duplicate_names(spec: Spec) -> list[tuple[str, str]]:
+    """Names used twice. Bodies and anchors share one namespace (a cable end names either)."""
+    problems: list[tuple[str, str]] = []
     for kind, named in (
         ("body or anchor", [(f"bodies[{i}].name", b.name) for i, b in enumerate(spec.bodies)]
          + [(f"anchors[{i}].name", a.name) for i, a in enumerate(spec.anchors)]),
@@ -64,110 +76,147 @@ def check_references(spec: Spec) -> list[tuple[str, str]]:
                 )
             else:
                 first[name] = path
+    return problems
 
-    bodies: dict[str, Body] = {}
-    for b in spec.bodies:
-        bodies.setdefault(b.name, b)  # with duplicates, the first definition counts
-    anchors = [a.name for a in spec.anchors]
-    cables = {}
-    for c in spec.cables:
-        cables.setdefault(c.name, c)
 
-    def body_ok(path: str, name: str) -> bool:
-        if name not in bodies:
-            problems.append((path, f"expected a defined body ({listing(bodies)}), found '{name}'"))
+class _References:
+    """The names a spec defines (with duplicates, the first definition counts), and the checks of the names that
+    refer to them; each check appends to `problems` and says whether the name was found."""
+
+    def __init__(self, spec: Spec):
+        self.spec = spec
+        self.problems: list[tuple[str, str]] = []
+        self.bodies: dict[str, Body] = {}
+        for b in spec.bodies:
+            self.bodies.setdefault(b.name, b)
+        self.anchors = [a.name for a in spec.anchors]
+        self.cables = {}
+        for c in spec.cables:
+            self.cables.setdefault(c.name, c)
+
+    def _taken(self) -> list[tuple[str, str]]:
+        problems, self.problems = self.problems, []
+        return problems
+
+    def body_ok(self, path: str, name: str) -> bool:
+        if name not in self.bodies:
+            self.problems.append((path, f"expected a defined body ({listing(self.bodies)}), found '{name}'"))
             return False
         return True
 
-    def end_ok(path: str, end: str) -> bool:
+    def end_ok(self, path: str, end: str) -> bool:
         if "." in end:
             body_name, point_name = end.split(".", 1)
-            if not body_ok(path, body_name):
+            if not self.body_ok(path, body_name):
                 return False
-            if point_name not in bodies[body_name].points:
-                known = listing(bodies[body_name].points)
-                problems.append(
+            if point_name not in self.bodies[body_name].points:
+                known = listing(self.bodies[body_name].points)
+                self.problems.append(
                     (path, f"expected a point of body '{body_name}' (defined: {known}), found '{point_name}'")
                 )
                 return False
             return True
-        if end not in anchors:
-            problems.append(
-                (path, f"expected a defined anchor ({listing(anchors)}) or 'body.point', found '{end}'")
+        if end not in self.anchors:
+            self.problems.append(
+                (path, f"expected a defined anchor ({listing(self.anchors)}) or 'body.point', found '{end}'")
             )
             return False
         return True
 
-    for i, cable in enumerate(spec.cables):
-        base = f"cables[{i}] ({cable.name})"
-        if (cable.length is None) == (cable.winch is None):
-            problems.append(
-                (base, "expected exactly one of 'length' (fixed cable) or 'winch' (length is a coordinate), "
-                 f"found {'both' if cable.length is not None else 'neither'}")
-            )
-        if not all([end_ok(f"{base}.ends[{k}]", e) for k, e in enumerate(cable.ends)]):
-            continue
+    def cable_problems(self) -> list[tuple[str, str]]:
+        """Each cable: a length or a winch, ends that exist, on two different owners, apart at the start."""
+        spec = self.spec
+        for i, cable in enumerate(spec.cables):
+            base = f"cables[{i}] ({cable.name})"
+            if (cable.length is None) == (cable.winch is None):
+                self.problems.append(
+                    (base, "expected exactly one of 'length' (fixed cable) or 'winch' (length is a coordinate), "
+                     f"found {'both' if cable.length is not None else 'neither'}")
+                )
+            if all([self.end_ok(f"{base}.ends[{k}]", e) for k, e in enumerate(cable.ends)]):
+                self._cable_ends(spec, base, cable)
+        return self._taken()
+
+    def _cable_ends(self, spec: Spec, base: str, cable) -> None:
         owners = [e.split(".", 1)[0] if "." in e else None for e in cable.ends]
         if owners == [None, None]:
-            problems.append((f"{base}.ends", f"expected a cable that connects a body, found two anchors {cable.ends}"))
+            self.problems.append((f"{base}.ends",
+                                  f"expected a cable that connects a body, found two anchors {cable.ends}"))
         elif owners[0] == owners[1]:
-            problems.append(
+            self.problems.append(
                 (f"{base}.ends", f"expected a cable between two different bodies (or an anchor and a body), "
                  f"found both ends on body '{owners[0]}': {cable.ends}")
             )
         elif cable.winch is not None:
             length0 = float(np.linalg.norm(_end_position(spec, cable.ends[0]) - _end_position(spec, cable.ends[1])))
             if length0 < 1e-9:
-                problems.append(
+                self.problems.append(
                     (f"{base}.ends", f"expected a positive initial cable length, found {length0:.3g} m: "
                      f"{cable.ends[0]} and {cable.ends[1]} coincide in the initial configuration")
                 )
 
-    driven: dict[str, str] = {}
-    for i, act in enumerate(spec.actuators):
-        base = f"actuators[{i}] ({act.name})"
-        if isinstance(act, WinchTension):
-            winches = [c.name for c in spec.cables if c.winch is not None]
-            if act.cable not in cables:
-                problems.append(
-                    (f"{base}.cable", f"expected a cable with a winch ({listing(winches)}), "
-                     f"found '{act.cable}', which is not a defined cable")
-                )
-            elif cables[act.cable].winch is None:
-                problems.append(
-                    (f"{base}.cable", f"expected a cable with a winch ({listing(winches)}), "
-                     f"found '{act.cable}', a fixed-length cable without a winch")
-                )
+    def actuator_problems(self) -> list[tuple[str, str]]:
+        """Each actuator: what it drives exists (a winch's cable, once), its preferred value within its limits, a
+        winch's limits never pushing."""
+        spec = self.spec
+        driven: dict[str, str] = {}
+        winches = [c.name for c in spec.cables if c.winch is not None]
+        for i, act in enumerate(spec.actuators):
+            base = f"actuators[{i}] ({act.name})"
+            if not isinstance(act, WinchTension):
+                self.body_ok(f"{base}.body", act.body)
+                continue
+            if act.cable not in self.cables:
+                found = "which is not a defined cable"
+            elif self.cables[act.cable].winch is None:
+                found = "a fixed-length cable without a winch"
             elif act.cable in driven:
-                problems.append(
+                self.problems.append(
                     (f"{base}.cable", f"expected one winch_tension actuator per cable, found cable '{act.cable}' "
                      f"already driven by {driven[act.cable]}")
                 )
+                continue
             else:
                 driven[act.cable] = base
-        else:
-            body_ok(f"{base}.body", act.body)
+                continue
+            self.problems.append((f"{base}.cable", f"expected a cable with a winch ({listing(winches)}), "
+                                                   f"found '{act.cable}', {found}"))
+        for i, act in enumerate(spec.actuators):
+            self.problems += _limit_problems(i, act)
+        return self._taken()
 
-    for i, act in enumerate(spec.actuators):
-        low, high = act.resolved_limits()
-        if act.preferred is not None and not low <= act.preferred <= high:
-            problems.append((f"actuators[{i}] ({act.name}).preferred",
-                             f"expected a value within the limits [{low:g}, {high:g}], found {act.preferred:g}"))
-        if isinstance(act, WinchTension) and (low < 0 if act.gain > 0 else high > 0):
-            side = "min >= 0" if act.gain > 0 else "max <= 0 (the gain is negative)"
-            problems.append((f"actuators[{i}] ({act.name}).limits",
-                             f"expected limits that never make the cable push (a winch only pulls: {side}), "
-                             f"found [{low:g}, {high:g}] with gain {act.gain:g}"))
+    def task_problems(self) -> list[tuple[str, str]]:
+        """The task's bodies exist; exactly one position task (the point the path moves)."""
+        for i, task in enumerate(self.spec.task):
+            self.body_ok(f"task[{i}] ({task.kind}).body", task.body)
+        positions = [t for t in self.spec.task if isinstance(t, PositionTask)]
+        if len(positions) != 1:
+            given = ", ".join(t.kind for t in self.spec.task)
+            self.problems.append(
+                ("task", "expected exactly one servo-constraint of kind 'position' (the point the path moves), "
+                 f"found {len(positions)} (kinds given: {given})")
+            )
+        return self._taken()
 
-    for i, task in enumerate(spec.task):
-        body_ok(f"task[{i}] ({task.kind}).body", task.body)
-    positions = [t for t in spec.task if isinstance(t, PositionTask)]
-    if len(positions) != 1:
-        given = ", ".join(t.kind for t in spec.task)
-        problems.append(
-            ("task", "expected exactly one servo-constraint of kind 'position' (the point the path moves), "
-             f"found {len(positions)} (kinds given: {given})")
-        )
+
+def _limit_problems(i: int, act) -> list[tuple[str, str]]:
+    problems = []
+    low, high = act.resolved_limits()
+    if act.preferred is not None and not low <= act.preferred <= high:
+        problems.append((f"actuators[{i}] ({act.name}).preferred",
+                         f"expected a value within the limits [{low:g}, {high:g}], found {act.preferred:g}"))
+    if isinstance(act, WinchTension) and (low < 0 if act.gain > 0 else high > 0):
+        side = "min >= 0" if act.gain > 0 else "max <= 0 (the gain is negative)"
+        problems.append((f"actuators[{i}] ({act.name}).limits",
+                         f"expected limits that never make the cable push (a winch only pulls: {side}), "
+                         f"found [{low:g}, {high:g}] with gain {act.gain:g}"))
+    return problems
+
+
+def _path_and_timing_problems(spec: Spec) -> list[tuple[str, str]]:
+    """A path that moves, a plant step that divides the control period, a path of 1 to MAX_CONTROL_STEPS steps, a
+    gravity within 1000 m/s², the moving anchors' axes."""
+    problems: list[tuple[str, str]] = []
     waypoints = np.array(spec.path.waypoints, dtype=float)
     if not (np.linalg.norm(np.diff(waypoints, axis=0), axis=1) > 0).any():
         problems.append(
@@ -183,15 +232,15 @@ def check_references(spec: Spec) -> list[tuple[str, str]]:
         problems.append(("simulation.step", f"expected at most {MAX_PLANT_SUBSTEPS} plant steps per control period, "
                                             f"found {substeps} ({spec.simulation.step:g} s in {period:g} s)"))
     problems += _stiffness_problems(spec)
-    lengths = np.linalg.norm(np.diff(waypoints, axis=0), axis=1)
-    steps = lengths.sum() / spec.path.mean_speed * spec.controller.rate_hz
-    if lengths.sum() > 0 and not steps >= 1:
+    length = float(np.linalg.norm(np.diff(waypoints, axis=0), axis=1).sum())
+    steps = length / spec.path.mean_speed * spec.controller.rate_hz
+    if length > 0 and not steps >= 1:
         problems.append(("path.mean_speed", f"expected a path of at least one control step, found "
-                                            f"{lengths.sum():g} m at {spec.path.mean_speed:g} m/s: "
+                                            f"{length:g} m at {spec.path.mean_speed:g} m/s: "
                                             f"{steps:.3g} steps at {spec.controller.rate_hz:g} Hz; lower mean_speed"))
     if steps > MAX_CONTROL_STEPS:
         problems.append(("path", f"expected a path of at most {MAX_CONTROL_STEPS} control steps, found "
-                                 f"{lengths.sum():g} m at {spec.path.mean_speed:g} m/s and "
+                                 f"{length:g} m at {spec.path.mean_speed:g} m/s and "
                                  f"{spec.controller.rate_hz:g} Hz = {steps:.3g} steps: raise mean_speed or lower "
                                  "rate_hz"))
     if np.linalg.norm(spec.gravity) > 1e3:
@@ -199,17 +248,25 @@ def check_references(spec: Spec) -> list[tuple[str, str]]:
     for i, anchor in enumerate(spec.anchors):
         if len(set(anchor.follows_path)) != len(anchor.follows_path):
             problems.append((f"anchors[{i}].follows_path", f"expected each axis once, found {anchor.follows_path}"))
+    return problems
+
+
+def _controller_problems(spec: Spec) -> list[tuple[str, str]]:
+    """The servo law stable sampled at the rate, ki within Routh–Hurwitz, the saturation priority, the sensing (its
+    delay shorter than the path)."""
     c = spec.controller
-    problems += sampled_gain_problems(c.kp, c.kd, c.rate_hz)
+    problems = list(sampled_gain_problems(c.kp, c.kd, c.rate_hz))
     if (problem := integral_gain_problem(c.kp, c.kd, c.ki)) is not None:
         problems.append(("controller.ki", problem))
     if (problem := priority_problem(spec, c.underactuation.priority)) is not None:
         problems.append(("controller.underactuation.priority", problem))
     if spec.sensing is not None:
         problems += sensing_problems(spec, spec.sensing)
-        duration = lengths.sum() / spec.path.mean_speed
-        if lengths.sum() > 0 and (problem := delay_problem(spec.sensing.delay_periods, c.rate_hz, duration,
-                                                           what="path")) is not None:
+        waypoints = np.array(spec.path.waypoints, dtype=float)
+        length = float(np.linalg.norm(np.diff(waypoints, axis=0), axis=1).sum())
+        duration = length / spec.path.mean_speed
+        if length > 0 and (problem := delay_problem(spec.sensing.delay_periods, c.rate_hz, duration,
+                                                    what="path")) is not None:
             problems.append(("sensing.delay_periods", problem))
     return problems
 
