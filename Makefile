@@ -52,7 +52,7 @@ run: $(RUN_STAMP)
 	@echo "the command line: $(CURDIR)/$(VENV)/bin/acroboter (or: source $(VENV)/bin/activate; acroboter --help)"
 
 test: $(STAMP) build
-	$(PY) -m ruff check acroboter tests setup.py
+	$(PY) -m ruff check acroboter tests tools setup.py
 	$(PY) -m pytest -q -n auto --dist loadfile
 
 bench: build

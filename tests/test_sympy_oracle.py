@@ -85,41 +85,86 @@ class Oracle:
 
 
 def derive(spec: Spec) -> Oracle:
-    lay = build_layout(spec)
-    n, ns = lay.n, lay.n_signals
-    q = sp.symbols(f"q0:{n}", real=True)
-    qd = sp.symbols(f"qd0:{n}", real=True)
-    qdd = sp.symbols(f"qdd0:{n}", real=True)
-    s = sp.symbols(f"s0:{ns}", real=True)
-    sd = sp.symbols(f"sd0:{ns}", real=True)
-    sdd = sp.symbols(f"sdd0:{ns}", real=True)
-    qv, qdv = sp.Matrix(q), sp.Matrix(qd)
+    """docs/model.md's terms of `spec`, derived here with SymPy, section by section."""
+    sym = _Symbols(spec)
+    T, U, D = _energies(spec, sym)
+    q, qd, qdv = sym.q, sym.qd, sym.qdv
+    dT_dqd = _jac(sp.Matrix([T]), qd).T
+    M = _jac(dT_dqd, qd)
+    c = _jac(dT_dqd, q) * qdv - _jac(sp.Matrix([T]), q).T + _jac(sp.Matrix([U]), q).T + _jac(sp.Matrix([D]), qd).T
+    dissipated_power = (_jac(sp.Matrix([D]), qd) * qdv)[0, 0]
+    phi = _geometric_constraints(spec, sym)
+    phi_q, phi_dot, gamma = sym.time_derivatives(phi)
+    sigma = _servo_constraints(spec, sym)
+    sigma_q, sigma_dot, gamma_s = sym.time_derivatives(sigma)
+    H = _input_matrix(spec, sym)
+    exprs = {
+        "mass_matrix": M, "bias_forces": c, "phi": phi, "phi_q": phi_q, "phi_dot": phi_dot, "gamma": gamma,
+        "sigma": sigma, "sigma_q": sigma_q, "sigma_dot": sigma_dot, "gamma_s": gamma_s, "input_matrix": H,
+        "kinetic": sp.Matrix([T]), "potential": sp.Matrix([U]), "dissipated_power": sp.Matrix([dissipated_power]),
+    }
+    names = tuple(exprs)
+    args = [list(q), list(qd), list(sym.s), list(sym.sd), list(sym.sdd)]
+    fn = sp.lambdify(args, [exprs[k] for k in names], "numpy", cse=True)
+    return Oracle(spec, sym.lay, exprs, fn, names, {"q": q, "qd": qd, "s": sym.s, "sd": sym.sd, "sdd": sym.sdd})
 
-    def q_body(name: str, vec=qv) -> sp.Matrix:
-        i = lay.body_offset[name]
-        return vec[i : i + 12, 0]
 
-    def axis(name: str, a: str, vec=qv) -> sp.Matrix:
-        i = lay.body_offset[name] + 3 + 3 * AXIS[a]
-        return vec[i : i + 3, 0]
+class _Symbols:
+    """The oracle's symbols: q, q̇, q̈ and the path signals s, ṡ, s̈, with the body blocks and points of q."""
 
-    def world_point(end: str) -> sp.Matrix:
+    def __init__(self, spec: Spec):
+        self.spec = spec
+        self.lay = lay = build_layout(spec)
+        n, ns = lay.n, lay.n_signals
+        self.q = sp.symbols(f"q0:{n}", real=True)
+        self.qd = sp.symbols(f"qd0:{n}", real=True)
+        self.qdd = sp.symbols(f"qdd0:{n}", real=True)
+        self.s = sp.symbols(f"s0:{ns}", real=True)
+        self.sd = sp.symbols(f"sd0:{ns}", real=True)
+        self.sdd = sp.symbols(f"sdd0:{ns}", real=True)
+        self.qv, self.qdv = sp.Matrix(self.q), sp.Matrix(self.qd)
+
+    def q_body(self, name: str, vec=None) -> sp.Matrix:
+        i = self.lay.body_offset[name]
+        return (self.qv if vec is None else vec)[i : i + 12, 0]
+
+    def axis(self, name: str, a: str, vec=None) -> sp.Matrix:
+        i = self.lay.body_offset[name] + 3 + 3 * AXIS[a]
+        return (self.qv if vec is None else vec)[i : i + 3, 0]
+
+    def world_point(self, end: str) -> sp.Matrix:
         if "." in end:
             body_name, point_name = end.split(".", 1)
-            return _kron_point(spec.body(body_name).point(point_name)) * q_body(body_name)
-        if end in lay.anchor_signal:
-            j = lay.anchor_signal[end]
-            return sp.Matrix(s[j : j + 3])
-        return sp.Matrix([sp.Float(x) for x in spec.anchor(end).position])
+            return _kron_point(self.spec.body(body_name).point(point_name)) * self.q_body(body_name)
+        if end in self.lay.anchor_signal:
+            j = self.lay.anchor_signal[end]
+            return sp.Matrix(self.s[j : j + 3])
+        return sp.Matrix([sp.Float(x) for x in self.spec.anchor(end).position])
 
-    # --- §2 energies -----------------------------------------------------------------------------
+    def time_derivatives(self, expr: sp.Matrix):
+        """(J, ė, γ) by the chain rule (time enters only through s(t)), with ë = J q̈ + γ checked."""
+        q, qd, qdd, s, sd, sdd = self.q, self.qd, self.qdd, self.s, self.sd, self.sdd
+        jq = _jac(expr, q)
+        expr_dot = jq * self.qdv + _jac(expr, s) * sp.Matrix(sd)
+        expr_ddot = (
+            _jac(expr_dot, q) * self.qdv + _jac(expr_dot, qd) * sp.Matrix(qdd)
+            + _jac(expr_dot, s) * sp.Matrix(sd) + _jac(expr_dot, sd) * sp.Matrix(sdd)
+        )
+        # expr_ddot = J qdd + gamma: the qdd part must be J itself, gamma is the rest.
+        assert (_jac(expr_ddot, qdd) - jq).expand() == sp.zeros(*jq.shape)
+        gamma = expr_ddot.subs({x: 0 for x in qdd})
+        return jq, expr_dot, gamma
+
+
+def _energies(spec: Spec, sym: _Symbols):
+    """§2: the kinetic energy (bodies, winch drums), the potential, the Rayleigh dissipation."""
     g = sp.Matrix([sp.Float(x) for x in spec.gravity])
     T, U, D = sp.Integer(0), sp.Integer(0), sp.Integer(0)
     for body in spec.bodies:
         i_g = sp.Matrix([[sp.Float(x) for x in row] for row in body.inertia])
         j_mat = sp.Rational(1, 2) * i_g.trace() * sp.eye(3) - i_g
-        r, r_dot = q_body(body.name)[0:3, 0], q_body(body.name, qdv)[0:3, 0]
-        e_dot = [axis(body.name, a, qdv) for a in "uvw"]
+        r, r_dot = sym.q_body(body.name)[0:3, 0], sym.q_body(body.name, sym.qdv)[0:3, 0]
+        e_dot = [sym.axis(body.name, a, sym.qdv) for a in "uvw"]
         m = sp.Float(body.mass)
         T += sp.Rational(1, 2) * m * _dot(r_dot, r_dot)
         T += sp.Rational(1, 2) * sum(j_mat[a, b] * _dot(e_dot[a], e_dot[b]) for a in range(3) for b in range(3))
@@ -128,85 +173,64 @@ def derive(spec: Spec) -> Oracle:
         D += sp.Rational(1, 2) * c_t * _dot(r_dot, r_dot) + sp.Rational(1, 4) * c_r * sum(_dot(e, e) for e in e_dot)
     for cable in spec.cables:
         if cable.winch is not None:
-            T += sp.Rational(1, 2) * sp.Float(cable.winch.reflected_inertia) * qd[lay.winch_index[cable.name]] ** 2
+            speed = sym.qd[sym.lay.winch_index[cable.name]]
+            T += sp.Rational(1, 2) * sp.Float(cable.winch.reflected_inertia) * speed**2
+    return T, U, D
 
-    dT_dqd = _jac(sp.Matrix([T]), qd).T
-    M = _jac(dT_dqd, qd)
-    c = _jac(dT_dqd, q) * qdv - _jac(sp.Matrix([T]), q).T + _jac(sp.Matrix([U]), q).T + _jac(sp.Matrix([D]), qd).T
-    dissipated_power = (_jac(sp.Matrix([D]), qd) * qdv)[0, 0]
 
-    # --- time derivatives by the chain rule (time enters only through s(t)) ----------------------
-    def time_derivatives(expr: sp.Matrix):
-        jq = _jac(expr, q)
-        expr_dot = jq * qdv + _jac(expr, s) * sp.Matrix(sd)
-        expr_ddot = (
-            _jac(expr_dot, q) * qdv + _jac(expr_dot, qd) * sp.Matrix(qdd)
-            + _jac(expr_dot, s) * sp.Matrix(sd) + _jac(expr_dot, sd) * sp.Matrix(sdd)
-        )
-        # expr_ddot = J qdd + gamma: the qdd part must be J itself, gamma is the rest.
-        assert (_jac(expr_ddot, qdd) - jq).expand() == sp.zeros(*jq.shape)
-        gamma = expr_ddot.subs({x: 0 for x in qdd})
-        return jq, expr_dot, gamma
-
-    # --- §3 geometric constraints ----------------------------------------------------------------
+def _geometric_constraints(spec: Spec, sym: _Symbols) -> sp.Matrix:
+    """§3: each body's axes orthonormal (w = u × v where asked), each cable |d|² − L²."""
     phi_rows = []
     for body in spec.bodies:
-        u, v, w = (axis(body.name, a) for a in "uvw")
+        u, v, w = (sym.axis(body.name, a) for a in "uvw")
         phi_rows += [_dot(u, u) - 1, _dot(v, v) - 1, _dot(w, w) - 1, _dot(u, v), _dot(v, w), _dot(w, u)]
         if body.redundant_constraints:
             phi_rows += list(w - u.cross(v))
     for cable in spec.cables:
-        d = world_point(cable.ends[0]) - world_point(cable.ends[1])
-        length = q[lay.winch_index[cable.name]] if cable.winch is not None else sp.Float(cable.length)
+        d = sym.world_point(cable.ends[0]) - sym.world_point(cable.ends[1])
+        length = sym.q[sym.lay.winch_index[cable.name]] if cable.winch is not None else sp.Float(cable.length)
         phi_rows.append(_dot(d, d) - length**2)
-    phi = sp.Matrix(phi_rows)
-    phi_q, phi_dot, gamma = time_derivatives(phi)
+    return sp.Matrix(phi_rows)
 
-    # --- §5 servo-constraints ---------------------------------------------------------------------
-    p = lay.path_signal
+
+def _servo_constraints(spec: Spec, sym: _Symbols) -> sp.Matrix:
+    """§5: the task's rows."""
+    p, s = sym.lay.path_signal, sym.s
     sigma_rows = []
     for task in spec.task:
         if isinstance(task, PositionTask):
-            sigma_rows += list(_kron_point(task.point) * q_body(task.body) - sp.Matrix(s[p : p + 3]))
+            sigma_rows += list(_kron_point(task.point) * sym.q_body(task.body) - sp.Matrix(s[p : p + 3]))
         elif isinstance(task, YawTask):
-            a = axis(task.body, task.axis)
+            a = sym.axis(task.body, task.axis)
             psi = s[p + 3] + (sp.pi / 2 if task.axis == "v" else 0)
             sigma_rows.append(-sp.sin(psi) * a[0] + sp.cos(psi) * a[1])
         elif isinstance(task, LevelTask):
-            a = axis(task.body, task.axis)
+            a = sym.axis(task.body, task.axis)
             sigma_rows += [a[0], a[1]]
         else:  # pragma: no cover - a new task kind needs an oracle row
             raise AssertionError(f"oracle does not know task {task}")
-    sigma = sp.Matrix(sigma_rows)
-    sigma_q, sigma_dot, gamma_s = time_derivatives(sigma)
+    return sp.Matrix(sigma_rows)
 
-    # --- §4 input matrix H(q) --------------------------------------------------------------------
-    columns = []
+
+def _input_matrix(spec: Spec, sym: _Symbols) -> sp.Matrix:
+    """§4: H(q), a column per actuator."""
+    lay, columns = sym.lay, []
     for act in spec.actuators:
-        col = sp.zeros(n, 1)
+        col = sp.zeros(lay.n, 1)
         if isinstance(act, WinchTension):
             col[lay.winch_index[act.cable], 0] = -1
         elif isinstance(act, BodyTorque):
             i = lay.body_offset[act.body]
-            a = axis(act.body, act.axis)
-            for k, e in enumerate(axis(act.body, b) for b in "uvw"):
+            a = sym.axis(act.body, act.axis)
+            for k, e in enumerate(sym.axis(act.body, b) for b in "uvw"):
                 col[i + 3 + 3 * k : i + 6 + 3 * k, 0] = sp.Rational(1, 2) * a.cross(e)
         elif isinstance(act, BodyThrust):
             i = lay.body_offset[act.body]
-            col[i : i + 12, 0] = _kron_point(act.point).T * axis(act.body, act.axis)
+            col[i : i + 12, 0] = _kron_point(act.point).T * sym.axis(act.body, act.axis)
         else:  # pragma: no cover
             raise AssertionError(f"oracle does not know actuator {act}")
         columns.append(sp.nsimplify(act.gain) * col)
-    H = sp.Matrix.hstack(*columns)
-
-    exprs = {
-        "mass_matrix": M, "bias_forces": c, "phi": phi, "phi_q": phi_q, "phi_dot": phi_dot, "gamma": gamma,
-        "sigma": sigma, "sigma_q": sigma_q, "sigma_dot": sigma_dot, "gamma_s": gamma_s, "input_matrix": H,
-        "kinetic": sp.Matrix([T]), "potential": sp.Matrix([U]), "dissipated_power": sp.Matrix([dissipated_power]),
-    }
-    names = tuple(exprs)
-    fn = sp.lambdify([list(q), list(qd), list(s), list(sd), list(sdd)], [exprs[k] for k in names], "numpy", cse=True)
-    return Oracle(spec, lay, exprs, fn, names, {"q": q, "qd": qd, "s": s, "sd": sd, "sdd": sdd})
+    return sp.Matrix.hstack(*columns)
 
 
 # ------------------------------------------------------------------------------------------------

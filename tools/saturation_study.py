@@ -82,7 +82,6 @@ def main(argv=None) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     from acroboter.studies.saturation import SCENARIOS, run_scenario
 
@@ -102,7 +101,18 @@ def main(argv=None) -> int:
                   f"rms {m.rms_position_error_mm:7.3f} mm tilt {m.max_tilt_deg:.3f} deg on limits "
                   f"{m.time_on_limits_s:6.2f} s ({m.limit_episodes} episodes) beyond {m.worst_beyond_limits:.1e} "
                   f"wall {m.wall_s:.1f} s", file=sys.stderr)
-    with open(args.out / "results.csv", "w", newline="") as f:
+    meta = write_results(args.out, rows, scenarios, plans, unlimited)
+    write_figure(args.out / "errors.png", scenarios, runs, rows, methods, meta)
+    print(f"wrote {args.out}/results.csv, results.json, errors.png", file=sys.stderr)
+    return 0
+
+
+def write_results(out: Path, rows: list[dict], scenarios, plans: dict, unlimited: list) -> dict:
+    """results.csv and results.json (with the machine and versions), the tables printed; the JSON's content."""
+    import casadi
+    import scipy
+
+    with open(out / "results.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows([{**r, "divergence": (r["divergence"] or "")[:80],
@@ -118,14 +128,17 @@ def main(argv=None) -> int:
     print()
     for u in unlimited:
         print(unlimited_row(u))
-    import casadi
-    import scipy
-
     meta = {"date": datetime.date.today().isoformat(), "machine": platform.node(), "cpu": cpu_name(),
             "python": platform.python_version(), "numpy": np.__version__, "scipy": scipy.__version__,
             "casadi": casadi.__version__, "rows": rows, "plans": list(plans.values()),
             "unlimited": unlimited}
-    (args.out / "results.json").write_text(json.dumps(meta, indent=1) + "\n")
+    (out / "results.json").write_text(json.dumps(meta, indent=1) + "\n")
+    return meta
+
+
+def write_figure(path: Path, scenarios, runs: dict, rows: list[dict], methods: list[str], meta: dict) -> None:
+    """Per scenario the position error and the largest winch tension over time, QP against underactuation."""
+    import matplotlib.pyplot as plt
 
     shown = [m for m in ("mlm", "penalty") if m in methods] or methods[:1]
     cols = min(3, len(scenarios))
@@ -162,9 +175,7 @@ def main(argv=None) -> int:
     fig.suptitle(f"QP (solid) against underactuation (dashed); a planned path's end dash-dotted; {meta['date']}, "
                  f"{meta['machine']}", fontsize=10)
     fig.tight_layout()
-    fig.savefig(args.out / "errors.png", dpi=110)
-    print(f"wrote {args.out}/results.csv, results.json, errors.png", file=sys.stderr)
-    return 0
+    fig.savefig(path, dpi=110)
 
 
 if __name__ == "__main__":

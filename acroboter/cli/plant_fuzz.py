@@ -16,9 +16,10 @@ from ..model.ranges import FUZZ_CASES, FUZZ_SEED, FUZZ_TIMESTEP, WORKERS
 from ..model.spec import load_spec
 from ..process.extras import require
 from ..process.locations import example_names, example_spec
+from ..report.plant_fuzz_report import report
 from ..sim.simulation import check_mujoco_timestep
 from ..studies.grid import open_client, run_cases, write_rows
-from ..studies.plant_differential import COLUMNS, MUJOCO_TIMESTEP, crane_of, report, run_case
+from ..studies.plant_differential import COLUMNS, MUJOCO_TIMESTEP, crane_of, run_case
 from .entry import EXIT_BAD_INPUT, guarded, progress_disabled, ranged
 from .outputs import ResultsFolder, out_path, results_folder
 

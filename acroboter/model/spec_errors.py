@@ -110,39 +110,49 @@ def _describe(e: dict, parts: list, data: Any) -> tuple[list, str]:
         if kind == "union_tag_not_found" or not isinstance(value, dict) or field not in value:
             return [*parts, field], f"expected this required field ({expected}), found it missing"
         return [*parts, field], f"expected {expected}, found {_found(value[field])}"
+    return parts, _value_problem(kind, e, ctx, value)
+
+
+_TYPE_WORDS = {"string_type": "a string", "bool_type": "true or false", "list_type": "an array", "dict_type": "a table",
+               "model_type": "a table", "model_attributes_type": "a table"}
+_BOUND_WORDS = {"greater_than": ("greater than", "gt"), "greater_than_equal": ("at least", "ge"),
+                "less_than": ("less than", "lt"), "less_than_equal": ("at most", "le")}
+
+
+def _value_problem(kind: str, e: dict, ctx: dict, value: Any) -> str:
+    """'expected …, found …' for an error in a value (its type, range, form or length)."""
     if kind == "literal_error":
-        return parts, f"expected one of {ctx['expected']}, found {_found(value)}"
+        return f"expected one of {ctx['expected']}, found {_found(value)}"
     if kind in ("float_type", "float_parsing", "int_type", "int_parsing", "int_from_float"):
         what = "an integer" if kind.startswith("int") else "a number"
-        return parts, f"expected {what}, found {_found(value)}"
-    if kind == "number_range":  # a Range's own words (acroboter.model.ranges): expected 0 < kp <= 1e4 (1/s), found …
-        return parts, e["msg"]
+        return f"expected {what}, found {_found(value)}"
+    if kind in ("number_range", "value_error", "wrong_length", "point_form"):
+        return _own_words(kind, e, ctx, value)
     if kind == "finite_number":
-        return parts, f"expected a finite number, found {_found(value)}"
-    if kind in ("greater_than", "greater_than_equal", "less_than", "less_than_equal"):
-        bound = {"greater_than": ("greater than", "gt"), "greater_than_equal": ("at least", "ge"),
-                 "less_than": ("less than", "lt"), "less_than_equal": ("at most", "le")}[kind]
-        return parts, f"expected a number {bound[0]} {ctx[bound[1]]}, found {value!r}"
-    if kind in ("string_type", "bool_type", "list_type", "dict_type", "model_type", "model_attributes_type"):
-        what = {"string_type": "a string", "bool_type": "true or false", "list_type": "an array",
-                "dict_type": "a table", "model_type": "a table", "model_attributes_type": "a table"}[kind]
-        return parts, f"expected {what}, found {_found(value)}"
+        return f"expected a finite number, found {_found(value)}"
+    if kind in _BOUND_WORDS:
+        words, key = _BOUND_WORDS[kind]
+        return f"expected a number {words} {ctx[key]}, found {value!r}"
+    if kind in _TYPE_WORDS:
+        return f"expected {_TYPE_WORDS[kind]}, found {_found(value)}"
     if kind == "string_pattern_mismatch" and ctx.get("pattern") == NAME_PATTERN:
-        return parts, ("expected a name of letters, digits and '_' that does not start with a digit, "
-                       f"found {_found(value)}")
+        return f"expected a name of letters, digits and '_' that does not start with a digit, found {_found(value)}"
     if kind == "string_too_long":
-        return parts, f"expected at most {ctx['max_length']} characters, found {len(value)}: {_found(value)}"
+        return f"expected at most {ctx['max_length']} characters, found {len(value)}: {_found(value)}"
     if kind in ("too_short", "too_long"):
         limit = f"at least {ctx['min_length']}" if kind == "too_short" else f"at most {ctx['max_length']}"
-        return parts, f"expected {limit} item(s), found {ctx.get('actual_length', len(value))}: {_found(value)}"
-    if kind == "wrong_length":  # our message already says what was expected and how many were found
-        return parts, f"{e['msg']}: {_found(value)}"
-    if kind == "point_form":
-        return parts, f"{e['msg']}, found {_found(value)}"
-    if kind == "value_error":
-        return parts, str(ctx.get("error", e["msg"]))
+        return f"expected {limit} item(s), found {ctx.get('actual_length', len(value))}: {_found(value)}"
     msg = e["msg"]
-    return parts, f"expected {msg[0].lower() + msg[1:]}, found {_found(value)}"
+    return f"expected {msg[0].lower() + msg[1:]}, found {_found(value)}"
+
+
+def _own_words(kind: str, e: dict, ctx: dict, value: Any) -> str:
+    """The errors the schema's own validators raise, whose message already says what was expected."""
+    if kind == "number_range":  # a Range's own words (acroboter.model.ranges): expected 0 < kp <= 1e4 (1/s), found …
+        return e["msg"]
+    if kind == "value_error":
+        return str(ctx.get("error", e["msg"]))
+    return f"{e['msg']}: {_found(value)}" if kind == "wrong_length" else f"{e['msg']}, found {_found(value)}"
 
 
 def format_pydantic(err: ValidationError, data: Any) -> list[tuple[str, str]]:

@@ -83,33 +83,9 @@ def sweep_figures(out: Path, rows: list[dict], alpha_mode: str = "tied", toleran
         fig, axes = plt.subplots(nrow, ncol, figsize=(3.3 * ncol + 0.9, 2.6 * nrow + 1.0), sharex=True,
                                  sharey="row", squeeze=False, layout="constrained")
         for qi, (key, ylabel) in enumerate(quantities):
-            cond = key == "cond_penalty_matrix"
             for mi, method in enumerate(methods):
                 ax = axes[qi, mi]
-                failed_x = []
-                for si, (sel, color, label, style) in enumerate(series(method)):
-                    xs = np.array([r[xk] for r in sel])
-                    ys = np.array([value(r, key) for r in sel])
-                    lw = max(1.8 - 0.5 * si, 0.8)
-                    ax.loglog(xs, ys, style, color=color, marker="o", ms=4 - si * 0.8, lw=lw, label=label)
-                    if cond:  # cond(A) at the start state for the runs that did not finish
-                        bad = [r for r in sel if not ok(r)]
-                        ax.loglog([r[xk] for r in bad], [value(r, key, True) for r in bad], "o", mfc="none",
-                                  color=color, ms=5)
-                    failed_x += [r[xk] for r in sel if not ok(r)]
-                if cond:
-                    ax.axhline(1 / np.finfo(float).eps, color="gray", lw=1, ls="--", label="1/eps")
-                elif ref is not None and ok(ref):
-                    v = value(ref, key)
-                    if np.isfinite(v):
-                        ax.axhline(v, color="crimson", lw=1.2, label="MLM")
-                        if key == "max_position_error_mm":
-                            ax.axhline(tolerance * v, color="crimson", lw=0.8, ls=":",
-                                       label=f"{tolerance:g}x MLM")
-                if failed_x:
-                    ax.plot(failed_x, [0.03] * len(failed_x), "x", color="red", ms=7, mew=2,
-                            transform=ax.get_xaxis_transform(), label="diverged / error", clip_on=False)
-                ax.grid(True, which="major", alpha=0.3)
+                _sweep_panel(ax, list(series(method)), key, xk, value, ref, tolerance)
                 if key == "max_constraint_violation" and mi == ncol - 1:
                     # the plant holds |φ| at round-off: show it against a few decades, not its jitter
                     lo, hi = ax.get_ylim()
@@ -120,18 +96,54 @@ def sweep_figures(out: Path, rows: list[dict], alpha_mode: str = "tied", toleran
                     ax.set_xlabel(x_label(alpha_mode))
                 if mi == 0:
                     ax.set_ylabel(ylabel, fontsize=9)
-        seen: dict[str, object] = {}  # one legend entry per label over all panels
-        for ax in axes.flat:
-            handles, labels = ax.get_legend_handles_labels()
-            for handle, label in zip(handles, labels, strict=True):
-                seen.setdefault(label, handle)
         fig.suptitle(title.format(tolerance=tolerance), fontsize=10)
-        fig.legend(list(seen.values()), list(seen.keys()), loc="outside lower center", ncol=min(len(seen), 7),
-                   fontsize=8, frameon=False)
+        _one_legend(fig, axes)
         fig.savefig(out / name, dpi=110)
         plt.close(fig)
         written.append(out / name)
     return written
+
+
+def _sweep_panel(ax, series: list, key: str, xk: str, value, ref, tolerance: float) -> None:
+    """One method's curves of one quantity against α: a line per series, the runs that did not finish as red
+    crosses (and, for cond(A), at their start state), MLM's value (and the tolerance) as horizontal lines."""
+    import numpy as np
+
+    cond = key == "cond_penalty_matrix"
+    failed_x = []
+    for si, (sel, color, label, style) in enumerate(series):
+        xs = np.array([r[xk] for r in sel])
+        ys = np.array([value(r, key) for r in sel])
+        lw = max(1.8 - 0.5 * si, 0.8)
+        ax.loglog(xs, ys, style, color=color, marker="o", ms=4 - si * 0.8, lw=lw, label=label)
+        if cond:  # cond(A) at the start state for the runs that did not finish
+            bad = [r for r in sel if not ok(r)]
+            ax.loglog([r[xk] for r in bad], [value(r, key, True) for r in bad], "o", mfc="none",
+                      color=color, ms=5)
+        failed_x += [r[xk] for r in sel if not ok(r)]
+    if cond:
+        ax.axhline(1 / np.finfo(float).eps, color="gray", lw=1, ls="--", label="1/eps")
+    elif ref is not None and ok(ref):
+        v = value(ref, key)
+        if np.isfinite(v):
+            ax.axhline(v, color="crimson", lw=1.2, label="MLM")
+            if key == "max_position_error_mm":
+                ax.axhline(tolerance * v, color="crimson", lw=0.8, ls=":", label=f"{tolerance:g}x MLM")
+    if failed_x:
+        ax.plot(failed_x, [0.03] * len(failed_x), "x", color="red", ms=7, mew=2,
+                transform=ax.get_xaxis_transform(), label="diverged / error", clip_on=False)
+    ax.grid(True, which="major", alpha=0.3)
+
+
+def _one_legend(fig, axes) -> None:
+    """One legend entry per label over all panels, below them."""
+    seen: dict[str, object] = {}
+    for ax in axes.flat:
+        handles, labels = ax.get_legend_handles_labels()
+        for handle, label in zip(handles, labels, strict=True):
+            seen.setdefault(label, handle)
+    fig.legend(list(seen.values()), list(seen.keys()), loc="outside lower center", ncol=min(len(seen), 7),
+               fontsize=8, frameon=False)
 
 
 def position_error_figure(cases: list[dict], path: Path, title: str, with_spec: bool) -> None:
@@ -191,19 +203,26 @@ def robustness_figures(out: Path, rows: list[dict], bins: int = 10, worst: dict 
     """CDF of the max position error per method (left ki = 0, right with ki), the success rate at the
     paper's bounds against the tracked body's relative mass error (binned), and, given `worst` (method ->
     {ki: Result}), the worst sample's position and yaw errors over time."""
-    import numpy as np
-
-    from ..studies.robustness_grid import POSITION_BOUND_MM, SETTLE_S, YAW_BOUND_DEG
-
     plt = _pyplot()
     methods = list(dict.fromkeys(r["method"] for r in rows if r["method"] is not None))  # None: a crashed task
     kis = sorted({r["ki"] for r in rows if r["ki"] is not None})
     colors = {m: plt.cm.tab10(i % 10) for i, m in enumerate(methods)}
-    written = []
+    settled = any(r.get("max_position_error_settled_mm") is not None for r in rows)
+    written = [_robustness_cdf(out, rows, methods, kis, colors, settled),
+               _robustness_success(out, rows, methods, kis, colors, settled, bins)]
+    if worst:
+        written.append(_robustness_worst(out, worst, colors))
+    return written
 
+
+def _robustness_cdf(out: Path, rows: list[dict], methods: list, kis: list, colors: dict, settled: bool) -> Path:
+    """The CDF of the max position error per method, a column per ki (and a row from the settled time on)."""
+    import numpy as np
     from matplotlib.ticker import LogFormatterSciNotation, NullFormatter
 
-    settled = any(r.get("max_position_error_settled_mm") is not None for r in rows)
+    from ..studies.robustness_grid import POSITION_BOUND_MM, SETTLE_S
+
+    plt = _pyplot()
     panels = [("max_position_error_mm", "max position error over the run [mm]")]
     if settled:
         panels.append(("max_position_error_settled_mm", f"max position error from t = {SETTLE_S:g} s on [mm]"))
@@ -230,8 +249,17 @@ def robustness_figures(out: Path, rows: list[dict], bins: int = 10, worst: dict 
                  "finish off the right edge)", fontsize=10)
     fig.savefig(out / "robustness_cdf.png", dpi=110)
     plt.close(fig)
-    written.append(out / "robustness_cdf.png")
+    return out / "robustness_cdf.png"
 
+
+def _robustness_success(out: Path, rows: list[dict], methods: list, kis: list, colors: dict, settled: bool,
+                        bins: int) -> Path:
+    """The success rate at the paper's bounds against the tracked body's relative mass error, binned."""
+    import numpy as np
+
+    from ..studies.robustness_grid import POSITION_BOUND_MM, SETTLE_S, YAW_BOUND_DEG
+
+    plt = _pyplot()
     errs = np.array([r["tracked_mass_error"] for r in rows])
     edges = np.linspace(errs.min(), errs.max(), bins + 1) if len(rows) else np.array([0.0, 1.0])
     mids = 50 * (edges[:-1] + edges[1:])  # percent
@@ -260,28 +288,34 @@ def robustness_figures(out: Path, rows: list[dict], bins: int = 10, worst: dict 
                  "its mass barely matters)", fontsize=10)
     fig.savefig(out / "robustness_success.png", dpi=110)
     plt.close(fig)
-    written.append(out / "robustness_success.png")
+    return out / "robustness_success.png"
 
-    if worst:
-        fig, axes = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True, layout="constrained")
-        for m, by_ki in worst["results"].items():
-            for ki, res in by_ki.items():
-                style = {"color": colors.get(m, "k"), "ls": "-" if ki == 0 else "--", "lw": 1.0,
-                         "label": f"{m}, ki = {ki:g}"}
-                axes[0].semilogy(res.time, np.maximum(res.position_error_mm, 1e-6), **style)
-                if res.yaw_error_deg is not None:
-                    axes[1].plot(res.time, np.abs(res.yaw_error_deg), **style)
-        axes[0].axhline(POSITION_BOUND_MM, color="k", ls=":", lw=1)
-        axes[0].set_ylabel("|r_SU − r_d| [mm]")
-        axes[1].set_ylabel("|yaw error| [deg]")
-        axes[1].set_xlabel("t [s]")
-        for ax in axes:
-            ax.grid(alpha=0.3, which="both")
-        axes[0].legend(fontsize=7, ncol=2)
-        fig.suptitle(f"Worst sample ({worst['sample']}: SU mass {100 * worst['tracked_mass_error']:+.1f} %, "
-                     f"SU + CC {100 * worst['mass_error']:+.1f} %), re-run",
-                     fontsize=10)
-        fig.savefig(out / "robustness_worst.png", dpi=110)
-        plt.close(fig)
-        written.append(out / "robustness_worst.png")
-    return written
+
+def _robustness_worst(out: Path, worst: dict, colors: dict) -> Path:
+    """The worst sample's position and yaw errors over time, re-run: every method, with and without ki."""
+    import numpy as np
+
+    from ..studies.robustness_grid import POSITION_BOUND_MM
+
+    plt = _pyplot()
+    fig, axes = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True, layout="constrained")
+    for m, by_ki in worst["results"].items():
+        for ki, res in by_ki.items():
+            style = {"color": colors.get(m, "k"), "ls": "-" if ki == 0 else "--", "lw": 1.0,
+                     "label": f"{m}, ki = {ki:g}"}
+            axes[0].semilogy(res.time, np.maximum(res.position_error_mm, 1e-6), **style)
+            if res.yaw_error_deg is not None:
+                axes[1].plot(res.time, np.abs(res.yaw_error_deg), **style)
+    axes[0].axhline(POSITION_BOUND_MM, color="k", ls=":", lw=1)
+    axes[0].set_ylabel("|r_SU − r_d| [mm]")
+    axes[1].set_ylabel("|yaw error| [deg]")
+    axes[1].set_xlabel("t [s]")
+    for ax in axes:
+        ax.grid(alpha=0.3, which="both")
+    axes[0].legend(fontsize=7, ncol=2)
+    fig.suptitle(f"Worst sample ({worst['sample']}: SU mass {100 * worst['tracked_mass_error']:+.1f} %, "
+                 f"SU + CC {100 * worst['mass_error']:+.1f} %), re-run",
+                 fontsize=10)
+    fig.savefig(out / "robustness_worst.png", dpi=110)
+    plt.close(fig)
+    return out / "robustness_worst.png"

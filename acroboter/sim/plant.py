@@ -100,48 +100,15 @@ class Plant(CableEvents):
         self.n = lay.n
         self.ns = lay.n_signals
         self.state_size = 2 * self.n + 3
-        # Without parameters of its own the plant is the spec's crane: the folded step and the model's
-        # own terms, bit for bit the plant before parameters were an input (and ~20 % cheaper).
-        functions = model.manifest["functions"]
-        nominal = not self.parameters
-        step = "plant_step_folded" if nominal and "plant_step_folded" in functions else "plant_step"
-        terms, energy = ("model_terms", "energy") if nominal else ("plant_terms", "plant_energy")
-        names = [name for name, _ in functions[step]["inputs"]]
-        # A binding of its own: its outputs and its mask input are this plant's, not shared.
-        self._step = model.bind(step)
-        self._stage_input = names.index("stage_signals")
-        self._x, self._u = model.buffers["x"], model.buffers["u"]
-        self._settings = model.buffers["settings"]
-        self._stage = model.buffers["stage_signals"]
-        if "plant_params" in names:
-            self._step.point_input(names.index("plant_params"), self._params.ctypes.data)
-        # Its own bindings of the plant's terms and energy, reading this plant's parameters.
-        self._terms = model.bind(terms)
-        self._energy = model.bind(energy)
-        for fn, function in ((self._terms, terms), (self._energy, energy)):
-            inputs = [name for name, _ in functions[function]["inputs"]]
-            if "plant_params" in inputs:
-                fn.point_input(inputs.index("plant_params"), self._params.ctypes.data)
+        self._bind(model)
         self.cable_names = [c.name for c in model.spec.cables]
         nc = len(self.cable_names)
         self._active = np.ones(nc)
-        self._step.point_input(names.index("cable_active"), self._active.ctypes.data)
+        self._step.point_input(self._step_inputs.index("cable_active"), self._active.ctypes.data)
         out = self._step.outputs
         self._x_next, self._tension, self._gap, self._events = (
             out["x_next"], out["cable_tension"], out["cable_gap"], out["cable_events"])
-        rows = list(model.manifest["layout"]["independent_constraint_rows"])
-        self._rows = rows
-        self._cable_row = [lay.constraints.index(f"cable {name}") for name in self.cable_names]
-        self._modelled = [c for c in range(nc) if self._cable_row[c] in rows]
-        self._body_rows = [r for r in rows if r not in self._cable_row]
-        self._winch = [lay.winch_index.get(c.name) for c in model.spec.cables]
-        self._fixed_length = [c.length for c in self.physical_spec.cables]
-        physical = self.physical_spec
-        weight = sum(b.mass for b in physical.bodies) * float(np.linalg.norm(physical.gravity))
-        self.tension_tol = TENSION_TOL_REL * max(1.0, weight)
-        self.push_tol = PUSH_TOL_REL * max(1.0, weight)
-        self._weight = weight
-        self.gap_tol = GAP_TOL
+        self._cable_layout(model)
         self._stage_scratch = np.zeros(9 * self.ns)
         self._minv: np.ndarray | None = None
         self.max_events_per_step = 50 * nc + 50
@@ -160,6 +127,48 @@ class Plant(CableEvents):
         self._loop = self._compiled  # the loop in use: the compiled one, or None for Python's
         self._stage_at = self._stage.ctypes.data
         self._table, self._table_at = None, (0, 0, False)  # the last advance's table (held: its address stays valid)
+
+    def _bind(self, model) -> None:
+        """Its own bindings of the generated plant step, terms and energy, reading this plant's parameters."""
+        # Without parameters of its own the plant is the spec's crane: the folded step and the model's
+        # own terms, bit for bit the plant before parameters were an input (and ~20 % cheaper).
+        functions = model.manifest["functions"]
+        nominal = not self.parameters
+        step = "plant_step_folded" if nominal and "plant_step_folded" in functions else "plant_step"
+        terms, energy = ("model_terms", "energy") if nominal else ("plant_terms", "plant_energy")
+        names = self._step_inputs = [name for name, _ in functions[step]["inputs"]]
+        # A binding of its own: its outputs and its mask input are this plant's, not shared.
+        self._step = model.bind(step)
+        self._stage_input = names.index("stage_signals")
+        self._x, self._u = model.buffers["x"], model.buffers["u"]
+        self._settings = model.buffers["settings"]
+        self._stage = model.buffers["stage_signals"]
+        if "plant_params" in names:
+            self._step.point_input(names.index("plant_params"), self._params.ctypes.data)
+        # Its own bindings of the plant's terms and energy, reading this plant's parameters.
+        self._terms = model.bind(terms)
+        self._energy = model.bind(energy)
+        for fn, function in ((self._terms, terms), (self._energy, energy)):
+            inputs = [name for name, _ in functions[function]["inputs"]]
+            if "plant_params" in inputs:
+                fn.point_input(inputs.index("plant_params"), self._params.ctypes.data)
+
+    def _cable_layout(self, model) -> None:
+        """Which constraint row, winch and length each cable has, and the tolerances scaled by the crane's weight."""
+        lay, nc = model.layout, len(self.cable_names)
+        rows = list(model.manifest["layout"]["independent_constraint_rows"])
+        self._rows = rows
+        self._cable_row = [lay.constraints.index(f"cable {name}") for name in self.cable_names]
+        self._modelled = [c for c in range(nc) if self._cable_row[c] in rows]
+        self._body_rows = [r for r in rows if r not in self._cable_row]
+        self._winch = [lay.winch_index.get(c.name) for c in model.spec.cables]
+        self._fixed_length = [c.length for c in self.physical_spec.cables]
+        physical = self.physical_spec
+        weight = sum(b.mass for b in physical.bodies) * float(np.linalg.norm(physical.gravity))
+        self.tension_tol = TENSION_TOL_REL * max(1.0, weight)
+        self.push_tol = PUSH_TOL_REL * max(1.0, weight)
+        self._weight = weight
+        self.gap_tol = GAP_TOL
 
     def _compiled_loop(self, model):
         """(the C substep loop, its buffers) over this plant's bound step (acroboter.runtime.plant_loop), or

@@ -205,100 +205,123 @@ def run_experiment(experiment: Experiment, crane=None, mujoco_timestep: float = 
 
 
 def _compare(experiment: Experiment, crane, mujoco_timestep: float) -> Outcome:
-    from ..api.crane import Crane
-    from ..sim.mujoco_energy import ConstraintWork
-    from ..sim.mujoco_plant import DrumCapacityError, MujocoPlant
-    from ..sim.open_loop import held_path
-    from ..sim.plant import Plant
-
-    crane = crane or Crane.from_example(experiment.spec)
-    spec, lay = crane.spec, crane.layout
-    start = crane.equilibrium()
-    path = held_path(spec, lay, crane.path, experiment.duration)
-    own = Plant(crane.model, path, spec.simulation.baumgarte_zeta, spec.simulation.baumgarte_omega)
-    engine = MujocoPlant(crane.model, path, timestep=mujoco_timestep)
-    engine.release_limits()
-    engine.set_cable_dampratio(cable_dampratio(mujoco_timestep))
-    qd0 = consistent_velocity(own, start.q, experiment)
-    x, y = own.initial_state(start.q, qd0), engine.initial_state(start.q, qd0)
-    period, h = 1.0 / spec.controller.rate_hz, spec.simulation.step
-    substeps = round(period / h)
-    periods = int(round(experiment.duration / period))
-    static = dict(zip(lay.inputs, start.inputs, strict=True))
-    bodies = [lay.body_offset[b.name] for b in spec.bodies]
-    outcome = Outcome(experiment.spec, experiment.duration, "agrees", replay=experiment.replay_command(mujoco_timestep),
-                      mujoco_timestep=mujoco_timestep)
-    steps = periods * substeps
-    diff = np.zeros(steps)
-    own_gap, mj_gap = np.zeros((steps, len(own.cable_names))), np.zeros((steps, len(own.cable_names)))
-    mj_changes: list[float] = []
-    own_states = np.zeros((steps, 2 * own.n))  # the own plant's q, q̇ at the start of each plant step
-    inputs = np.zeros((periods, len(lay.inputs)))
+    """One experiment on both plants at `mujoco_timestep`: driven step by step (the own plant's invariants checked
+    at every step), then judged: positions, slack/taut states, the energy each impact takes."""
+    comparison = _Comparison(experiment, crane, mujoco_timestep)
+    outcome = comparison.outcome
     try:
-        for k in range(periods):
-            t = k * period
-            u = np.array([input_value(static[name], experiment.programs.get(name, []), t) for name in lay.inputs])
-            inputs[k] = u
-            table = own.stage_table(t, h, substeps)
-            for j in range(substeps):
-                i = k * substeps + j
-                own_states[i] = x[: 2 * own.n]
-                try:
-                    own.advance(x, u, h, table, j, 1)
-                except InvariantError:
-                    raise
-                except SimulationError as err:  # no consistent cable state: the own plant's failure
-                    raise InvariantError(str(err)) from None
-                before = engine.start_active.copy()
-                engine.advance(y, u, h, engine.stage_table(t + j * h, h, 1), 0, 1)
-                own_gap[i], mj_gap[i] = own.cable_gap, engine.cable_gap
-                if i and (engine.start_active != before).any():
-                    mj_changes.append(t + j * h)
-                slack = own.cable_active == 0.0
-                if slack.any():
-                    outcome.max_slack_stretch_m = max(outcome.max_slack_stretch_m, float(own.cable_gap[slack].max()))
-                outcome.max_energy_ratio = max(outcome.max_energy_ratio, abs(own.energy_residual) / own.energy_bound)
-                diff[i] = max(np.linalg.norm(x[b : b + 3] - y[b : b + 3]) for b in bodies)
-                if max(np.linalg.norm(x[b : b + 3] - start.q[b : b + 3]) for b in bodies) > STRAY_M:
-                    raise _Stray(f"a body is more than {STRAY_M} m from its start at t = {t + (j + 1) * h:.3f} s")
-                if own.cable_gap.min() < -STRAY_M:
-                    raise _Stray(f"cable {own.cable_names[int(np.argmin(own.cable_gap))]} is more than {STRAY_M} m "
-                                 f"slack at t = {t + (j + 1) * h:.3f} s")
+        steps = comparison.drive()
     except InvariantError as err:
         outcome.status = f"fails: invariant: {err}"
-        return _finish(outcome, own)
-    except (_Stray, DrumCapacityError) as err:  # the crane flew off, a drum ran out: compared up to there
-        outcome.left = str(err)
-        steps = i
+        return _finish(outcome, comparison.own)
     except SimulationError as err:  # MuJoCo failed otherwise (a non-finite state): no verdict is a failure
         outcome.status = f"fails: MuJoCo: {err}"
-        return _finish(outcome, own)
-    outcome.compared_s = steps * h
-    retension = [e.t for e in own.events if e.kind == "taut"] + mj_changes
-    times = h * np.arange(1, steps + 1)  # the end of each plant step
-    near = _near(times, retension, RETENSION_WINDOW_S)
-    outcome.max_position_diff_m = float(diff[:steps][~near].max()) if (~near).any() else 0.0
-    events = [e.t for e in own.events]
-    own_gap, mj_gap = own_gap[:steps], mj_gap[:steps]
-    differ = (((own_gap < -SLACK_GAP_M) & (mj_gap > -TAUT_GAP_M)) | ((mj_gap < -SLACK_GAP_M) & (own_gap > -TAUT_GAP_M)))
-    # after a re-tension MuJoCo's compliant impact may bounce (a violent snap of a light drum: ~1 mm for
-    # a few steps, even overdamped), so the states are compared from RETENSION_WINDOW_S after it on
-    settling = _near(times - 0.5 * RETENSION_WINDOW_S, retension, 0.5 * RETENSION_WINDOW_S)
-    mismatch = differ.any(axis=1) & ~_near(times, events, h) & ~settling
-    outcome.slack_mismatch_steps = int(mismatch.sum())
-    replay = MujocoPlant(crane.model, path, timestep=mujoco_timestep)  # each impact again, from the own state
-    replay.release_limits()
-    replay.set_cable_dampratio(cable_dampratio(mujoco_timestep))
-    ledger = ConstraintWork(replay)
-    for first, last in impact_windows(own.events, mj_changes, h, steps):
-        own_loss = impact_loss(own.events, first, last, h)
-        mj_loss = replayed_loss(replay, ledger, own_states, inputs, substeps, h, first, last)
-        outcome.impacts += 1
-        ratio = abs(mj_loss - own_loss) / max(IMPACT_ENERGY_REL * abs(own_loss), IMPACT_ENERGY_J)
-        if ratio >= outcome.max_impact_energy_ratio:
-            outcome.max_impact_energy_ratio = ratio
-            outcome.impact_loss_own_j, outcome.impact_loss_mujoco_j = own_loss, mj_loss
-    if outcome.status == "agrees":
+        return _finish(outcome, comparison.own)
+    comparison.judge(steps)
+    return _finish(outcome, comparison.own)
+
+
+class _Comparison:
+    """The own plant and MuJoCo from the same start under the same inputs, and what each step of each recorded."""
+
+    def __init__(self, experiment: Experiment, crane, mujoco_timestep: float):
+        from ..api.crane import Crane
+        from ..sim.mujoco_plant import MujocoPlant
+        from ..sim.open_loop import held_path
+        from ..sim.plant import Plant
+
+        self.experiment, self.mujoco_timestep = experiment, mujoco_timestep
+        self.crane = crane = crane or Crane.from_example(experiment.spec)
+        spec, lay = crane.spec, crane.layout
+        self.start = crane.equilibrium()
+        self.path = held_path(spec, lay, crane.path, experiment.duration)
+        self.own = Plant(crane.model, self.path, spec.simulation.baumgarte_zeta, spec.simulation.baumgarte_omega)
+        self.engine = MujocoPlant(crane.model, self.path, timestep=mujoco_timestep)
+        self.engine.release_limits()
+        self.engine.set_cable_dampratio(cable_dampratio(mujoco_timestep))
+        self.period, self.h = 1.0 / spec.controller.rate_hz, spec.simulation.step
+        self.substeps = round(self.period / self.h)
+        self.periods = int(round(experiment.duration / self.period))
+        self.bodies = [lay.body_offset[b.name] for b in spec.bodies]
+        self.outcome = Outcome(experiment.spec, experiment.duration, "agrees",
+                               replay=experiment.replay_command(mujoco_timestep), mujoco_timestep=mujoco_timestep)
+        steps, cables = self.periods * self.substeps, len(self.own.cable_names)
+        self.diff = np.zeros(steps)
+        self.own_gap, self.mj_gap = np.zeros((steps, cables)), np.zeros((steps, cables))
+        self.mj_changes: list[float] = []
+        self.own_states = np.zeros((steps, 2 * self.own.n))  # the own plant's q, q̇ at the start of each plant step
+        self.inputs = np.zeros((self.periods, len(lay.inputs)))
+
+    def drive(self) -> int:
+        """Both plants through the experiment's inputs, plant step by plant step: the steps compared (fewer where the
+        crane left sensible motion or a drum ran out: compared up to there). InvariantError: the own plant broke
+        one; SimulationError: MuJoCo failed."""
+        from ..sim.mujoco_plant import DrumCapacityError
+
+        own, lay, experiment = self.own, self.crane.layout, self.experiment
+        static = dict(zip(lay.inputs, self.start.inputs, strict=True))
+        qd0 = consistent_velocity(own, self.start.q, experiment)
+        x, y = own.initial_state(self.start.q, qd0), self.engine.initial_state(self.start.q, qd0)
+        i = 0
+        try:
+            for k in range(self.periods):
+                t = k * self.period
+                u = np.array([input_value(static[name], experiment.programs.get(name, []), t) for name in lay.inputs])
+                self.inputs[k] = u
+                table = own.stage_table(t, self.h, self.substeps)
+                for j in range(self.substeps):
+                    i = k * self.substeps + j
+                    self._step(i, x, y, u, table, j, t)
+        except (_Stray, DrumCapacityError) as err:  # the crane flew off, a drum ran out: compared up to there
+            self.outcome.left = str(err)
+            return i
+        return self.periods * self.substeps
+
+    def _step(self, i: int, x, y, u, table, j: int, t: float) -> None:
+        own, engine, outcome, h = self.own, self.engine, self.outcome, self.h
+        self.own_states[i] = x[: 2 * own.n]
+        try:
+            own.advance(x, u, h, table, j, 1)
+        except InvariantError:
+            raise
+        except SimulationError as err:  # no consistent cable state: the own plant's failure
+            raise InvariantError(str(err)) from None
+        before = engine.start_active.copy()
+        engine.advance(y, u, h, engine.stage_table(t + j * h, h, 1), 0, 1)
+        self.own_gap[i], self.mj_gap[i] = own.cable_gap, engine.cable_gap
+        if i and (engine.start_active != before).any():
+            self.mj_changes.append(t + j * h)
+        slack = own.cable_active == 0.0
+        if slack.any():
+            outcome.max_slack_stretch_m = max(outcome.max_slack_stretch_m, float(own.cable_gap[slack].max()))
+        outcome.max_energy_ratio = max(outcome.max_energy_ratio, abs(own.energy_residual) / own.energy_bound)
+        self.diff[i] = max(np.linalg.norm(x[b : b + 3] - y[b : b + 3]) for b in self.bodies)
+        if max(np.linalg.norm(x[b : b + 3] - self.start.q[b : b + 3]) for b in self.bodies) > STRAY_M:
+            raise _Stray(f"a body is more than {STRAY_M} m from its start at t = {t + (j + 1) * h:.3f} s")
+        if own.cable_gap.min() < -STRAY_M:
+            raise _Stray(f"cable {own.cable_names[int(np.argmin(own.cable_gap))]} is more than {STRAY_M} m "
+                         f"slack at t = {t + (j + 1) * h:.3f} s")
+
+    def judge(self, steps: int) -> None:
+        """The verdict on the first `steps` plant steps: positions away from re-tensions, slack/taut states away
+        from transitions, each impact's energy (MuJoCo replayed from the own state), within their bounds."""
+        outcome, own, h = self.outcome, self.own, self.h
+        outcome.compared_s = steps * h
+        retension = [e.t for e in own.events if e.kind == "taut"] + self.mj_changes
+        times = h * np.arange(1, steps + 1)  # the end of each plant step
+        near = _near(times, retension, RETENSION_WINDOW_S)
+        outcome.max_position_diff_m = float(self.diff[:steps][~near].max()) if (~near).any() else 0.0
+        own_gap, mj_gap = self.own_gap[:steps], self.mj_gap[:steps]
+        differ = (((own_gap < -SLACK_GAP_M) & (mj_gap > -TAUT_GAP_M))
+                  | ((mj_gap < -SLACK_GAP_M) & (own_gap > -TAUT_GAP_M)))
+        # after a re-tension MuJoCo's compliant impact may bounce (a violent snap of a light drum: ~1 mm for
+        # a few steps, even overdamped), so the states are compared from RETENSION_WINDOW_S after it on
+        settling = _near(times - 0.5 * RETENSION_WINDOW_S, retension, 0.5 * RETENSION_WINDOW_S)
+        mismatch = differ.any(axis=1) & ~_near(times, [e.t for e in own.events], h) & ~settling
+        outcome.slack_mismatch_steps = int(mismatch.sum())
+        self._judge_impacts(steps)
+        if outcome.status != "agrees":
+            return
         problems = []
         if outcome.max_position_diff_m > POSITION_BOUND_M:
             problems.append(f"positions differ by {outcome.max_position_diff_m * 1e6:.1f} µm")
@@ -311,7 +334,24 @@ def _compare(experiment: Experiment, crane, mujoco_timestep: float) -> Outcome:
                             f"t = {first:.3f} s)")
         if problems:
             outcome.status = "fails: " + "; ".join(problems)
-    return _finish(outcome, own)
+
+    def _judge_impacts(self, steps: int) -> None:
+        from ..sim.mujoco_energy import ConstraintWork
+        from ..sim.mujoco_plant import MujocoPlant
+
+        outcome, own, h = self.outcome, self.own, self.h
+        replay = MujocoPlant(self.crane.model, self.path, timestep=self.mujoco_timestep)  # each impact again
+        replay.release_limits()
+        replay.set_cable_dampratio(cable_dampratio(self.mujoco_timestep))
+        ledger = ConstraintWork(replay)
+        for first, last in impact_windows(own.events, self.mj_changes, h, steps):
+            own_loss = impact_loss(own.events, first, last, h)
+            mj_loss = replayed_loss(replay, ledger, self.own_states, self.inputs, self.substeps, h, first, last)
+            outcome.impacts += 1
+            ratio = abs(mj_loss - own_loss) / max(IMPACT_ENERGY_REL * abs(own_loss), IMPACT_ENERGY_J)
+            if ratio >= outcome.max_impact_energy_ratio:
+                outcome.max_impact_energy_ratio = ratio
+                outcome.impact_loss_own_j, outcome.impact_loss_mujoco_j = own_loss, mj_loss
 
 
 class _Stray(Exception):
@@ -433,68 +473,3 @@ COLUMNS = ["spec", "seed", "duration", "compared_s", "passed", "status", "mujoco
            "max_position_diff_m", "slack_mismatch_steps", "max_slack_stretch_m", "max_energy_ratio", "retensions",
            "transitions", "impacts", "max_impact_energy_ratio", "impact_loss_own_j", "impact_loss_mujoco_j", "left",
            "replay"]
-MEASURES = [("max_position_diff_m", "position difference (m)"), ("slack_mismatch_steps", "slack/taut mismatch (steps)"),
-            ("max_slack_stretch_m", "slack cable stretch (m)"), ("max_energy_ratio", "|energy residual| / bound"),
-            ("max_impact_energy_ratio", "impact energy difference / bound")]
-
-
-def report(rows: list[dict], wall_s: float, workers: int, mujoco_timestep: float) -> str:
-    """Markdown: the verdict, the figures per spec, the worst case of each measure with its replay."""
-    import datetime
-    import platform
-
-    failed = [r for r in rows if not r["passed"]]
-    confirming = " s, then ".join(f"{step:g}" for step in CONFIRM_TIMESTEPS) + " s"
-    damping = ", ".join(f"{cable_dampratio(step):.3g} at {step:g} s" for step in CONFIRM_TIMESTEPS)
-    only_at = {step: sum(bool(r["first_status"]) and r["passed"] and float(r["mujoco_timestep"]) == step for r in rows)
-               for step in CONFIRM_TIMESTEPS}
-    confirmed = ", ".join(f"{count} of them only with MuJoCo at {step:g} s" for step, count in only_at.items())
-    lines = [f"# Plant fuzzing: {len(rows)} open-loop experiments, own plant against MuJoCo", "",
-             f"{datetime.date.today().isoformat()}, {platform.node()} ({platform.machine()}, "
-             f"{platform.python_version()}), {workers} worker(s), {wall_s:.0f} s wall; MuJoCo step "
-             f"{mujoco_timestep:g} s (a disagreement confirmed at {confirming}), cable limits' damping "
-             f"ratio {cable_dampratio(mujoco_timestep):.3g} ({damping}). Bounds: positions "
-             f"{POSITION_BOUND_M * 1e6:g} µm outside "
-             f"±{RETENSION_WINDOW_S * 1e3:g} ms of re-tensions; no cable clearly slack (gap < "
-             f"−{SLACK_GAP_M * 1e6:g} µm) in one plant and clearly taut (gap > −{TAUT_GAP_M * 1e6:g} µm) in the "
-             f"other, outside ±1 plant step of the own plant's transitions and {RETENSION_WINDOW_S * 1e3:g} ms after "
-             "a re-tension; the kinetic energy each impact takes (the own plant's T⁺ − T⁻ against the work of "
-             f"MuJoCo's constraint forces from {IMPACT_BEFORE_S * 1e3:g} ms before to {RETENSION_WINDOW_S * 1e3:g} ms "
-             f"after it, MuJoCo restarted from the own plant's state {IMPACT_LEAD_S * 1e3:g} ms before; a cascade "
-             f"is one impact) within {IMPACT_ENERGY_REL:.0%} or {IMPACT_ENERGY_J:g} J; the own "
-             "plant's invariants (acroboter.sim.plant).", "",
-             f"**{len(rows) - len(failed)} of {len(rows)} agree** ({confirmed}); {len(failed)} fail.", "",
-             f"Coverage: {sum(r['compared_s'] for r in rows):.0f} s compared of "
-             f"{sum(r['duration'] for r in rows):.0f} s drawn; {sum(not r['left'] for r in rows)} cases compared "
-             "to their end, the others up to where they left "
-             f"sensible motion (a body {STRAY_M} m from its start or a cable {STRAY_M} m slack: "
-             f"{sum(bool(r['left']) for r in rows)}); {sum(r['retensions'] for r in rows)} re-tensions and "
-             f"{sum(r['transitions'] for r in rows)} slack/taut transitions of the own plant in all, in "
-             f"{sum(r['retensions'] > 0 for r in rows)} cases.", "",
-             "| spec | cases | failed | compared (s) | re-tensions | worst position difference (µm) "
-             "| worst energy ratio | impacts compared | worst impact energy difference / bound |",
-             "|---|---|---|---|---|---|---|---|---|"]
-    for spec in sorted({r["spec"] for r in rows}):
-        mine = [r for r in rows if r["spec"] == spec]
-        lines.append(f"| {spec} | {len(mine)} | {sum(not r['passed'] for r in mine)} | "
-                     f"{sum(r['compared_s'] for r in mine):.0f} | {sum(r['retensions'] for r in mine)} | "
-                     f"{max(r['max_position_diff_m'] for r in mine) * 1e6:.2f} | "
-                     f"{max(r['max_energy_ratio'] for r in mine):.2e} | {sum(r.get('impacts', 0) for r in mine)} | "
-                     f"{max(r.get('max_impact_energy_ratio', 0.0) for r in mine):.3g} |")
-    lines += ["", "## The worst case of each measure", ""]
-    for key, label in MEASURES:
-        if key not in rows[0]:
-            continue  # a CSV from before the measure
-        worst = max(rows, key=lambda r: r[key])
-        lines.append(f"- {label}: {worst[key]:.3g} ({worst['spec']}, seed {worst['seed']}, {worst['status']}): "
-                     f"`{worst['replay']}`")
-    if failed:
-        lines += ["", "## Failed cases", ""]
-        lines += [f"- {r['spec']} seed {r['seed']}: {r['status']}"
-                  + (f" (worst difference by MuJoCo step: {r['position_diff_by_step']})"
-                     if r.get("position_diff_by_step") else "") + f" — `{r['replay']}`" for r in failed[:50]]
-    needed = [r for r in rows if r.get("position_diff_by_step") and r["passed"]]
-    if needed:
-        lines += ["", "## Cases that agree only at a finer MuJoCo step (the worst body difference at each step)", ""]
-        lines += [f"- {r['spec']} seed {r['seed']}: {r['position_diff_by_step']}" for r in needed[:60]]
-    return "\n".join(lines) + "\n"

@@ -21,19 +21,27 @@ class MatplotlibFrames:
     path, colorbar) is drawn once and kept as a bitmap; per frame only the moving artists are drawn on it."""
 
     def __init__(self, scene: Scene, method: str, size: tuple[int, int]):
-        from matplotlib import colormaps
         from matplotlib.backends.backend_agg import FigureCanvasAgg
-        from matplotlib.cm import ScalarMappable
-        from matplotlib.colors import Normalize
         from matplotlib.figure import Figure
-        from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
         self.scene, self.size = scene, size
         width, height = size
         dpi = width / BASE_WIDTH_IN
         self.fig = fig = Figure(figsize=(BASE_WIDTH_IN, height / dpi), dpi=dpi)
         self.canvas = FigureCanvasAgg(fig)
-        ax = self.ax = fig.add_axes((-0.04, 0.03, 0.66, 0.93), projection="3d")
+        self.ax = self._crane_view()
+        self._tension_bar()
+        self.top = self._top_view()
+        self._moving_artists(method)
+        self.canvas.draw()
+        self.background = self.canvas.copy_from_bbox(fig.bbox)
+
+    def _crane_view(self):
+        """The 3-D axes at equal scale, with the static scene: the ceiling, the fixed anchors, the desired path."""
+        from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+        scene = self.scene
+        ax = self.fig.add_axes((-0.04, 0.03, 0.66, 0.93), projection="3d")
         lim = scene.limits
         ax.set_xlim(*lim[0])
         ax.set_ylim(*lim[1])
@@ -45,7 +53,6 @@ class MatplotlibFrames:
         ax.set_zlabel("z [m]", fontsize=7, labelpad=-4)
         ax.tick_params(labelsize=6, pad=-2)
         ax.computed_zorder = False
-
         (x0, x1), (y0, y1), z = lim[0], lim[1], scene.ceiling_z
         ax.add_collection3d(Poly3DCollection([[(x0, y0, z), (x1, y0, z), (x1, y1, z), (x0, y1, z)]],
                                              facecolor="0.6", edgecolor="0.4", alpha=0.18, linewidths=0.5))
@@ -55,29 +62,42 @@ class MatplotlibFrames:
             ax.plot(xyz[:, 0], xyz[:, 1], xyz[:, 2], "ks", ms=4, ls="none")
         d = scene.desired
         ax.plot(d[:, 0], d[:, 1], d[:, 2], color="0.35", lw=0.6, ls=":", label="desired path")
+        return ax
 
-        self.norm = Normalize(*scene.tension_range)
+    def _tension_bar(self) -> None:
+        from matplotlib import colormaps
+        from matplotlib.cm import ScalarMappable
+        from matplotlib.colors import Normalize
+
+        fig = self.fig
+        self.norm = Normalize(*self.scene.tension_range)
         self.cmap = colormaps[COLORMAP]
         bar = fig.colorbar(ScalarMappable(norm=self.norm, cmap=self.cmap), cax=fig.add_axes((0.64, 0.16, 0.32, 0.025)),
                            orientation="horizontal")
         bar.set_label("cable tension [N] (dashed grey: slack)", fontsize=7)
         bar.ax.tick_params(labelsize=6)
 
-        # The tracked point from above, zoomed on its path (the 3-D view shows the whole crane).
-        top = self.top = fig.add_axes((0.66, 0.36, 0.30, 0.50))
+    def _top_view(self):
+        """The tracked point from above, zoomed on its path (the 3-D view shows the whole crane)."""
+        scene = self.scene
+        top = self.fig.add_axes((0.66, 0.36, 0.30, 0.50))
         span = np.concatenate([scene.desired, scene.tracked])[:, :2]
         span = span[np.all(np.isfinite(span), axis=1)]
         centre, half = (span.min(0) + span.max(0)) / 2, max(float(np.ptp(span, axis=0).max()) * 0.6, 0.01)
         top.set_xlim(centre[0] - half, centre[0] + half)
         top.set_ylim(centre[1] - half, centre[1] + half)
         top.set_aspect("equal")
-        top.plot(d[:, 0], d[:, 1], color="0.35", lw=0.6, ls=":")
+        top.plot(scene.desired[:, 0], scene.desired[:, 1], color="0.35", lw=0.6, ls=":")
         top.set_title("tracked point, from above", fontsize=7)
         top.set_xlabel("x [m]", fontsize=6, labelpad=1)
         top.set_ylabel("y [m]", fontsize=6, labelpad=1)
         top.tick_params(labelsize=5)
         top.grid(alpha=0.3)
+        return top
 
+    def _moving_artists(self, method: str) -> None:
+        """The artists each frame redraws on the static bitmap, and the method's name."""
+        scene, ax, top, fig = self.scene, self.ax, self.top, self.fig
         line = lambda **kw: ax.plot([], [], [], animated=True, **kw)[0]  # noqa: E731
         self.trace = line(color=TRACE_COLOUR, lw=1.0)
         self.tracked = line(marker="o", ms=3, color=TRACE_COLOUR, ls="none")
@@ -94,8 +114,6 @@ class MatplotlibFrames:
                              color=AXIS_COLOURS[0], animated=True)
         self.moving_artists = [self.trace, self.tracked, self.moving, *self.cable_lines, *self.outlines.values(),
                                *(a for lines in self.axis_lines.values() for a in lines)]
-        self.canvas.draw()
-        self.background = self.canvas.copy_from_bbox(fig.bbox)
 
     def update(self, row: int) -> None:
         """Set every moving artist's data to the scene at `row` (no drawing)."""
