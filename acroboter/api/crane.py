@@ -454,6 +454,12 @@ class Controller:
         """z = ∫σ dt per servo-constraint, the integral action's state (zero while ki = 0)."""
         return self._inner.integral.copy()
 
+    @property
+    def qdd(self) -> np.ndarray:
+        """The accelerations q̈ the last step commanded (`coordinates` order): with the constraint and task
+        accelerations, how soft a penalty method's constraints are (|φ_q q̈ + ρ| = |λ|/α̃)."""
+        return np.array(self._inner.qdd, copy=True)
+
     def reset(self) -> None:
         """z = 0: before a new run (a step at an earlier time than the last one also resets it)."""
         self._inner.reset()

@@ -18,15 +18,12 @@ robustness_worst.png (the worst sample, re-run here).
 from __future__ import annotations
 
 import argparse
-import functools
 import hashlib
 import json
 import math
 import platform
 import sys
-import time
 from contextlib import nullcontext
-from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -39,17 +36,12 @@ from ..model.ranges import (
     SAMPLES,
     SEED,
     WORKERS_OR_NONE,
-    delay_problem,
 )
 from ..process.locations import example_spec
 from ..studies.grid import (
     MAX_RUNS,
     GridError,
-    open_client,
-    prepare,
     require_dask,
-    run_cases,
-    worker_count,
     write_rows,
 )
 from ..studies.robustness_grid import (
@@ -60,14 +52,11 @@ from ..studies.robustness_grid import (
     YAW_BOUND_DEG,
     columns,
     command,
-    crashed_rows,
     default_ranges,
-    draw_sample,
     group_range,
     parse_range,
-    recommended_ki,
-    run_sample,
 )
+from ..studies.robustness_study import RobustnessResult, rerun_worst, run_study
 from .entry import (
     EXIT_BAD_INPUT,
     carrying,
@@ -84,17 +73,6 @@ DEFAULT_SAMPLES, DEFAULT_SEED, DEFAULT_DURATION = 200, 12, 20.0
 MAX_SAMPLES = SAMPLES.high
 WHAT = "acroboter robustness"
 NO_DASK = "--workers 0 runs in this process without it"
-
-
-@dataclass
-class RobustnessResult:
-    rows: list[dict]
-    samples: list
-    wall_s: float
-    workers: int
-    ki: float
-    summary: dict = field(default_factory=dict)
-    files: list[Path] = field(default_factory=list)
 
 
 def parse_sensing(noise: list[tuple[str, float]], delay: int | None, seed: int | None) -> dict:
@@ -115,11 +93,9 @@ def robustness(spec_path: Path = DEFAULT_SPEC, *, samples: int = DEFAULT_SAMPLES
                scheduler: str | None = None, connect_timeout: float = 10.0, out: Path | None = None,
                plots: bool = True, progress: bool = False, sensing=None, command_line: list[str] | None = None,
                fast: bool = False) -> RobustnessResult:
-    """The whole study: draw the samples, run them (workers = 0: in this process), and (with `out`) write
-    the CSVs, summary.json and the figures. Raises GridError when it cannot run at all; ValueError for
-    bad numbers (samples < 1, a bad range)."""
-    from tqdm import tqdm
-
+    """The whole study: draw the samples, run them (workers = 0: in this process; acroboter.studies.robustness_study),
+    and (with `out`) write the CSVs, summary.json and the figures. Raises GridError when it cannot run at all;
+    ValueError for bad numbers (samples < 1, a bad range)."""
     if isinstance(samples, bool) or not isinstance(samples, int) or not 1 <= samples <= MAX_SAMPLES:
         raise ValueError(f"samples: expected a whole number from 1 to {MAX_SAMPLES}, found {samples!r}")
     ranges = {**default_ranges(), **{g: parse_range(":".join(map(repr, r)) if isinstance(r, tuple) else r, g)
@@ -131,84 +107,18 @@ def robustness(spec_path: Path = DEFAULT_SPEC, *, samples: int = DEFAULT_SAMPLES
     # `out` checked before any work (OutputFolderError); the files are staged and swapped in at the end
     expected = ["robustness.csv", "samples.csv", "summary.json"]
     with results_folder(out, "robustness", expected=expected) if out is not None else nullcontext() as folder:
-        spec = prepare(spec_path, duration)  # builds the library here if missing: the tasks only load it
-        kp, kd = spec.controller.kp, spec.controller.kd
-        ki = recommended_ki(kp, kd) if ki is None else INTEGRAL_GAIN.check(ki, "--ki")  # a RangeError, a ValueError
-        from ..model.spec import integral_gain_problem
-
-        if (problem := integral_gain_problem(kp, kd, ki)) is not None:
-            raise ValueError(f"--ki: {problem}")
-        if sensing is not None:  # checked here, before any task: a bad group or value is bad input
-            from ..model.spec import SpecError
-            from ..sim.sensing import resolve
-
-            try:
-                chosen = resolve(spec, sensing, source="--sensing-*")
-            except SpecError as err:
-                raise ValueError(str(err)) from None
-            if chosen is not None and (problem := delay_problem(chosen.delay_periods, spec.controller.rate_hz,
-                                                                duration)) is not None:
-                raise ValueError(f"--sensing-delay: {problem}")
-        prebuild(spec, methods, sensing, fast)
-        drawn = [draw_sample(spec, seed, i, ranges) for i in range(samples)]
-        task = functools.partial(run_sample, Path(spec_path).read_text(encoding="utf-8"), str(spec_path),
-                                 duration=duration, methods=tuple(methods), kis=(0.0, ki), sensing=sensing, fast=fast)
-        t0 = time.perf_counter()
-        with tqdm(total=samples, unit="sample", desc="robustness", file=sys.stderr, disable=not progress,
-                  smoothing=0.0) as bar:
-            def done(_sample, _rows):
-                bar.update(1)
-
-            if scheduler or workers > 0:
-                with open_client(scheduler, workers, connect_timeout) as client:
-                    n_workers = worker_count(client) if scheduler else workers
-                    per_sample = run_cases(task, drawn, client, name="robustness", on_done=done,
-                                           on_error=crashed_rows)
-            else:
-                n_workers = 0
-                per_sample = run_cases(task, drawn, None, on_done=done, on_error=crashed_rows)
-        wall = time.perf_counter() - t0
-        rows = [row for block in per_sample for row in block]
-        result = RobustnessResult(rows, drawn, wall, n_workers, ki)
+        result = run_study(spec_path, samples=samples, seed=seed, duration=duration, ranges=ranges,
+                           methods=methods, ki=ki, workers=workers, scheduler=scheduler,
+                           connect_timeout=connect_timeout, progress=progress, sensing=sensing, fast=fast)
         from ..report.robustness_report import summarize
 
-        result.summary = summarize(rows, methods, (0.0, ki))
+        result.summary = summarize(result.rows, methods, (0.0, result.ki))
         if folder is not None:
-            _write(folder.staging, result, spec, spec_path, seed, duration, ranges, methods, plots, command_line,
-                   sensing, fast)
+            _write(folder.staging, result, result.spec, spec_path, seed, duration, ranges, methods, plots,
+                   command_line, sensing, fast)
             folder.publish()
             result.files = [folder.out / p.relative_to(folder.staging) for p in result.files]
     return result
-
-
-def prebuild(spec, methods, sensing, fast: bool) -> None:
-    """What the runs load from the cache, built here before any task, so that the workers only load it as they load
-    the model's library: the plant's substep loop, and with `fast` the fast steps of `methods` and the compiled
-    estimator of the sensing the runs use (--sensing-*, else the spec's section). A method the fast path cannot have
-    runs on its reference path in the workers too (make_controller says why)."""
-    from ..control.controllers import Gains
-    from ..runtime.cache import load_model
-    from ..runtime.compile_library import BuildError
-    from ..runtime.fast_library import FastPathUnavailable, load_fast_estimator, load_fast_step
-    from ..runtime.plant_loop import load_plant_loop
-    from ..sim.sensing import is_ideal, resolve
-
-    model = load_model(spec)
-    try:
-        load_plant_loop(model.cache_root)
-    except BuildError:
-        pass  # each worker's plants then run Python's loop (the same numbers) and say so once
-    if not fast:
-        return
-    gains = Gains.from_spec(spec)
-    for method in methods:
-        try:
-            load_fast_step(model, method, gains)
-        except FastPathUnavailable:
-            continue
-    chosen = resolve(spec, sensing, source="--sensing-*")  # None: the spec's section, as Crane.simulate
-    if chosen is not None and not is_ideal(spec, model.layout, chosen):
-        load_fast_estimator(model, chosen)
 
 
 def _write(out: Path, result: RobustnessResult, spec, spec_path, seed, duration, ranges, methods, plots,
@@ -228,7 +138,7 @@ def _write(out: Path, result: RobustnessResult, spec, spec_path, seed, duration,
     if plots:
         from ..report.study_figures import robustness_figures
 
-        worst = _rerun_worst(spec_path, result, duration, methods, sensing, fast) if result.rows else None
+        worst = rerun_worst(spec_path, result, duration, methods, sensing, fast) if result.rows else None
         result.files += robustness_figures(out, result.rows, worst=worst)
     summary = {
         "provenance": {
@@ -251,29 +161,6 @@ def _write(out: Path, result: RobustnessResult, spec, spec_path, seed, duration,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n", encoding="utf-8")
     result.files.append(out / "summary.json")
-
-
-def _rerun_worst(spec_path, result: RobustnessResult, duration, methods, sensing, fast: bool = False) -> dict:
-    """The sample with the largest max position error of any of its rows, re-run here, every method and ki."""
-    from ..api.crane import Crane
-
-    def badness(r):
-        return math.inf if r.get("status") != "ok" else r["max_position_error_mm"]
-
-    index = max((r for r in result.rows if r["method"] is not None), key=badness)["sample"]
-    sample = result.samples[index]
-    crane = Crane.from_toml(spec_path)
-    extra = {} if sensing is None else {"sensing": sensing}
-    results: dict = {}
-    for m in methods:
-        for ki in (0.0, result.ki):
-            try:
-                results.setdefault(m, {})[ki] = crane.simulate(m, duration=duration, plant_params=sample.params,
-                                                               ki=ki, fast=fast, **extra)
-            except Exception:  # noqa: BLE001 - a run that fails here failed in the study too (its row says how)
-                continue
-    return {"sample": index, "mass_error": sample.mass_error, "tracked_mass_error": sample.tracked_mass_error,
-            "results": results, "command": command(spec_path, sample, duration, sensing=sensing, fast=fast)}
 
 
 def _versions() -> dict:

@@ -12,87 +12,20 @@ Writes a Markdown table, summary.json and figures per study into --out (default 
 from __future__ import annotations
 
 import argparse
-import functools
 import json
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from ..model.ranges import STUDY_DURATION
 from ..model.spec import MAX_CONTROL_STEPS
-from ..process.locations import spec_folder
 from ..report.study_figures import case_label, position_error_figure
-from ..studies.grid import run_cases, setup
+from ..studies.formulations import noncollocated_cases, redundant_cases, study_noncollocated, study_redundant
 from .entry import guarded, progress_disabled, ranged
 from .outputs import ResultsFolder, out_path, results_folder
 
 # The study's cranes run at 50 Hz: the record cap in seconds.
 STUDY_RATE_HZ = 50.0
 STUDY_MAX_DURATION_S = MAX_CONTROL_STEPS / STUDY_RATE_HZ  # STUDY_DURATION's bound (acroboter.model.ranges)
-
-SPECS = spec_folder()
-REDUNDANT_SPECS = ("acroboter", "acroboter_redundant", "acroboter_redundant_task")
-REDUNDANT_METHODS = ("mlm", "penalty", "iterative-3", "iterative-5")
-RECOVERY_CASES = (("projected", None), ("eq12", None), ("eq13", None), ("eq15", None),
-                  ("kappa", 0.0), ("kappa", 0.5), ("kappa", 1.0))
-
-
-def run_case(spec_name: str, method: str, duration: float | None, **overrides) -> dict:
-    """One closed-loop run; the outcome whatever it is: figures, a divergence, or the method's refusal."""
-    from ..control.controllers import Gains, SingularSystemError, make_controller
-    from ..control.recovery import RecoveryError
-    from ..model.spec import load_spec
-    from ..sim.records import summarize
-    from ..sim.simulation import simulate
-
-    ctx = setup(load_spec(SPECS / f"{spec_name}.toml"))  # loaded (built if needed) once per spec
-    spec, model, path, start, plant, scenario = ctx.spec, ctx.model, ctx.path, ctx.start, ctx.plant, ctx.scenario
-    gains = Gains.from_spec(spec, **overrides)
-    duration = path.duration if duration is None else duration
-    case = {"spec": spec_name, "method": method, **{k: v for k, v in overrides.items() if v is not None}}
-    try:
-        controller = make_controller(method, model, path, gains)
-        result = simulate(model, path, controller, plant, start.q, duration, spec.controller.rate_hz,
-                          spec.simulation.step, allow_divergence=True)
-    except (SingularSystemError, RecoveryError) as err:
-        return {**case, "outcome": "refused", "message": str(err)}
-    summary = summarize(result, scenario, model.layout)
-    error = np.linalg.norm(result.sigma[:, scenario.position_rows], axis=1)
-    outcome = "diverged" if result.diverged_at is not None else "ran to the end"
-    return {**case, "outcome": outcome, "diverged_at_s": result.diverged_at, "divergence": result.divergence,
-            "summary": summary, "t": result.t.tolist(), "position_error_mm": (1e3 * error).tolist(),
-            "winch_min_N": result.u[:, scenario.winch_inputs].min(axis=1).tolist() if scenario.winch_inputs else []}
-
-
-def redundant_cases() -> list[tuple[str, str, dict]]:
-    """(spec, method, gain overrides) of the redundancy study: every spec under every method."""
-    return [(name, method, {}) for name in REDUNDANT_SPECS for method in REDUNDANT_METHODS]
-
-
-def noncollocated_cases() -> list[tuple[str, str, dict]]:
-    """The four-input crane: MLM, then both penalty methods under every input recovery."""
-    return [("acroboter_4input", "mlm", {})] + [
-        ("acroboter_4input", method, {"recovery": recovery, "kappa": kappa})
-        for recovery, kappa in RECOVERY_CASES for method in ("penalty", "iterative-3")]
-
-
-def _run(case: tuple[str, str, dict], duration: float | None) -> dict:
-    spec_name, method, overrides = case
-    return run_case(spec_name, method, duration, **overrides)
-
-
-def _run_all(cases: list, duration: float | None, progress) -> list[dict]:
-    # In this process, in order: the study is small, and a failure to set up a spec stops it at once.
-    return run_cases(functools.partial(_run, duration=duration), cases, on_done=lambda case, result: progress(1))
-
-
-def study_redundant(duration: float | None, progress) -> list[dict]:
-    return _run_all(redundant_cases(), duration, progress)
-
-
-def study_noncollocated(duration: float | None, progress) -> list[dict]:
-    return _run_all(noncollocated_cases(), duration, progress)
 
 
 def markdown_table(cases: list[dict], with_spec: bool) -> str:

@@ -18,7 +18,6 @@ prints a table of the tracking error and the α range over which each method sta
 from __future__ import annotations
 
 import argparse
-import functools
 import sys
 import time
 from contextlib import nullcontext
@@ -36,6 +35,7 @@ from ..model.ranges import (
     WORKERS,
     Range,
 )
+from ..model.settings import resolve_gains
 from ..process.locations import example_spec
 from ..report.study_figures import sweep_figures
 from ..studies.grid import (
@@ -45,25 +45,22 @@ from ..studies.grid import (
     parse_values,
     prepare,
     require_dask,
-    run_cases,
     worker_count,
     write_rows,
 )
 from ..studies.penalty_grid import (
     ALPHA_MODES,
     COLUMNS,
-    COND_SAMPLES,
-    Case,
-    crashed_row,
     make_grid,
     parse_iterations,
-    run_case,
+    run_sweep,
 )
 from ..studies.run_verdicts import findings, format_table, ok
 from .entry import (
     EXIT_BAD_INPUT,
     EXIT_CANNOT_RUN,
     EXIT_INTERRUPTED,
+    as_option_text,
     carrying,
     guarded,
     progress_disabled,
@@ -88,29 +85,6 @@ class SweepResult:
     files: list[Path] = field(default_factory=list)
 
 
-def run_sweep(client, spec_path: Path, cases: list[Case], duration: float | None, progress: bool = False,
-              cond_samples: int = COND_SAMPLES, kp: float | None = None, kd: float | None = None,
-              mu: float | None = None) -> list[dict]:
-    """Run every case on `client` (None: in this process), the rows in grid order (progress bar over
-    completed tasks). A task that crashed is a row with its status; a worker that cannot set up the
-    model at all raises GridError (MissingLibraryError: no library there)."""
-    from tqdm import tqdm
-
-    # The spec travels as text: a worker on another machine need not see the client's file system.
-    task = functools.partial(run_case, Path(spec_path).read_text(encoding="utf-8"), str(spec_path),
-                             duration=duration, cond_samples=cond_samples, kp=kp, kd=kd, mu=mu)
-    with tqdm(total=len(cases), unit="run", desc="sweep", file=sys.stderr, disable=not progress,
-              smoothing=0.0) as bar:
-
-        def done(case: Case, row: dict) -> None:
-            if case.method != "mlm":
-                bar.set_postfix_str(f"{case.method} α̃={case.alpha_geometric:.0e} α̂={case.alpha_servo:.0e} "
-                                    f"Ω={case.omega:g}", refresh=False)
-            bar.update(1)
-
-        return run_cases(task, cases, client, name="sweep", on_done=done, on_error=crashed_row)
-
-
 def sweep(spec_path: Path = DEFAULT_SPEC, *, alphas: list[float] | None = None, omegas: list[float] | None = None,
           iterations: list[int] | None = None, alpha_mode: str = "tied", duration: float | None = None,
           workers: int = 2, scheduler: str | None = None, connect_timeout: float = 10.0, out: Path | None = None,
@@ -133,6 +107,10 @@ def sweep(spec_path: Path = DEFAULT_SPEC, *, alphas: list[float] | None = None, 
     # `out` checked before any work (OutputFolderError); the files are staged and swapped in at the end
     with results_folder(out, "sweep", expected=["sweep.csv"]) if out is not None else nullcontext() as folder:
         spec = prepare(spec_path, duration)  # builds the library here if missing: the tasks only load it
+        try:  # kp, kd sampled at the spec's rate, before any task
+            resolve_gains(spec, kp=kp, kd=kd, mu=mu)
+        except ValueError as err:
+            raise GridError(as_option_text(err)) from None
         pen = spec.controller.penalty
         cases = make_grid(alphas, omegas, iterations, alpha_mode, pen.alpha_geometric, pen.alpha_servo)
         t0 = time.perf_counter()

@@ -2,7 +2,7 @@
 
 - `sweep_figures`: a penalty-number grid's rows (acroboter.studies.penalty_grid.COLUMNS) against the swept α:
   tracking error, constraint violation and cond(A), a panel per method and a line per Ω;
-- `position_error_figure`: the position error over time of a study's runs (acroboter.cli.study), one
+- `position_error_figure`: the position error over time of a study's runs (acroboter.studies.formulations), one
   line per case.
 
 matplotlib is imported inside the functions: the CLIs' --help and --no-plots never load it.
@@ -147,7 +147,7 @@ def _one_legend(fig, axes) -> None:
 
 
 def position_error_figure(cases: list[dict], path: Path, title: str, with_spec: bool) -> None:
-    """Position error over time of a study's cases (acroboter.cli.study.run_case): the whole run on the
+    """Position error over time of a study's cases (acroboter.studies.formulations.run_case): the whole run on the
     left, the first 1.5 s on the right; cases the method refused are left out."""
     import numpy as np
 

@@ -5,8 +5,8 @@ the redundancy study, a robustness Monte Carlo):
 
 - `parse_values`: a grid axis from the command line ("1e3:1e12", "5,10,20");
 - `prepare` and `check_duration`: the checks and the one build made before any task runs;
-- `setup_text` / `setup`: the pieces one run needs (model, path, start, plant, scenario), loaded once
-  per worker thread and reused by every later task on the same spec;
+- `crane_for_text` / `crane_for`: the spec's Crane (acroboter.api.crane), loaded once per worker thread and
+  reused by every later task on the same spec: each run goes through `Crane.simulate`, as a user's would;
 - `run_cases`: one task per case, on a Client or in-process, results in case order;
 - `open_client`: a Client to a running scheduler or to a LocalCluster on 127.0.0.1;
 - `write_rows` / `read_rows`: a grid's flat rows as CSV.
@@ -25,7 +25,6 @@ import threading
 from collections import OrderedDict
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 
 from ..model.ranges import Range
@@ -35,7 +34,7 @@ from ..model.spec import MAX_CONTROL_STEPS
 MAX_GRID_VALUES = 1000
 MAX_RUNS = 20_000
 # Set-ups kept per worker thread: a Monte Carlo over perturbed specs must not keep every model alive.
-MAX_SETUPS = 8
+MAX_SETUPS = 8  # cranes
 
 
 class GridError(RuntimeError):
@@ -139,23 +138,12 @@ def check_duration(spec, duration: float | None) -> None:
 # The pieces of a run: loaded once per worker thread (or here, for an in-process study)
 
 
-@dataclass
-class Setup:
-    """What one closed-loop run of a spec needs besides its controller."""
-
-    spec: object
-    model: object
-    path: object
-    start: object  # statics.Equilibrium: start.q is the initial configuration
-    plant: object
-    scenario: object
+_LOCAL = threading.local()  # one Crane per worker thread and spec: a Crane's runs each work on their own data
 
 
-_LOCAL = threading.local()  # one model per worker thread: the model's input buffers are not thread-safe
-
-
-def setup_text(spec_text: str, source: str, build: bool = False) -> Setup:
-    """The Setup of the spec given as TOML text (what a task receives), cached per thread.
+def crane_for_text(spec_text: str, source: str, build: bool = False):
+    """The Crane (acroboter.api.crane) of the spec given as TOML text (what a task receives), cached per thread:
+    every run of a study goes through the library, as a user's would.
 
     build=False (a task on a worker): never generate or compile; a missing library is a
     MissingLibraryError that tells the user to build it on the worker machines."""
@@ -163,8 +151,8 @@ def setup_text(spec_text: str, source: str, build: bool = False) -> Setup:
     return _cached("text:" + hashlib.sha256(spec_text.encode()).hexdigest(), lambda: _parse(spec_text, source), build)
 
 
-def setup(spec, build: bool = True) -> Setup:
-    """The Setup of a validated spec (in-process studies), cached per thread like setup_text."""
+def crane_for(spec, build: bool = True):
+    """The Crane of a validated spec (in-process studies), cached per thread like crane_for_text."""
     return _cached("spec:" + hashlib.sha256(spec.model_dump_json().encode()).hexdigest(), lambda: spec, build)
 
 
@@ -176,13 +164,13 @@ def _parse(spec_text: str, source: str):
     return parse_spec(tomllib.loads(spec_text), source)
 
 
-def _cached(key: str, get_spec: Callable[[], object], build: bool) -> Setup:
+def _cached(key: str, get_spec: Callable[[], object], build: bool):
     from ..process.locations import cache_dir
 
     key += f"\n{cache_dir()}"  # the same spec in another cache is another library
-    cache = getattr(_LOCAL, "setups", None)
+    cache = getattr(_LOCAL, "cranes", None)
     if cache is None:
-        cache = _LOCAL.setups = OrderedDict()
+        cache = _LOCAL.cranes = OrderedDict()
     if key in cache:
         cache.move_to_end(key)
         return cache[key]
@@ -193,12 +181,10 @@ def _cached(key: str, get_spec: Callable[[], object], build: bool) -> Setup:
     return cache[key]
 
 
-def _load(spec, build: bool) -> Setup:
+def _load(spec, build: bool):
+    from ..api.crane import Crane
     from ..runtime.cache import load_model
     from ..runtime.compiled import NotBuiltError
-    from ..sim.records import Scenario
-    from ..sim.simulation import setup_default
-    from ..sim.statics import desired_path, solve_equilibrium
 
     try:
         model = load_model(spec, build=build)
@@ -209,9 +195,7 @@ def _load(spec, build: bool) -> Setup:
             f"worker on {socket.gethostname()}: {err}; tasks on a worker never compile. Build it on every worker "
             f"machine (`acroboter build {spec.name}`, or run the spec once there), then rerun."
         ) from None
-    path = desired_path(model)
-    return Setup(spec, model, path, solve_equilibrium(model, path), setup_default(model, path),
-                 Scenario.from_model(model))
+    return Crane(spec, model)
 
 
 def worker_name() -> str:

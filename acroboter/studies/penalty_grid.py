@@ -12,12 +12,14 @@ round-off). It runs on a dask worker (acroboter.studies.grid.run_cases) or in-pr
 
 from __future__ import annotations
 
+import functools
+import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from ..model.spec import MAX_ITERATIONS
-from .grid import GridError, MissingLibraryError, read_rows, setup_text, status_of, worker_name
+from .grid import GridError, MissingLibraryError, crane_for_text, read_rows, run_cases, status_of, worker_name
 
 ALPHA_MODES = ("tied", "geometric", "servo", "grid")
 COND_SAMPLES = 10
@@ -100,33 +102,34 @@ def x_symbol(alpha_mode: str) -> str:
 # The task
 
 
-def _probe(ctx, controller, gains, result, count: int) -> tuple[float, float, float]:
+def _probe(crane, method: str, overrides: dict, result, count: int) -> tuple[float, float, float]:
     """At `count` recorded states: max cond(A), max |φ_q q̈ + ρ| and max |σ_q q̈ + ρ_s| of the controller's q̈.
 
-    The controller factors penalty_terms' output A in place, so A is re-evaluated here after each
-    controller call, with this run's gains in the parameter buffer.
+    The controller (the run's method and gains, `crane.controller`) recomputes its q̈ at each recorded state; A,
+    φ_q, ρ, σ_q, ρ_s are the generated penalty_terms evaluated there with the run's gains, on working arrays of
+    their own (`crane.model.data()`). Without a run (it failed): A at the start state only.
     """
     import numpy as np
 
-    model, fn = ctx.model, ctx.model.functions["penalty_terms"]
-    out, params = fn.outputs, gains.parameter_vector(model.layout.k)
-    penalty = controller is not None and controller.name != "mlm"
+    data = crane.model.data()
+    fn, gains = data.functions["penalty_terms"], crane.gains(**overrides)
+    out = fn.outputs
+    data.p[:] = gains.parameter_vector(data.layout.k)
+    controller = crane.controller(method, **overrides) if result is not None else None
+    penalty = method != "mlm"
     cond = res_phi = res_sigma = -np.inf
-    samples = len(result.t) if result is not None else 1
+    samples = len(result.time) if result is not None else 1
+    start = crane.equilibrium().q
     for k in np.unique(np.linspace(0, samples - 1, count).round().astype(int)):
         if result is None:  # the run failed: A at the start state only
-            q, qd, t = ctx.start.q, np.zeros_like(ctx.start.q), 0.0
+            q, qd, t = start, np.zeros_like(start), 0.0
         else:
-            q, qd, t = result.q[k], result.qd[k], float(result.t[k])
+            q, qd, t = result.run.q[k], result.run.qd[k], float(result.time[k])
         qdd = None
-        if result is not None and controller is not None:
-            controller.compute(q, qd, t)
-            qdd = np.array(controller.qdd, copy=True)
-        model.q[:] = q
-        model.qd[:] = qd
-        model.signals[:] = ctx.path.flat(t)
-        model.p[:] = params
-        model.parameters_owner = None  # a controller reloads its own gains on its next call
+        if controller is not None:
+            controller.step(q, qd, t)
+            qdd = controller.qdd
+        data.q[:], data.qd[:], data.signals[:] = q, qd, crane.path.flat(t)
         fn.call()
         if penalty:
             cond = max(cond, float(np.linalg.cond(out["penalty_matrix"])))
@@ -140,37 +143,34 @@ def _probe(ctx, controller, gains, result, count: int) -> tuple[float, float, fl
 
 def run_case(spec_text: str, source: str, case: Case, duration: float | None, cond_samples: int = COND_SAMPLES,
              kp: float | None = None, kd: float | None = None, mu: float | None = None) -> dict:
-    """One grid point: simulate and summarize. Returns a flat row (COLUMNS); never raises for a run that
-    fails numerically (status says how), only for a worker that cannot run the model at all."""
+    """One grid point: simulated through the library (`Crane.simulate`, the crane cached per worker thread) and
+    summarized. Returns a flat row (COLUMNS); never raises for a run that fails numerically (status says how), only
+    for a worker that cannot run the model at all."""
     from numpy.linalg import LinAlgError
 
-    from ..control.controllers import Gains, SingularSystemError, make_controller
+    from ..control.controllers import SingularSystemError
     from ..control.recovery import RecoveryError
     from ..sim.plant import SimulationError
-    from ..sim.records import summarize
-    from ..sim.simulation import simulate
 
     worker = worker_name()
-    ctx = setup_text(spec_text, source)  # never compiles: MissingLibraryError if the worker has no library
-    spec = ctx.spec
-    gains = Gains.from_spec(spec, kp=kp, kd=kd, mu=mu, alpha_geometric=case.alpha_geometric,
-                            alpha_servo=case.alpha_servo, omega=case.omega)
-    duration = ctx.path.duration if duration is None else duration
+    crane = crane_for_text(spec_text, source)  # never compiles: MissingLibraryError if the worker has no library
+    overrides = {"kp": kp, "kd": kd, "mu": mu, "alpha_geometric": case.alpha_geometric,
+                 "alpha_servo": case.alpha_servo, "omega": case.omega}
+    gains = crane.gains(**overrides)
+    duration = crane.path.duration if duration is None else duration
     row = {c: None for c in COLUMNS}
     row.update(asdict(case))
     row.update(mu=gains.mu if case.method != "mlm" else None, kp=gains.kp, kd=gains.kd, duration_s=duration,
                worker=worker)
-    controller = result = None
+    result = None
     t0 = time.perf_counter()
     try:
-        controller = make_controller(case.method, ctx.model, ctx.path, gains)
-        result = simulate(ctx.model, ctx.path, controller, ctx.plant, ctx.start.q, duration, spec.controller.rate_hz,
-                          spec.simulation.step, allow_divergence=True)
+        result = crane.simulate(case.method, duration=duration, warm_up=0, **overrides)
         if result.diverged_at is not None:  # stopped early: its figures would describe a broken run
-            row["status"] = f"diverged at t = {result.diverged_at:.2f} s ({result.divergence})"
+            row["status"] = f"diverged at t = {result.diverged_at:.2f} s ({result.run.divergence})"
             result = None
         else:
-            summary = summarize(result, ctx.scenario, ctx.model.layout)
+            summary = result.summary()
             row.update({k: summary[k] for k in SUMMARY_COLUMNS})
             row["median_control_step_us"] = summary["control_step_us"]["median"]
             row["status"] = "ok"
@@ -180,7 +180,7 @@ def run_case(spec_text: str, source: str, case: Case, duration: float | None, co
         result = None
     row["sim_wall_s"] = time.perf_counter() - t0
     try:
-        cond, res_phi, res_sigma = _probe(ctx, controller, gains, result, cond_samples)
+        cond, res_phi, res_sigma = _probe(crane, case.method, overrides, result, cond_samples)
     except (SingularSystemError, LinAlgError, ValueError, FloatingPointError) as err:
         cond = res_phi = res_sigma = float("nan")
         if row["status"] == "ok":
@@ -209,3 +209,26 @@ def crashed_row(case: Case, err: Exception) -> dict:
 def read_csv(path: Path) -> list[dict]:
     """Rows of a sweep.csv, typed as run_case returns them (empty cells: None)."""
     return read_rows(path, ints={"iterations"}, strs={"method", "status", "worker"})
+
+
+def run_sweep(client, spec_path: Path, cases: list[Case], duration: float | None, progress: bool = False,
+              cond_samples: int = COND_SAMPLES, kp: float | None = None, kd: float | None = None,
+              mu: float | None = None) -> list[dict]:
+    """Run every case on `client` (None: in this process), the rows in grid order (progress bar over
+    completed tasks). A task that crashed is a row with its status; a worker that cannot set up the
+    model at all raises GridError (MissingLibraryError: no library there)."""
+    from tqdm import tqdm
+
+    # The spec travels as text: a worker on another machine need not see the client's file system.
+    task = functools.partial(run_case, Path(spec_path).read_text(encoding="utf-8"), str(spec_path),
+                             duration=duration, cond_samples=cond_samples, kp=kp, kd=kd, mu=mu)
+    with tqdm(total=len(cases), unit="run", desc="sweep", file=sys.stderr, disable=not progress,
+              smoothing=0.0) as bar:
+
+        def done(case: Case, row: dict) -> None:
+            if case.method != "mlm":
+                bar.set_postfix_str(f"{case.method} α̃={case.alpha_geometric:.0e} α̂={case.alpha_servo:.0e} "
+                                    f"Ω={case.omega:g}", refresh=False)
+            bar.update(1)
+
+        return run_cases(task, cases, client, name="sweep", on_done=done, on_error=crashed_row)

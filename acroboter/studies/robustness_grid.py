@@ -21,11 +21,10 @@ from __future__ import annotations
 
 import math
 import shlex
-import threading
 import time
 from dataclasses import dataclass
 
-from .grid import GridError, MissingLibraryError, setup_text, status_of, worker_name
+from .grid import GridError, MissingLibraryError, crane_for_text, status_of, worker_name
 
 DEFAULT_METHODS = ("mlm", "penalty", "iterative-3", "iterative-4", "iterative-5")
 # group -> (help, unit, default half-width, relative?)
@@ -221,25 +220,6 @@ def success(row: dict, settled: bool = False) -> bool:
 # ---------------------------------------------------------------------------------------------------
 # The task
 
-_LOCAL = threading.local()
-
-
-def _crane(ctx):
-    """A Crane over the worker's cached Setup (model, path and start reused), one per thread and model."""
-    from ..api.crane import Crane
-
-    cranes = getattr(_LOCAL, "cranes", None)
-    if cranes is None:
-        cranes = _LOCAL.cranes = {}
-    key = id(ctx.model)
-    if key not in cranes or cranes[key].model is not ctx.model:
-        cranes.clear()
-        crane = Crane(ctx.spec, ctx.model)
-        crane._path, crane._start = ctx.path, ctx.start  # what `crane.path`/`equilibrium()` compute, computed once
-        cranes[key] = crane
-    return cranes[key]
-
-
 def run_sample(spec_text: str, source: str, sample: Sample, duration: float, methods: tuple[str, ...],
                kis: tuple[float, ...], sensing=None, fast: bool = False) -> list[dict]:
     """Every (method, ki) of one sample on its plant: one row each, in (method, ki) order. A run that
@@ -247,15 +227,15 @@ def run_sample(spec_text: str, source: str, sample: Sample, duration: float, met
 
     `sensing`: passed on as `Crane.simulate(sensing=...)` when given (measurement noise/delay, where
     the installed package has it); None runs with perfect measurements. `fast`: the controllers' fast path
-    (docs/fast-path.md; its libraries built in the cache beforehand: acroboter.cli.robustness.prebuild)."""
+    (docs/fast-path.md; its libraries built in the cache beforehand: acroboter.studies.robustness_study.prebuild)."""
     from numpy.linalg import LinAlgError
 
     from ..control.controllers import SingularSystemError
     from ..control.recovery import RecoveryError
     from ..sim.plant import SimulationError
 
-    ctx = setup_text(spec_text, source)  # never compiles: MissingLibraryError if the worker has no library
-    crane, worker = _crane(ctx), worker_name()
+    crane = crane_for_text(spec_text, source)  # never compiles: MissingLibraryError if the worker has no library
+    worker = worker_name()
     extra = {} if sensing is None else {"sensing": sensing}
     rows = []
     for method in methods:
