@@ -66,7 +66,7 @@ def test_bench_times_the_stateful_exported_controller_beside_the_python_step(bac
     from the same interleaved passes (bench.json's steps.methods.<m>). Only its presence and sanity are checked here,
     never a time."""
     from acroboter import Crane
-    from acroboter.cli.bench_steps import bench_steps
+    from acroboter.studies.step_timings import bench_steps
 
     _, _, _, states = backends
     out = bench_steps(Crane.from_example("acroboter"), ["penalty"], states[:8], 1)
@@ -84,7 +84,7 @@ def test_the_plant_alone_replays_a_runs_states_to_the_bit(example, method, secon
     plant share only if the replay is the run (same plant, start, inputs and stage tables: the same states to the
     bit). The four-input crane's MLM run has cable events after the first table (t > 10 s)."""
     from acroboter import Crane
-    from acroboter.cli.bench_steps import replay_plant
+    from acroboter.studies.step_timings import replay_plant
 
     crane = Crane.from_example(example)
     run = crane.simulate(method, duration=seconds).run
@@ -99,7 +99,7 @@ def test_the_bench_says_why_a_method_has_no_stateful_controller():
     """MLM on the four-cable crane (an internal force, no q̈ for the estimator's prediction) cannot be exported as a
     stateful controller: the bench records why and times the rest instead of stopping."""
     from acroboter import Crane
-    from acroboter.cli.bench_steps import bench_steps
+    from acroboter.studies.step_timings import bench_steps
 
     crane = Crane.from_example("acroboter_4cable")
     start = crane.equilibrium()

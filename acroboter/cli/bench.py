@@ -15,7 +15,9 @@ winch's max at 99 % of its static tension, so the bounded QP (DAQP) runs at ever
 
 And, per method in the same interleaved passes, the Python step on its reference and its fast path, the
 exported C step compiled and called in-process, their ratios and the estimator's cost (p50, p99, max); the
-closed loop's real-time factor with and without sensing; the Monte Carlo throughput (acroboter.cli.bench_steps).
+closed loop's real-time factor with and without sensing; the Monte Carlo throughput. The measuring is
+acroboter.studies.scenario_timings's and acroboter.studies.step_timings's; this module parses, calls, prints and
+writes bench.json.
 """
 
 from __future__ import annotations
@@ -25,58 +27,26 @@ import json
 import platform
 import sys
 import time
-import tracemalloc
 from pathlib import Path
-
-import numpy as np
 
 from ..model.ranges import CASADI_STATES, MC_SAMPLES, REPEATS
 from ..model.spec import MAX_ITERATIONS
 from ..process.locations import example_spec
 from ..report.paper import PAPER_MATLAB_US
+from ..studies.scenario_timings import (
+    TimingError,
+    bench_limits,
+    bench_plant_step,
+    closed_loops,
+    runnable_controllers,
+    step_results,
+    time_model_terms,
+)
 from .entry import guarded, ranged, spec_file
 from .outputs import ResultsFolder, out_path, results_folder
 
 GOALS_US = {"mlm": 20.0, "penalty": 15.0, "iterative-5": 20.0}
 MIN_INSTANTS = 101  # the allocation check steps from instant 100 of the scenario
-
-
-def time_steps(controller, states, repeats: int) -> np.ndarray:
-    """Per-call wall time (s) of controller.compute(q, q̇, t) over the states: one row per pass."""
-    clock = time.perf_counter
-    compute = controller.compute
-    times = np.empty((repeats, len(states)))
-    for r in range(repeats):
-        row = times[r]
-        for i, (q, qd, t) in enumerate(states):
-            t0 = clock()
-            compute(q, qd, t)
-            row[i] = clock() - t0
-    return times
-
-
-def retained_bytes(fn, calls: int) -> float:
-    """Bytes still allocated per call after `calls` calls (after a warm-up); 0 means nothing grows."""
-    for _ in range(50):
-        fn()
-    tracemalloc.start()
-    before = tracemalloc.take_snapshot()
-    for _ in range(calls):
-        fn()
-    after = tracemalloc.take_snapshot()
-    tracemalloc.stop()
-    growth = sum(stat.size_diff for stat in after.compare_to(before, "filename"))
-    return growth / calls
-
-
-def stats(seconds: np.ndarray) -> dict:
-    """median, mean, p99 in µs. With several passes (rows), the figures of the quietest pass (the
-    lowest median): on a shared 2-core machine other work inflates whole stretches of a pass, and
-    the best pass is the repeatable figure (as timeit takes the minimum)."""
-    us = 1e6 * np.atleast_2d(seconds)
-    best = us[np.argmin(np.median(us, axis=1))]
-    return {"median": float(np.median(best)), "mean": float(best.mean()), "p99": float(np.percentile(best, 99)),
-            "passes": int(us.shape[0]), "median_all_passes": float(np.median(us))}
 
 
 @guarded
@@ -111,14 +81,6 @@ def main(argv: list[str] | None = None) -> int:
         return _bench(args, methods, folder)
 
 
-class _CannotTime(Exception):
-    """The benchmark cannot run as asked: the text (printed as 'error: …') and the exit status."""
-
-    def __init__(self, text: str, status: int):
-        super().__init__(text)
-        self.status = status
-
-
 def _bench(args: argparse.Namespace, methods: list[str], folder: ResultsFolder) -> int:
     """The phases: the crane loaded and checked, the model terms timed, the methods that run on it, their closed
     loops and control steps timed (against the casadi.Function path), the limits, the step forms, the loops and the
@@ -133,13 +95,19 @@ def _bench(args: argparse.Namespace, methods: list[str], folder: ResultsFolder) 
         print(f"benchmarking on {_processor()}, {crane.spec.name}, {crane.path.duration:g} s scenario ...",
               file=sys.stderr)
         model_terms_us = time_model_terms(crane.model, start.q, crane.path)
-        controllers = runnable_controllers(crane, methods, start)
+        controllers, refused = runnable_controllers(crane, methods, start)
+        for m, why in refused.items():  # a method that cannot handle this spec is left out, with its reason
+            print(f"  {m} left out: {why}", file=sys.stderr)
+        if not controllers:
+            raise TimingError("no method can run on this spec", 3)
         methods = list(controllers)
-        runs, walls = _closed_loops(crane, controllers, start)
-    except _CannotTime as err:
+        runs, walls = closed_loops(crane, methods)
+    except TimingError as err:
         print(f"error: {err}", file=sys.stderr)
         return err.status
-    results, states = _step_results(args, crane, controllers, runs, walls, start)
+    results, states = step_results(crane, controllers, runs, walls, start, args.repeats, args.casadi_states)
+    for method, r in results.items():  # the paper's figures and the goals beside the measured ones
+        r.update(paper_matlab_mean_us=PAPER_MATLAB_US.get(method), goal_median_us=GOALS_US.get(method))
     print(format_table(results))
     print(f"all model terms at one state (model_terms, one ctypes call): median {model_terms_us['median']:.2f} us, "
           f"p99 {model_terms_us['p99']:.2f} us")
@@ -149,7 +117,7 @@ def _bench(args: argparse.Namespace, methods: list[str], folder: ResultsFolder) 
         print(f"error: cannot time the input limits on {args.limits_spec}: {err}", file=sys.stderr)
         return 3
     print(format_limits_table(limits))
-    from .bench_steps import bench_loops, bench_monte_carlo, bench_steps, format_steps
+    from ..studies.step_timings import bench_loops, bench_monte_carlo, bench_steps
 
     steps = bench_steps(crane, methods, states, args.repeats)
     loops = bench_loops(crane, methods)
@@ -188,180 +156,12 @@ def _loaded(args: argparse.Namespace):
         load_spec(args.limits_spec)  # validated before any work too
         crane = Crane.from_toml(args.spec)
     except (SpecError, StaleModelError) as err:
-        raise _CannotTime(str(err), 2) from None
+        raise TimingError(str(err), 2) from None
     path, rate = crane.path, crane.spec.controller.rate_hz
     if path.duration * rate < MIN_INSTANTS:
-        raise _CannotTime(f"the scenario of {crane.spec.name} has {path.duration * rate:.0f} control instants, the "
+        raise TimingError(f"the scenario of {crane.spec.name} has {path.duration * rate:.0f} control instants, the "
                           f"benchmark needs at least {MIN_INSTANTS}: lengthen the path (or lower path.mean_speed)", 2)
     return crane, crane.equilibrium()
-
-
-def time_model_terms(model, q: np.ndarray, path) -> dict:
-    """Every model term (M, c, φ, φ_q, φ̇, γ, σ, σ_q, σ̇, γ_s, H) at one state: one pre-bound C call, timed."""
-    terms = model.functions["model_terms"]
-    model.set_inputs(q, np.zeros(model.layout.n), *path.signal_arrays(3.0))
-    clock = time.perf_counter
-    samples = np.empty((5, 4000))
-    for row in samples:
-        for i in range(row.size):
-            t0 = clock()
-            terms.call()
-            row[i] = clock() - t0
-    return stats(samples)
-
-
-def runnable_controllers(crane, methods: list[str], start) -> dict:
-    """{method: controller} of the methods that run on this crane; one that cannot is left out, with its reason."""
-    from ..control.controllers import SingularSystemError, make_controller
-    from ..control.recovery import RecoveryError
-
-    controllers = {}
-    for m in methods:
-        try:
-            controllers[m] = make_controller(m, crane.model, crane.path, crane.gains())
-            controllers[m].compute(start.q, np.zeros(crane.layout.n), 0.0)
-        except (SingularSystemError, RecoveryError) as err:
-            controllers.pop(m, None)
-            print(f"  {m} left out: {err}", file=sys.stderr)
-    if not controllers:
-        raise _CannotTime("no method can run on this spec", 3)
-    return controllers
-
-
-def _closed_loops(crane, controllers: dict, start) -> tuple[dict, dict]:
-    """Whole closed loops, best of 3 (interleaved, so a slow stretch of the machine hits all alike)."""
-    from ..sim.plant import SimulationError
-    from ..sim.simulation import setup_default, simulate
-
-    spec, path = crane.spec, crane.path
-    plant = setup_default(crane.model, path)
-    runs, walls = {}, {m: [] for m in controllers}
-    try:
-        for _ in range(3):
-            for m, controller in controllers.items():
-                runs[m] = simulate(crane.model, path, controller, plant, start.q, path.duration,
-                                   spec.controller.rate_hz, spec.simulation.step)
-                walls[m].append(runs[m].sim_wall_s)
-    except SimulationError as err:
-        raise _CannotTime(f"the scenario does not run to the end, nothing to time: {err}", 3) from None
-    return runs, walls
-
-
-def _step_results(args, crane, controllers: dict, runs: dict, walls: dict, start) -> tuple[dict, list]:
-    """Per method the compiled and casadi.Function control steps on the states of the real scenario (the first
-    method's run), whether they agree, the loop's real-time factor, the bytes retained per step; and those states."""
-    from ..control.controllers import make_controller
-    from ..runtime.casadi_backend import CasadiModel
-    from ..sim.simulation import setup_default
-    from ..sim.statics import desired_path
-
-    methods, h = list(controllers), crane.spec.simulation.step
-    casadi_model = CasadiModel(crane.spec)
-    casadi_path = desired_path(casadi_model)
-    slow = {m: make_controller(m, casadi_model, casadi_path, crane.gains()) for m in methods}
-    reference = runs[methods[0]]
-    states = list(zip(reference.q, reference.qd, reference.t, strict=True))
-    stride = max(1, len(states) // args.casadi_states)
-    fast_times = {m: [] for m in methods}
-    slow_times = {m: [] for m in methods}
-    for r in range(args.repeats):  # interleaved passes, as above
-        for m in methods:
-            fast_times[m].append(time_steps(controllers[m], states, 1)[0])
-            if r < 3:
-                slow_times[m].append(time_steps(slow[m], states[::stride], 1)[0])
-    plant = setup_default(crane.model, crane.path)
-    x = plant.initial_state(start.q)
-    table = plant.stage_table(0.0, h, 1000)
-    results = {}
-    for method in methods:
-        controller = controllers[method]
-        # Same solver, other backend: the inputs must agree (to round-off of two evaluators).
-        q, qd, t = states[len(states) // 2]
-        agree = float(np.abs(slow[method].compute(q, qd, t) - controller.compute(q, qd, t)).max())
-        wall = min(walls[method])
-        results[method] = {
-            "compiled_us": stats(np.array(fast_times[method])),
-            "casadi_function_us": stats(np.array(slow_times[method])),
-            "speedup_median": 0.0,
-            "inputs_agree_max_abs": agree,
-            "simulation_wall_s": wall,
-            "simulated_s": float(runs[method].t[-1]),
-            "real_time_factor": float(runs[method].t[-1] / wall),
-            "retained_bytes_per_control_step": retained_bytes(lambda c=controller, s=states[100]: c.compute(*s),
-                                                              2000),
-            "retained_bytes_per_plant_step": retained_bytes(
-                lambda x=x, u=reference.u[0], table=table: plant.advance(x, u, h, table, 0, 1), 2000),
-            "paper_matlab_mean_us": PAPER_MATLAB_US.get(method),
-            "goal_median_us": GOALS_US.get(method),
-        }
-        r = results[method]
-        r["speedup_median"] = r["casadi_function_us"]["median"] / r["compiled_us"]["median"]
-    return results, states
-
-
-def bench_plant_step(crane, q0: np.ndarray, u0: np.ndarray, passes: int = 15, calls: int = 2000) -> dict:
-    """The plant's step with the spec's numbers folded in (a plant without plant_params) against the
-    parametric one (a plant given one of them at the spec's own value), the same library and state."""
-    from ..sim.plant import Plant
-
-    sim = crane.spec.simulation
-    values = crane.plant_parameters()
-    mass = next(name for name in values if name.endswith(".mass"))
-    plants = {"folded": Plant(crane.model, crane.path, sim.baumgarte_zeta, sim.baumgarte_omega),
-              "parametric": Plant(crane.model, crane.path, sim.baumgarte_zeta, sim.baumgarte_omega,
-                                  {mass: values[mass]})}
-    best = {}
-    for plant in plants.values():
-        plant.probe(plant.initial_state(q0), u0, 0.0)  # loads state, input and stage signals
-    clock = time.perf_counter
-    for _ in range(passes):  # interleaved: a slow stretch of the machine hits both alike
-        for name, plant in plants.items():
-            call = plant._step.call
-            t0 = clock()
-            for _ in range(calls):
-                call()
-            best[name] = min(best.get(name, np.inf), (clock() - t0) / calls)
-    return {"folded_us": 1e6 * best["folded"], "parametric_us": 1e6 * best["parametric"],
-            "ratio": best["parametric"] / best["folded"], "passes": passes}
-
-
-def bench_limits(spec_path: Path, methods: list[str], repeats: int) -> dict:
-    """Control step on a crane's own scenario with its limits, without, and saturated at every step."""
-    from ..api.crane import Crane
-    from ..control.controllers import make_controller, unbounded
-    from ..sim.simulation import setup_default, simulate
-
-    crane = Crane.from_toml(spec_path)
-    spec, model, path, gains, start = crane.spec, crane.model, crane.path, crane.gains(), crane.equilibrium()
-    rate, h = spec.controller.rate_hz, spec.simulation.step
-    reference = simulate(model, path, make_controller(methods[0], model, path, gains), setup_default(model, path),
-                         start.q, path.duration, rate, h)
-    states = list(zip(reference.q, reference.qd, reference.t, strict=True))
-    lower, upper, preferred = spec.input_limits()
-    winches = np.isfinite(upper) & (lower >= 0)
-    saturating = upper.copy()
-    saturating[winches] = 0.99 * start.inputs[winches]
-    variants = {"spec limits": None, "no limits": unbounded(spec), "saturated": (lower, saturating, preferred)}
-    controllers = {(m, v): make_controller(m, model, path, gains, limits=lim)
-                   for m in methods for v, lim in variants.items()}
-    times = {key: [] for key in controllers}
-    for _ in range(repeats):  # interleaved passes
-        for key, controller in controllers.items():
-            times[key].append(time_steps(controller, states, 1)[0])
-    out = {"spec": spec.name, "variants": {"saturated": "every winch's max at 0.99 x its static tension"},
-           "methods": {}}
-    for m in methods:
-        row = {}
-        for v in variants:
-            controller = controllers[(m, v)]
-            row[v] = {"control_step_us": stats(np.array(times[(m, v)])),
-                      "qp_solves_per_step": controller.limits.qp_solves / (repeats * len(states))}
-        row["extra_us_with_limits"] = (row["spec limits"]["control_step_us"]["median"]
-                                       - row["no limits"]["control_step_us"]["median"])
-        row["extra_us_saturated"] = (row["saturated"]["control_step_us"]["median"]
-                                     - row["no limits"]["control_step_us"]["median"])
-        out["methods"][m] = row
-    return out
 
 
 def format_limits_table(limits: dict) -> str:
@@ -418,3 +218,49 @@ def format_table(results: dict) -> str:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+def format_steps(steps: dict, loops: dict, mc: dict | None) -> str:
+    head = (f"{'method':<12} {'ref p50':>7} {'p99':>6} {'max':>6} {'fast p50':>8} {'p99':>6} {'max':>6} "
+            f"{'C p50':>6} {'p99':>6} {'max':>6} {'fast/C':>6} {'ref/C':>6} {'ref/fast':>8} {'RTF ref':>7} "
+            f"{'fast':>6} {'+sens ref':>9} {'fast':>6}")
+    lines = ["control step (us; the quietest of the interleaved passes) and the 55 s closed loop's real-time factor:",
+             head, "-" * len(head)]
+    for m, r in steps["methods"].items():
+        a, b, c, rtf = r["reference"], r["fast"], r["c"], loops.get(m, {})
+        lines.append(
+            f"{m:<12} {a['p50']:7.2f} {a['p99']:6.1f} {a['max']:6.0f} {b['p50']:8.2f} {b['p99']:6.1f} {b['max']:6.0f} "
+            f"{c['p50']:6.2f} {c['p99']:6.1f} {c['max']:6.0f} {r['ratio_fast_to_c']:6.2f} "
+            f"{r['ratio_reference_to_c']:6.2f} {r['ratio_reference_to_fast']:8.2f} "
+            f"{rtf.get('rtf_reference', float('nan')):7.0f} {rtf.get('rtf_fast', float('nan')):6.0f} "
+            f"{rtf.get('rtf_reference_sensing', float('nan')):9.0f} {rtf.get('rtf_fast_sensing', float('nan')):6.0f}")
+    est, flat = steps["estimator"], steps["path_evaluation"]
+    lines.append(f"path evaluation in Python (the reference step's; the fast step evaluates the spec's path in its "
+                 f"C; neither is in the exported C step's timing): p50 {flat['p50']:.2f} us, "
+                 f"p99 {flat['p99']:.1f} us")
+    if est is not None:
+        lines.append(f"estimator (measurement, projection, alpha-beta filter), Python: p50 {est['p50']:.2f} us, p99 "
+                     f"{est['p99']:.1f} us, max {est['max']:.0f} us")
+    if (fast := steps.get("estimator_fast")) is not None:
+        lines.append(f"estimator, compiled (the fast path's): p50 {fast['p50']:.2f} us, p99 {fast['p99']:.1f} us, "
+                     f"max {fast['max']:.0f} us; fast step + estimator / C step: "
+                     + ", ".join(f"{m} {r['ratio_fast_with_estimator_to_c']:.2f}" for m, r in steps["methods"].items()))
+    with_estimator = [(m, r) for m, r in steps["methods"].items() if "c_estimator" in r]
+    if with_estimator and (fast := steps.get("estimator_fast")) is not None:
+        lines.append("exported stateful controller (estimator, integral state and step in one C call) p50 / p99 / "
+                     "max us, and (fast step + compiled estimator) / it: "
+                     + "; ".join(f"{m} {r['c_estimator']['p50']:.2f} / {r['c_estimator']['p99']:.1f} / "
+                                 f"{r['c_estimator']['max']:.0f}, "
+                                 f"{r['ratio_fast_with_estimator_to_c_with_estimator']:.2f}"
+                                 for m, r in with_estimator))
+    if loops:
+        lines.append("the plant alone (its substeps, events and energy check over the scenario, a run's inputs "
+                     f"replayed; best of the same passes): RTF {next(iter(loops.values()))['rtf_plant_alone']:.0f}")
+    if mc is not None:
+        lines.append(
+            f"Monte Carlo ({mc['samples']} plants x {len(mc['methods'])} methods x k_I {{0, "
+            f"{mc['kis'][1]:g}}}, {mc['duration_s']:g} s, one process): reference {mc['runs_per_s_reference']:.2f} "
+            f"runs/s, fast {mc['runs_per_s_fast']:.2f} runs/s; the default study ({mc['default_study_runs']} runs) on "
+            f"2 cores: ~{mc['default_study_estimate_s_reference_2_cores']:.0f} s reference, "
+            f"~{mc['default_study_estimate_s_fast_2_cores']:.0f} s fast")
+    return "\n".join(lines)
