@@ -82,10 +82,11 @@ def children_running(pid: int, pattern: str) -> list[int]:
 
 def interrupt(tmp_path: Path, argv: list[str], hook: tuple[str, str, str], *, group: bool, repeat: bool = False,
               wait_for: str | None = None, env: dict | None = None, extra: str = "",
-              sent_at: list[float] | None = None) -> tuple[int, str, float, list[int]]:
-    """Run `acroboter ARGV` with `hook` (module, class or '', function) marked, SIGINT once the phase started;
-    (exit code, stderr, seconds from the signal to the exit, the pids of any Dask cluster it had started)."""
+              sent_at: list[float] | None = None, signum: int = signal.SIGINT) -> tuple[int, str, float, list[int]]:
+    """Run `acroboter ARGV` with `hook` (module, class or '', function) marked, `signum` (SIGINT) once the phase
+    started; (exit code, stderr, seconds from the signal to the exit, the pids of any Dask cluster it had started)."""
     marker = tmp_path / "phase-started"
+    marker.unlink(missing_ok=True)  # an earlier call's: the phase of this one has not started
     module, owner, name = hook
     script = PRELUDE.format(marker=str(marker), module=module, owner=owner, name=name, repeat=repeat, argv=argv,
                             extra=extra)
@@ -105,16 +106,17 @@ def interrupt(tmp_path: Path, argv: list[str], hook: tuple[str, str, str], *, gr
         if sent_at is not None:
             sent_at.append(time.time())
         if group:
-            os.killpg(proc.pid, signal.SIGINT)  # what a terminal's Ctrl-C does
+            os.killpg(proc.pid, signum)  # what a terminal's Ctrl-C (a closed terminal's SIGHUP) does
         else:
-            proc.send_signal(signal.SIGINT)
+            proc.send_signal(signum)  # what `kill` and `timeout` do
         _, err = proc.communicate(timeout=EXIT_LIMIT_S)
         latency = time.monotonic() - sent
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.communicate()
-    print(f"\n{argv[0]} ({name}) SIGINT to the {'group' if group else 'process'}: exit {proc.returncode} "
+    print(f"\n{argv[0]} ({name}) {signal.Signals(signum).name} to the {'group' if group else 'process'}: exit "
+          f"{proc.returncode} "
           f"{latency:.2f} s after the signal")
     deadline = time.monotonic() + 10
     while session_processes(proc.pid) and time.monotonic() < deadline:
@@ -129,8 +131,8 @@ def staging_left(*folders: Path) -> list[str]:
     return [str(p) for f in folders if f.exists() for p in f.rglob(".*") if pattern.fullmatch(p.name)]
 
 
-def assert_interrupted(code: int, err: str) -> None:
-    assert code == 130, err
+def assert_interrupted(code: int, err: str, signum: int = signal.SIGINT) -> None:
+    assert code == 128 + signum, err  # 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP
     assert "interrupted" in err and "Traceback" not in err, err
     assert "does not compile" not in err and "Warning" not in err, err
 
@@ -205,6 +207,55 @@ def test_while_the_closed_loop_runs(tmp_path, group):
                                 ("acroboter.api.crane", "", "simulate"), group=group)
     assert_interrupted(code, err)
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt"] and not staging_left(tmp_path)
+
+
+OTHER_SIGNALS = pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])
+
+
+@OTHER_SIGNALS
+def test_sigterm_and_sighup_stop_a_run_as_ctrl_c_does(tmp_path, signum):
+    """Issue 36: SIGTERM (what `kill` and `timeout` send) 3 s into a run left a new folder holding only a staging
+    folder. Now it exits 143 (SIGHUP 129) and the folder is as it was, as for Ctrl-C."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    code, err, _, _ = interrupt(tmp_path, ["run", "--duration", "30", "--method", "iterative", "--iterations", "300",
+                                           "--out", str(out), "-q"],
+                                ("acroboter.api.crane", "", "simulate"), group=False, signum=signum)
+    assert_interrupted(code, err, signum)
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt"] and not staging_left(tmp_path)
+    fresh = tmp_path / "fresh"  # a folder the run created is removed again
+    code, err, _, _ = interrupt(tmp_path, ["run", "--duration", "30", "--method", "penalty", "--out", str(fresh),
+                                           "-q"], ("acroboter.api.crane", "", "simulate"), group=False, signum=signum)
+    assert_interrupted(code, err, signum)
+    assert not fresh.exists() and not staging_left(tmp_path)
+
+
+@OTHER_SIGNALS
+def test_sigterm_and_sighup_while_the_figures_are_written_keep_the_earlier_results(tmp_path, signum):
+    out = tmp_path / "out"
+    assert subprocess.run([sys.executable, "-m", "acroboter", "run", "--duration", "0.2", "--method", "mlm",
+                           "--no-plots", "-q", "--out", str(out)], capture_output=True, timeout=300).returncode == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    code, err, _, _ = interrupt(tmp_path, ["run", "--duration", "0.2", "--method", "penalty", "--out", str(out), "-q"],
+                                ("acroboter.report.report", "", "write_figures"), group=False, repeat=True,
+                                signum=signum)
+    assert_interrupted(code, err, signum)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before and not staging_left(tmp_path)
+
+
+@pytest.mark.needs_animation
+def test_sigterm_while_a_video_is_encoded_leaves_no_partial_file(tmp_path):
+    """Issue 36: a time-out of `animate` left a .partial.mp4."""
+    out = tmp_path / "run"
+    assert subprocess.run([sys.executable, "-m", "acroboter", "run", "--duration", "10", "--method", "penalty",
+                           "--no-plots", "-q", "--out", str(out)], capture_output=True, timeout=300).returncode == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    code, err, _, _ = interrupt(tmp_path, ["animate", str(out), "--renderer", "matplotlib", "-q"],
+                                ("acroboter.cli.animate", "", "write_complete"), group=False, wait_for="ffmpeg",
+                                signum=signal.SIGTERM)
+    assert_interrupted(code, err, signal.SIGTERM)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before and not staging_left(tmp_path)
 
 
 @pytest.mark.needs_dask

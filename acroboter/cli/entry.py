@@ -72,7 +72,7 @@ def guarded(main: Callable[..., int]) -> Callable[..., int]:
 
     @functools.wraps(main)
     def wrapper(*args, **kwargs) -> int:
-        from ..process.interrupts import remembered_interrupt
+        from ..process.interrupts import exit_status, remembered_interrupt
         from ..process.quiet import contained
 
         interrupt = None
@@ -81,14 +81,14 @@ def guarded(main: Callable[..., int]) -> Callable[..., int]:
             # as CasADi returns (acroboter.process.interrupts: inside it, it would be swallowed)
             with contained(), remembered_interrupt() as interrupt:
                 return main(*args, **kwargs)
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as err:  # Ctrl-C, or SIGTERM, SIGHUP handled as it: 130, 143, 129
             print("interrupted", file=sys.stderr)
-            return EXIT_INTERRUPTED
+            return exit_status(err)
         except Exception as err:  # noqa: BLE001 - the boundary: every error becomes a message and a code
             if interrupt is not None and interrupt.received:  # a Ctrl-C that a library turned into an error of its own
                 log.debug("after Ctrl-C: %s: %s", type(err).__name__, err)
                 print("interrupted", file=sys.stderr)
-                return EXIT_INTERRUPTED
+                return 128 + interrupt.signum
             if (line := core_import_problem(err)) is not None:
                 print(f"error: {line}", file=sys.stderr)
                 return EXIT_CANNOT_RUN

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from ..codegen.emit_c import generate
 from ..model.spec import Spec, SpecError, load_spec
-from ..process.interrupts import remembered_interrupt
+from ..process.interrupts import exit_status, remembered_interrupt
 from ..process.locations import checkout_root, example_spec, shipped_generated_folder, spec_folder
 from .entry import add_parameter_options, as_option_text, check_out_folder, guarded, spec_file
 from .outputs import OutputFolderError, folder_lock, no_empty_folder_left, out_path, results_folder
@@ -241,9 +241,9 @@ def main(argv: list[str] | None = None) -> int:
     except GenerationError as err:
         print(f"error: {err} (the previous generated files are unchanged)", file=sys.stderr)
         return 3
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as err:  # also SIGTERM, SIGHUP (acroboter.process.interrupts)
         print("interrupted: the previous generated files are unchanged", file=sys.stderr)
-        return 130
+        return exit_status(err)
     except OSError as err:
         print(f"error: cannot write the generated files: {err}", file=sys.stderr)
         return 3

@@ -22,6 +22,10 @@
   process), so two runs never interleave their files or the manifest.
 - `accumulate=True` (export-step, mjcf, animate: one file per spec, method or video): a run replaces only the
   files of its own names; those of other names its earlier runs wrote stay in its entry.
+- A run that failed (exit 3) never replaces the last good results: `publish_failed(why)` swaps what it has to
+  say (its records up to the failure, its summary) into `failed/<command>/` with `failure.txt` saying why,
+  under a manifest entry of its own (`<command> (failed)`); the next failed run replaces that, the next good
+  run removes it. Every result of the good run stays byte for byte (docs/errors.md).
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ from pathlib import Path
 from ..process.interrupts import deferred_interrupt
 
 MANIFEST = ".acroboter-outputs.json"
+FAILED = "failed"  # failed/<command>/: what a failed run (exit 3) had to say, apart from the good results
 STAGING_PREFIX = ".acroboter-staging-"
 FORMAT = 1
 
@@ -48,6 +53,11 @@ class OutputFolderError(Exception):
 
 class OutputFolderBusy(Exception):
     """Another command is writing into the output folder (cannot run now, exit 3): the message names it."""
+
+
+def failed_entry(command: str) -> str:
+    """The manifest entry of a command's last failed run."""
+    return f"{command} (failed)"
 
 
 def lock_holder(fd: int) -> str:
@@ -125,6 +135,21 @@ def _inside(out: Path, relative: str) -> Path | None:
     if not parts or Path(relative).is_absolute() or ".." in parts:
         return None
     return out.joinpath(*parts)
+
+
+def _remove_entry(out: Path, entry: dict | None) -> None:
+    """Remove the files a manifest entry lists, then its folders where they are left empty."""
+    if entry is None:
+        return
+    for name in entry["files"]:
+        target = _inside(out, name)
+        if target is not None and (target.is_file() or target.is_symlink()):
+            target.unlink()
+    for name in sorted(entry["folders"], key=lambda n: -len(Path(n).parts)):  # deepest first
+        target = _inside(out, name)
+        if target is not None and target.is_dir() and not target.is_symlink():
+            with contextlib.suppress(OSError):
+                target.rmdir()  # only when empty
 
 
 def _alive(pid: int) -> bool:
@@ -256,10 +281,29 @@ class ResultsFolder:
                         target.rmdir()  # only when empty: a file the user put there keeps it
             entries = {c: e for c, e in manifest.items() if c not in self.replaces}
             entries[self.command] = {"files": [*new, *sorted(kept_files)], "folders": sorted(folders | kept_folders)}
+            if not self.command.endswith(failed_entry("")):  # a good run: its command's failure record is stale
+                _remove_entry(out, entries.pop(failed_entry(self.command), None))
             write_manifest(out, entries)
             shutil.rmtree(staging, ignore_errors=True)
             self.published = True  # a Ctrl-C held back during the swap is raised after this: the results are in
         return [out / name for name in new]
+
+    def publish_failed(self, why: str) -> list[Path]:
+        """Swap the staged records of a failed run into `failed/<command>/` (with `failure.txt`: `why`), leaving the
+        command's good results as they were; returns their paths."""
+        inner = self.staging / FAILED / self.command
+        entries = [entry for entry in self.staging.iterdir()]
+        inner.mkdir(parents=True)
+        for entry in entries:
+            os.replace(entry, inner / entry.name)
+        (inner / "failure.txt").write_text(f"acroboter {self.command} failed (exit 3); its results in "
+                                           f"{self.out} are those of its last good run.\n{why}\n", encoding="utf-8")
+        command, replaces, accumulate = self.command, self.replaces, self.accumulate
+        self.command, self.replaces, self.accumulate = failed_entry(command), (failed_entry(command),), False
+        try:
+            return self.publish()
+        finally:
+            self.command, self.replaces, self.accumulate = command, replaces, accumulate
 
     def discard(self) -> None:
         """Leave the folder as it was: the staging folder goes, and a folder this call made if it is empty."""

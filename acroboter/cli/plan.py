@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 from ..model.ranges import MARGIN, PLAN_ACCEL, PLAN_INTERVALS, PLAN_SPEED, PLAN_WINDOW
+from ..process.interrupts import exit_status
 from ..process.locations import example_spec
 from .entry import carrying, guarded, ranged, spec_file
 from .outputs import out_path, results_folder
@@ -88,10 +89,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with results_folder(args.out, "plan", expected=["summary.json"]) as folder:
             return _plan(args, folder)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as err:  # also SIGTERM, SIGHUP (acroboter.process.interrupts)
         earlier = f"the earlier ones in {args.out} are as they were" if existed else f"{args.out} was not created"
         print(f"interrupted: no plan written ({earlier})", file=sys.stderr)
-        return 130
+        return exit_status(err)
 
 
 def _plan(args: argparse.Namespace, folder) -> int:

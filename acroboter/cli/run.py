@@ -20,9 +20,10 @@ from pathlib import Path
 
 from ..model.controller_parameters import OVERRIDES
 from ..model.spec import MAX_CONTROL_STEPS
+from ..process.interrupts import exit_status
 from ..process.locations import example_spec
 from .entry import as_option_text, guarded, progress_disabled
-from .outputs import ResultsFolder, results_folder
+from .outputs import FAILED, ResultsFolder, results_folder
 from .run_args import expand_methods, parse_args
 
 FIGURES = ("path_3d.png", "tracking_errors.png", "servo_errors.png", "inputs.png", "control_step_time.png")
@@ -45,13 +46,13 @@ def main(argv: list[str] | None = None) -> int:
         # videos `acroboter animate` wrote into this folder show the earlier run: they go with its files.
         with results_folder(args.out, "run", expected=["summary.json"], replaces=("animate",)) as folder:
             return _run(args, folder)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as err:  # also SIGTERM, SIGHUP (acroboter.process.interrupts)
         if folder is not None and folder.published:  # Ctrl-C during the swap: held back until it was done
             print(f"interrupted (the results in {args.out} are complete: they were in place first)", file=sys.stderr)
-            return 130
+            return exit_status(err)
         earlier = f"the earlier ones in {args.out} are as they were" if existed else f"{args.out} was not created"
         print(f"interrupted: no results written ({earlier})", file=sys.stderr)
-        return 130
+        return exit_status(err)
 
 
 class _Refused(Exception):
@@ -107,8 +108,10 @@ def _run(args: argparse.Namespace, folder: ResultsFolder) -> int:
         print("error: no method could run (see the warnings above); nothing was written",
               file=sys.stderr)
         return 3
-    _written(args, folder, setup, results, summaries)
-    return _reported(args, setup, results, summaries)
+    diverged = [f"{m} diverged at t = {r.diverged_at:.2f} s: {r.run.divergence}" for m, r in results.items()
+                if r.diverged_at is not None]
+    where = _written(args, folder, setup, results, summaries, "; ".join(diverged) or None)
+    return _reported(args, setup, results, summaries, where)
 
 
 def _checked(args: argparse.Namespace, folder: ResultsFolder) -> _Setup:
@@ -196,8 +199,11 @@ def _simulated(args: argparse.Namespace, setup: _Setup) -> tuple[dict, dict]:
     return results, summaries
 
 
-def _written(args: argparse.Namespace, folder: ResultsFolder, setup: _Setup, results: dict, summaries: dict) -> None:
-    """The CSVs, summary.json and the figures, staged and published into --out in one go."""
+def _written(args: argparse.Namespace, folder: ResultsFolder, setup: _Setup, results: dict, summaries: dict,
+             failure: str | None) -> Path:
+    """The CSVs, summary.json and the figures, staged and published into --out in one go; a run in which a method
+    diverged (`failure`, exit 3) into --out/failed/run/ instead: the last good results stay as they were. Returns
+    the folder they are in."""
     from ..report.report import write_figures, write_summary
 
     args.sensing_used = setup.sensing
@@ -215,10 +221,14 @@ def _written(args: argparse.Namespace, folder: ResultsFolder, setup: _Setup, res
                       {m: s for m, s in summaries.items() if m in results},
                       input_labels, lay.servo_constraints, input_limits=spec.input_limits()[:2],
                       paper=is_paper_crane(spec))
-    folder.publish()
+    if failure is None:
+        folder.publish()
+        return args.out
+    folder.publish_failed(failure)
+    return args.out / FAILED / "run"
 
 
-def _reported(args: argparse.Namespace, setup: _Setup, results: dict, summaries: dict) -> int:
+def _reported(args: argparse.Namespace, setup: _Setup, results: dict, summaries: dict, where: Path) -> int:
     """The run on screen, printed once the results are in place (a table on screen always has its files), and the
     exit status: 3 when a method diverged (its results up to there are written)."""
     import numpy as np
@@ -243,7 +253,11 @@ def _reported(args: argparse.Namespace, setup: _Setup, results: dict, summaries:
               "time the controllers on the own plant or with `acroboter bench` (docs/mujoco.md)")
     for w in setup.warnings:
         print(f"warning: {w}")
-    print(f"results in {args.out}/")
+    if where == args.out:
+        print(f"results in {args.out}/")
+    else:
+        print(f"the failed run's records in {where}/ ({where}/failure.txt says why); the results in {args.out}/ are "
+              "those of its last good run, as they were")
     if args.view:
         from ..report.viewer import replay
 

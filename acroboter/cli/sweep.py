@@ -36,6 +36,7 @@ from ..model.ranges import (
     Range,
 )
 from ..model.settings import resolve_gains
+from ..process.interrupts import exit_status
 from ..process.locations import example_spec
 from ..report.study_figures import sweep_figures
 from ..studies.grid import (
@@ -59,7 +60,6 @@ from ..studies.run_verdicts import findings, format_table, ok
 from .entry import (
     EXIT_BAD_INPUT,
     EXIT_CANNOT_RUN,
-    EXIT_INTERRUPTED,
     as_option_text,
     carrying,
     guarded,
@@ -68,7 +68,7 @@ from .entry import (
     ranged_list,
     spec_file,
 )
-from .outputs import out_path, results_folder
+from .outputs import FAILED, out_path, results_folder
 
 DEFAULT_SPEC = example_spec("acroboter")
 DEFAULT_ALPHAS = "1e1:1e16"
@@ -83,6 +83,7 @@ class SweepResult:
     wall_s: float
     workers: int
     files: list[Path] = field(default_factory=list)
+    failed: bool = False  # no run succeeded: the files are in <out>/failed/sweep/
 
 
 def sweep(spec_path: Path = DEFAULT_SPEC, *, alphas: list[float] | None = None, omegas: list[float] | None = None,
@@ -123,8 +124,13 @@ def sweep(spec_path: Path = DEFAULT_SPEC, *, alphas: list[float] | None = None, 
             write_rows(staged[0], rows, COLUMNS)
             if plots:
                 staged += sweep_figures(folder.staging, rows, alpha_mode, tolerance)
-            folder.publish()
             result.files = [folder.out / p.relative_to(folder.staging) for p in staged]
+            if any(ok(r) for r in rows):
+                folder.publish()
+            else:  # a failed sweep (exit 3) keeps the last good one's files: its records go to failed/sweep/
+                result.failed = True
+                folder.publish_failed(f"no run of the sweep succeeded ({rows[0]['status'] if rows else 'no runs'})")
+                result.files = [folder.out / FAILED / "sweep" / p.relative_to(folder.staging) for p in staged]
     return result
 
 
@@ -199,13 +205,14 @@ def main(argv: list[str] | None = None) -> int:
     except GridError as err:
         print(f"error: {err}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as err:  # also SIGTERM, SIGHUP (acroboter.process.interrupts)
         print("interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return exit_status(err)
     rows = result.rows
     if not any(ok(r) for r in rows):
         print(f"error: no run of the sweep succeeded ({rows[0]['status'] if rows else 'no runs'}); see "
-              f"{args.out}/sweep.csv", file=sys.stderr)
+              f"{args.out / FAILED / 'sweep'}/sweep.csv (the results in {args.out}/ are those of its last good run, "
+              "as they were)", file=sys.stderr)
         return EXIT_CANNOT_RUN
     duration = rows[0]["duration_s"] if rows and rows[0]["duration_s"] is not None else args.duration
     print(f"{len(rows)} runs of {duration:g} s simulated in {result.wall_s:.1f} s wall on {result.workers} "

@@ -21,25 +21,56 @@ import threading
 
 # the remembered_interrupt blocks open now (innermost last): deferred_interrupt raises a Ctrl-C they remember
 _ACTIVE: list[_Remembered] = []
+# What stops a command as Ctrl-C does: SIGINT, and SIGTERM (`kill`, `timeout`) and SIGHUP (a closed terminal), which
+# by default would end the process at once, leaving a staging folder or a partial file behind.
+SIGNALS = tuple(s for s in (signal.SIGINT, getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None))
+                if s is not None)
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C, or SIGTERM or SIGHUP stopping a command as Ctrl-C does; `status` is the shell's 128 + the signal's
+    number (130, 143, 129)."""
+
+    def __init__(self, signum: int = signal.SIGINT):
+        super().__init__()
+        self.signum = int(signum)
+
+    @property
+    def status(self) -> int:
+        return 128 + self.signum
+
+
+def exit_status(err: BaseException) -> int:
+    """The exit status of a command stopped by `err` (a KeyboardInterrupt): 128 + its signal, 130 for Ctrl-C."""
+    return getattr(err, "status", 128 + int(signal.SIGINT))
+
+
+def _install(handler) -> dict:
+    return {signum: signal.signal(signum, handler) for signum in SIGNALS}
+
+
+def _restore(previous: dict) -> None:
+    for signum, handler in previous.items():
+        signal.signal(signum, handler)
 
 
 @contextlib.contextmanager
 def deferred_interrupt():
-    """SIGINT during the block is remembered and raised as KeyboardInterrupt right after it. A Ctrl-C that an open
-    remembered_interrupt block still holds is raised before the block starts."""
+    """SIGINT (SIGTERM, SIGHUP) during the block is remembered and raised as Interrupted (a KeyboardInterrupt) right
+    after it. A Ctrl-C that an open remembered_interrupt block still holds is raised before the block starts."""
     if threading.current_thread() is not threading.main_thread():
         yield  # signals reach the main thread only
         return
     for state in _ACTIVE:
         state.check()
     caught = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    previous = _install(lambda signum, frame: caught.append(signum))
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        _restore(previous)
     if caught:
-        raise KeyboardInterrupt
+        raise Interrupted(caught[0])
 
 
 class _Remembered:
@@ -49,12 +80,13 @@ class _Remembered:
         # it makes may turn it into an error of its own (matplotlib's Agg: "Invalid bounding box"), which is then
         # still a Ctrl-C (acroboter.cli.entry.guarded)
         self.received = False
+        self.signum = int(signal.SIGINT)  # the signal received (SIGTERM and SIGHUP stop a command as Ctrl-C does)
 
     def check(self) -> None:
         """Raise the remembered Ctrl-C now (at a point where stopping leaves nothing half-done)."""
         if self.caught:
             self.caught = False
-            raise KeyboardInterrupt
+            raise Interrupted(self.signum)
 
 
 def inside_casadi(frame) -> bool:
@@ -80,31 +112,31 @@ def remembered_interrupt():
         if not inside_casadi(frame.f_back if event == "return" else frame):
             sys.setprofile(profile)
             state.caught = False
-            raise KeyboardInterrupt
+            raise Interrupted(state.signum)
 
     def on_interrupt(signum, frame):
-        state.received = True
+        state.received, state.signum = True, int(signum)
         if inside_casadi(frame):  # raised here it would be swallowed: raised once CasADi has returned
             state.caught = True
             sys.setprofile(on_return)
             return
         state.caught = False
-        raise KeyboardInterrupt
+        raise Interrupted(signum)
 
     def on_unraisable(unraisable):
         if isinstance(unraisable.exc_value, KeyboardInterrupt):  # ours, where Python could not propagate it
-            state.caught = True
+            state.caught, state.signum = True, getattr(unraisable.exc_value, "signum", state.signum)
             return
         previous_hook(unraisable)
 
-    previous = signal.signal(signal.SIGINT, on_interrupt)
+    previous = _install(on_interrupt)
     previous_hook, sys.unraisablehook = sys.unraisablehook, on_unraisable
     _ACTIVE.append(state)
     try:
         yield state
     finally:
         _ACTIVE.remove(state)
-        signal.signal(signal.SIGINT, previous)
+        _restore(previous)
         sys.unraisablehook = previous_hook
         sys.setprofile(profile)
     state.check()

@@ -31,6 +31,7 @@ from ..process.locations import cache_dir as resolve_cache_dir
 from ..process.locations import shipped_generated_folder
 from .compile_library import BuildError, cache_lock, cache_write_error, remove_stale_staging
 from .compiled import CompiledModel, DamagedLibraryError, NotBuiltError, StaleModelError
+from .integrity import regenerate_hint
 
 log = logging.getLogger(__name__)
 
@@ -64,17 +65,38 @@ def load_model(spec: Spec, generated_dir: Path | None = None, cache_dir: Path | 
 
 
 def shipped_sources(spec: Spec) -> Path | None:
-    """The checked-in C of `spec` if it is a shipped example as it was generated, else None."""
+    """The checked-in C of `spec` if it is a shipped example as it was generated, else None. The shipped example
+    itself with a missing or unreadable manifest is damaged shipped code: StaleModelError (exit 2) naming the file
+    and what restores it, never a silent regeneration into the cache."""
     folder = shipped_generated_folder() / spec.name
+    path = folder / "manifest.json"
     try:
-        manifest = json.loads((folder / "manifest.json").read_text())
-    except (OSError, ValueError):
-        return None
-    if not isinstance(manifest, dict):
-        return None
-    if manifest.get("spec_model_hash") == spec.model_hash() and manifest.get("codegen_hash") == codegen_hash():
-        return folder
+        manifest = json.loads(path.read_text())
+        problem = None if isinstance(manifest, dict) else "is not a JSON object"
+    except FileNotFoundError:
+        manifest, problem = None, "is missing"
+    except (OSError, ValueError) as err:
+        manifest, problem = None, f"cannot be read as JSON ({getattr(err, 'strerror', None) or err})"
+    if problem is None:
+        if manifest.get("spec_model_hash") == spec.model_hash() and manifest.get("codegen_hash") == codegen_hash():
+            return folder
+        return None  # another version of the spec or of the generator: the cache's to generate
+    if folder.is_dir() and _is_shipped_example(spec):
+        raise StaleModelError(f"spec '{spec.name}': the shipped generated C is damaged: {path} {problem}; "
+                              f"{regenerate_hint(folder)}")
     return None
+
+
+def _is_shipped_example(spec: Spec) -> bool:
+    """Whether `spec` is one of the shipped examples as its file in the package says it."""
+    from ..model.spec import SpecError, load_spec
+    from ..process.locations import spec_folder
+
+    example = spec_folder() / f"{spec.name}.toml"
+    try:
+        return example.is_file() and load_spec(example).model_hash() == spec.model_hash()
+    except SpecError:
+        return False
 
 
 def model_sources(spec: Spec, cache_root: Path, generate: bool = True) -> Path:

@@ -1,0 +1,116 @@
+"""Issue 36: a run that fails (exit 3) never costs the last good results. A good run, then a failing one into the same
+folder: every byte of the good run's results stays; what the failed run had to say is in failed/<command>/, with
+failure.txt saying why; the next good run removes that record (docs/errors.md)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from conftest import REPO
+
+from acroboter.cli.outputs import FAILED, MANIFEST
+
+SPEC = REPO / "model_spec" / "acroboter.toml"
+
+
+def too_fast_spec(tmp_path):
+    """The default crane with a path at 20 m/s: the same compiled model, a run that diverges at once."""
+    text = SPEC.read_text()
+    line = next(x for x in text.splitlines() if x.startswith("mean_speed"))
+    path = tmp_path / "too_fast.toml"
+    path.write_text(text.replace(line, "mean_speed = 20.0"))
+    return path
+
+
+def results_of(out):
+    """Every file of the folder but the manifest and the failure record: what a good run left."""
+    return {str(p.relative_to(out)): p.read_bytes() for p in sorted(out.rglob("*"))
+            if p.is_file() and p.name != MANIFEST and FAILED not in p.relative_to(out).parts}
+
+
+def test_a_run_that_diverges_keeps_the_last_good_results(tmp_path, capsys):
+    from acroboter.cli.run import main
+
+    out = tmp_path / "out"
+    assert main(["--duration", "0.2", "--method", "mlm,penalty", "--out", str(out), "-q"]) == 0
+    good = results_of(out)
+    assert {"summary.json", "mlm.csv", "penalty.csv", "inputs.png"} <= set(good)
+    capsys.readouterr()
+    assert main(["--spec", str(too_fast_spec(tmp_path)), "--method", "mlm", "--no-plots", "--out", str(out),
+                 "-q"]) == 3
+    printed = capsys.readouterr()
+    assert results_of(out) == good  # byte for byte, the files of the methods it did not run too
+    record = out / FAILED / "run"
+    assert sorted(p.name for p in record.iterdir()) == ["failure.txt", "mlm.csv", "summary.json"]
+    assert "mlm diverged at t = " in (record / "failure.txt").read_text()
+    assert json.loads((record / "summary.json").read_text())["methods"]["mlm"]["max_position_error_mm"] is None
+    assert f"the failed run's records in {record}/" in printed.out and "as they were" in printed.out
+    manifest = json.loads((out / MANIFEST).read_text())["commands"]
+    assert set(manifest) == {"run", "run (failed)"}
+    assert sorted(manifest["run"]["files"]) == sorted(good)
+    # the next failure replaces the record; the next good run removes it
+    assert main(["--spec", str(too_fast_spec(tmp_path)), "--method", "penalty", "--no-plots", "--out", str(out),
+                 "-q"]) == 3
+    assert sorted(p.name for p in record.iterdir()) == ["failure.txt", "penalty.csv", "summary.json"]
+    assert results_of(out) == good
+    assert main(["--duration", "0.2", "--method", "mlm", "--no-plots", "--out", str(out), "-q"]) == 0
+    assert not (out / FAILED).exists()
+    assert set(json.loads((out / MANIFEST).read_text())["commands"]) == {"run"}
+    assert sorted(results_of(out)) == ["mlm.csv", "summary.json"]
+
+
+def test_a_failure_record_never_takes_a_users_file(tmp_path):
+    """A file of the user's where the record would go is refused (exit 2), not written over."""
+    from acroboter.cli.run import main
+
+    out = tmp_path / "out"
+    (out / FAILED / "run").mkdir(parents=True)
+    (out / FAILED / "run" / "summary.json").write_text("mine")
+    assert main(["--spec", str(too_fast_spec(tmp_path)), "--method", "mlm", "--no-plots", "--out", str(out),
+                 "-q"]) == 2
+    assert (out / FAILED / "run" / "summary.json").read_text() == "mine"
+
+
+@pytest.mark.needs_dask
+def test_a_sweep_in_which_no_run_succeeds_keeps_the_last_good_sweep(tmp_path, capsys):
+    from acroboter.cli.sweep import main
+
+    out = tmp_path / "sweep"
+    grid = ["--alphas", "1e7", "--omegas", "10", "--iterations", "1", "--workers", "1", "--no-plots", "-q"]
+    assert main([*grid, "--duration", "0.2", "--out", str(out)]) == 0
+    good = results_of(out)
+    assert set(good) == {"sweep.csv"}
+    capsys.readouterr()
+    assert main([*grid, "--spec", str(too_fast_spec(tmp_path)), "--out", str(out)]) == 3
+    assert "no run of the sweep succeeded" in capsys.readouterr().err
+    assert results_of(out) == good
+    record = out / FAILED / "sweep"
+    assert sorted(p.name for p in record.iterdir()) == ["failure.txt", "sweep.csv"]
+
+
+@pytest.mark.parametrize("damage", ["not json", "missing"])
+def test_damaged_shipped_code_is_reported_not_regenerated(tmp_path, monkeypatch, capsys, damage):
+    """Issue 36: with generated/<spec>/manifest.json replaced by non-JSON or deleted, `run` regenerated into the
+    cache and exited 0 without a word, while `build` refused the same spec. Now both exit 2 naming the file."""
+    import shutil
+
+    import acroboter.runtime.cache as cache
+    import acroboter.runtime.integrity as integrity
+    from acroboter.cli.run import main
+
+    shipped = tmp_path / "generated"
+    shutil.copytree(REPO / "generated" / "acroboter", shipped / "acroboter")
+    manifest = shipped / "acroboter" / "manifest.json"
+    if damage == "missing":
+        manifest.unlink()
+    else:
+        manifest.write_text("{ not json")
+    for module in (cache, integrity):
+        monkeypatch.setattr(module, "shipped_generated_folder", lambda: shipped)
+    monkeypatch.setenv("ACROBOTER_CACHE_DIR", str(tmp_path / "cache"))
+    assert main(["--duration", "0.1", "--method", "mlm", "--out", str(tmp_path / "out"), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert f"the shipped generated C is damaged: {manifest}" in err and "generate" in err, err
+    assert not (tmp_path / "cache" / "generated").exists()  # nothing regenerated
+    assert not (tmp_path / "out").exists()
