@@ -299,7 +299,7 @@ def export_step_main(argv: list[str] | None = None) -> int:
         out = args.out if args.out is not None else DEFAULT_EMBEDDED / f"{spec.name}_{args.method}"
         if args.stateful:
             name = controller_name(spec, args.method, gains.recovery)
-            with results_folder(out, "export-step", expected=controller_files(name), accumulate=True) as folder:
+            with results_folder(out, "export-step", expected=controller_files(name)) as folder:
                 from ..api.crane import Crane  # the start state and the path's numbers come from the library
 
                 Crane.from_toml(args.spec).export_controller(args.method, folder.staging, None, args.mlm_system,
@@ -309,9 +309,9 @@ def export_step_main(argv: list[str] | None = None) -> int:
                 print(f"wrote {_shown(path)}")
             return 0
         name = step_name(spec, args.method, gains.recovery)
-        # the output-folder contract (docs/run.md): checked and locked now, staged, swapped in; each method's
-        # files are its own (accumulate): exporting another method into the folder keeps the first one's
-        with results_folder(out, "export-step", expected=[f"{name}.c", f"{name}.h"], accumulate=True) as folder:
+        # the output-folder contract (docs/run.md): checked and locked now, staged, swapped in; the files of the last
+        # export are the current ones (an earlier export into the folder, of other gains or another method, goes)
+        with results_folder(out, "export-step", expected=[f"{name}.c", f"{name}.h"]) as folder:
             export_step(args.spec, args.method, folder.staging, args.mlm_system, args.penalty_system, **overrides)
             written = folder.publish()
     except (SpecError, ExportError) as err:

@@ -20,8 +20,9 @@
 - One command at a time: the folder is locked (flock on the folder itself) from the check to the swap; a
   second command writing into it meanwhile is refused at once (OutputFolderBusy, exit 3, naming the other
   process), so two runs never interleave their files or the manifest.
-- `accumulate=True` (export-step, mjcf, animate: one file per spec, method or video): a run replaces only the
-  files of its own names; those of other names its earlier runs wrote stay in its entry.
+- `accumulate=True` (mjcf, animate, study: one file per spec, video or study): a run replaces only the files of
+  its own names; those of other names its earlier runs wrote stay in its entry. Every other command's last run's
+  files are its current ones (export-step too: an earlier export of other gains or another method goes).
 - A run that failed (exit 3) never replaces the last good results: `publish_failed(why)` swaps what it has to
   say (its records up to the failure, its summary) into `failed/<command>/` with `failure.txt` saying why,
   under a manifest entry of its own (`<command> (failed)`); the next failed run replaces that, the next good

@@ -77,7 +77,8 @@ def main(argv: list[str] | None = None) -> int:
                      f"{1 / STUDY_RATE_HZ:g} s")
     studies = [s for s in ("redundant", "noncollocated") if args.which in (s, "all")]
     expected = [f"{s}/{name}" for s in studies for name in ("table.md", "summary.json", "position_error.png")]
-    with results_folder(args.out, "study", expected=expected) as folder:  # checked before any work
+    # each study's folder is its own (accumulate): `study noncollocated` keeps redundant/, which it did not redo
+    with results_folder(args.out, "study", expected=expected, accumulate=True) as folder:  # checked before any work
         return _study(args, folder)
 
 
