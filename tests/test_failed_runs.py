@@ -114,3 +114,37 @@ def test_damaged_shipped_code_is_reported_not_regenerated(tmp_path, monkeypatch,
     assert f"the shipped generated C is damaged: {manifest}" in err and "generate" in err, err
     assert not (tmp_path / "cache" / "generated").exists()  # nothing regenerated
     assert not (tmp_path / "out").exists()
+
+
+def test_the_energy_check_of_a_crane_without_gravity_holds_its_rounding():
+    """Issue 36: a spec with gravity 0 failed the energy check on 1e-29 J of rounding (the bound scaled with the
+    weight, 0). At rest in zero gravity, no input: the balance holds, and the bound is above its rounding."""
+    import numpy as np
+
+    from acroboter.api.crane import Crane
+    from acroboter.sim.open_loop import held_path
+    from acroboter.sim.plant import Plant
+
+    crane = Crane.from_example("acroboter")
+    spec, lay = crane.spec, crane.layout
+    path = held_path(spec, lay, crane.path, 1.0)
+    plant = Plant(crane.model, path, spec.simulation.baumgarte_zeta, spec.simulation.baumgarte_omega,
+                  {"gravity.z": 0.0})
+    start = crane.equilibrium()
+    x = plant.initial_state(start.q)
+    h, substeps = spec.simulation.step, round(1.0 / spec.controller.rate_hz / spec.simulation.step)
+    u = np.zeros(lay.l)
+    for k in range(25):
+        plant.advance(x, u, h, plant.stage_table(k * substeps * h, h, substeps), 0, substeps)
+    assert abs(plant.energy_residual) <= plant.energy_bound and plant.energy_bound > 0.0
+
+
+def test_export_step_refuses_a_penalty_setting_for_mlm(tmp_path, capsys):
+    """Issue 36: `export-step --recovery eq12` was silently ignored for MLM, which has no recovery."""
+    from acroboter.cli.generate import export_step_main
+
+    with pytest.raises(SystemExit) as stop:
+        export_step_main(["--method", "mlm", "--recovery", "eq12", "--out", str(tmp_path / "out")])
+    assert stop.value.code == 2
+    assert "--recovery: the penalty methods' setting(s); mlm has none" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

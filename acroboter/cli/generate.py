@@ -288,6 +288,12 @@ def export_step_main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.out is not None:
         check_out_folder(parser, args.out)
+    if args.method == "mlm":  # MLM's multipliers are the inputs: it has no recovery (nor penalty numbers) to set
+        given = [item.flag for item in exported if getattr(args, item.name) is not None
+                 and item.table == "controller.penalty"]
+        if given:
+            parser.error(f"{', '.join(given)}: the penalty methods' setting(s); mlm has none (its multipliers are "
+                         "the inputs): leave them out, or export --method penalty or iterative-N")
     overrides = {item.name: getattr(args, item.name) for item in exported}  # each in its range
     try:
         spec = load_spec(args.spec)

@@ -198,6 +198,8 @@ class ResultsFolder:
     def open(self, expected: Iterable[str] = ()) -> None:
         out = self.out
         try:
+            if (problem := unfit_folder(out)) is not None:
+                raise self._error(problem)
             if out.exists() and not out.is_dir():
                 raise self._error("it is a file, not a folder")
             self.created = missing_folders(out)
@@ -351,6 +353,24 @@ def remove_stale_partials(target: Path) -> None:
             pid = entry.name[len(target.name) + 2:-len(".partial")]
             if pid.isdigit() and not _alive(int(pid)) and entry.is_file():
                 entry.unlink(missing_ok=True)
+
+
+# Kernel file systems: they hold no folder of results (a mkdir there says "No such file or directory").
+SYSTEM_FOLDERS = ("/proc", "/sys", "/dev")
+
+
+def unfit_folder(out: Path) -> str | None:
+    """Why `out` cannot hold a results folder, in words that name the real cause (None: it may)."""
+    resolved = Path(os.path.abspath(out))
+    if resolved == Path(resolved.anchor):
+        return "it is the file system's root: give a folder of its own (e.g. results)"
+    for system in SYSTEM_FOLDERS:
+        if resolved == Path(system) or resolved.is_relative_to(system):
+            return f"{system} is the kernel's file system, which holds no folder of results: give another folder"
+    if out.is_symlink() and not out.exists():
+        return (f"it is a symbolic link to {os.readlink(out)}, which does not exist: create that folder, or remove "
+                "the link")
+    return None
 
 
 def out_path(text: str) -> Path:

@@ -132,7 +132,7 @@ def _checked(args: argparse.Namespace, folder: ResultsFolder) -> _Setup:
             check_mujoco_timestep(spec.simulation.step, args.mujoco_timestep, 1.0 / spec.controller.rate_hz)
         except ValueError as err:
             raise _Refused(as_option_text(err)) from None
-    sensing = crane.sensing(args.sensing)  # SpecError naming the field (exit 2), before any work
+    sensing = _checked_sensing(crane, args.sensing)  # exit 2 naming the option (or the spec's field), before any work
     methods = expand_methods(args.method, args.iterations or spec.controller.penalty.iterations)
     # a file of the user's under a result's name: refused now, before the simulation (exit 2)
     folder.claim([f"{m}.csv" for m in methods] + ([] if args.no_plots else list(FIGURES)))
@@ -153,6 +153,31 @@ def _checked(args: argparse.Namespace, folder: ResultsFolder) -> _Setup:
         raise _Refused(f"{where}: {problem}")
     return _Setup(crane, trajectory, sensing, methods, gains, path, duration, steps, overrides,
                   warnings=[f"spec: {w}" for w in crane.warnings])
+
+
+# The sensing fields the --sensing-* options override (acroboter.cli.run_args), by the option that gives them.
+SENSING_OPTIONS = {"noise": "--sensing-noise", "quantization": "--sensing-quantization",
+                   "delay_periods": "--sensing-delay", "seed": "--sensing-seed"}
+
+
+def _checked_sensing(crane, overrides):
+    """The run's sensing; a problem in what the --sensing-* options gave is named by the option (it was reported as
+    an invalid spec file), one in the spec's own [sensing] section by the spec's field."""
+    from ..model.spec import SpecError
+
+    try:
+        return crane.sensing(overrides)
+    except SpecError as err:
+        given = overrides if isinstance(overrides, dict) else {}
+        lines = []
+        for path, problem in err.problems:
+            parts = path.split(".")
+            field = parts[1] if len(parts) > 1 and parts[0] == "sensing" else None
+            if field not in given or field not in SENSING_OPTIONS:
+                raise  # the spec's own section: the spec's field names it
+            option = SENSING_OPTIONS[field] + (f" {parts[2]}" if len(parts) > 2 else "")
+            lines.append(f"{option}: {problem}")
+        raise _Refused("; ".join(lines)) from None
 
 
 def _simulated(args: argparse.Namespace, setup: _Setup) -> tuple[dict, dict]:

@@ -54,6 +54,8 @@ _LOOP_REFUSED: set = set()  # cache roots where the C substep loop could not be 
 # |energy balance residual| allowed: ENERGY_TOL_REL × (weight × longest cable + peak kinetic energy), see
 # Plant.energy_bound (2.6e-3 J at rest on the default crane; what runs reach: docs/plant.md, plant-fuzz.md).
 ENERGY_TOL_REL = 1e-5
+STANDARD_GRAVITY = 9.81  # m/s²: the energy scale's gravity when the spec's is weaker (or 0)
+ROUNDING_ULPS = 1e3  # the balance's rounding: a thousand ulps of its terms' magnitudes (many steps' worth)
 # The plant's constraints count as closed below this max |φ| (m² for a cable row, |d|² − L²; unitless for
 # a body's axes): a start off them is checked for energy only from there (Plant._check_energy).
 CLOSED_TOL = 1e-9
@@ -120,7 +122,7 @@ class Plant(CableEvents):
         self.events: list[CableEvent] = []
         self.cable_gap = np.zeros(nc)  # m, |p_a − p_b| − L of every cable at the end of the last advance
         self.energy_residual = 0.0  # J, at the end of the last advance (see energy_balance)
-        self._energy_start, self._potential_scale, self._peak_kinetic = 0.0, 1.0, 0.0
+        self._energy_start, self._potential_scale, self._peak_kinetic, self._peak_terms = 0.0, 1.0, 0.0, 0.0
         self.closing = False  # started off its constraints, Baumgarte still closing them (_check_energy)
         self.energy_checked_from: float | None = 0.0
         self._compiled = self._compiled_loop(model)  # None where it cannot be had
@@ -244,8 +246,12 @@ class Plant(CableEvents):
         self.cable_gap[:] = gap
         n = self.n
         lengths = [self._length(c, x[:n]) for c in range(len(self.cable_names))]
-        self._potential_scale = self._weight * max(lengths, default=1.0)
+        # the crane's energy scale: its weight (in at least Earth's gravity: without gravity the scale is not 0)
+        # times its longest cable
+        mass = sum(b.mass for b in self.physical_spec.bodies)
+        self._potential_scale = max(self._weight, mass * STANDARD_GRAVITY) * max(lengths, default=1.0)
         self._peak_kinetic = 0.0
+        self._peak_terms = 0.0  # the largest Σ|term| of the balance so far: its rounding
         self._energy_start = self.mechanical_energy(x[:n], x[n : 2 * n])
         self.energy_residual = 0.0
         self.closing = self._constraint_violation(x, 0.0) > CLOSED_TOL
@@ -333,12 +339,18 @@ class Plant(CableEvents):
         n = self.n
         kinetic, potential = self._energies(x[:n], x[n : 2 * n])
         self._peak_kinetic = max(self._peak_kinetic, kinetic)
+        terms = (kinetic, potential, self._energy_start, x[2 * n], x[2 * n + 1], x[2 * n + 2], self.impact_energy)
+        self._peak_terms = max(self._peak_terms, sum(abs(float(v)) for v in terms))
         return kinetic + potential - self._energy_start - (x[2 * n] + x[2 * n + 1] - x[2 * n + 2] + self.impact_energy)
 
     @property
     def energy_bound(self) -> float:
-        """|energy residual| allowed (J): ENERGY_TOL_REL × (weight × longest cable + peak kinetic energy)."""
-        return ENERGY_TOL_REL * (self._potential_scale + self._peak_kinetic)
+        """|energy residual| allowed (J): ENERGY_TOL_REL × (weight × longest cable + peak kinetic energy), the weight
+        in at least STANDARD_GRAVITY, and never
+        below the rounding of the balance's own terms (ROUNDING_ULPS of their largest sum of magnitudes): without
+        gravity the weight is 0 and, at rest, so is the kinetic energy, and 1e-29 J of rounding failed the check."""
+        return max(ENERGY_TOL_REL * (self._potential_scale + self._peak_kinetic),
+                   ROUNDING_ULPS * np.finfo(float).eps * self._peak_terms)
 
     def _check_energy(self, x: np.ndarray, t: float) -> None:
         """The energy invariant at x. A plant that starts off its constraints (its geometry differs
