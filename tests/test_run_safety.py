@@ -86,13 +86,15 @@ def test_ctrl_c_leaves_the_earlier_results_as_they_were(tmp_path):
 def test_a_run_that_blows_up_between_records_reports_no_tiny_error(tmp_path):
     """The four-input crane under MLM blows up at 28.8-28.9 s (the plant's energy balance breaks first, then
     the state turns non-finite): its error there is unbounded, not the millimetres recorded before, and
-    the run exits 3 with the reason once its files are written."""
+    the run exits 3 with the reason once its files are written, into failed/run/ (issue 36: a failed run never
+    takes the place of the last good results)."""
     out = tmp_path / "out"
     proc = run_cli("--spec", str(REPO / "model_spec" / "acroboter_4input.toml"), "--method", "mlm", "--duration", "30",
                    "--no-plots", "--out", str(out))
     assert proc.returncode == 3, proc.stderr
     assert "error: mlm diverged at t = 28." in proc.stderr
-    s = json.loads((out / "summary.json").read_text())["methods"]["mlm"]
+    assert not (out / "summary.json").exists()
+    s = json.loads((out / "failed" / "run" / "summary.json").read_text())["methods"]["mlm"]
     assert s["diverged_at_s"] == pytest.approx(28.9, abs=0.5)
     assert s["max_position_error_mm"] is None and s["rms_position_error_mm"] is None
     assert s["max_position_error_before_divergence_mm"] > 1.0

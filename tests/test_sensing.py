@@ -334,7 +334,7 @@ def test_bad_sections_are_spec_errors_naming_the_field(section, field, message):
     (["--sensing-delay", "10"], "--sensing-delay: expected a whole number 0 <= delay_periods <= 4 (control periods)"),
     (["--sensing-quantization", "lengths=0"],
      "argument --sensing-quantization: lengths: expected 1e-12 <= quantization <= 1 (m or unitless), found 0"),
-    (["--sensing-noise", "nothing=1"], "sensing.noise.nothing: expected one of the groups"),
+    (["--sensing-noise", "nothing=1"], "--sensing-noise nothing: expected one of the groups"),
 ])
 def test_cli_refuses_bad_sensing_with_exit_2(tmp_path, args, message):
     done = subprocess.run([sys.executable, "-m", "acroboter", "run", "--duration", "0.1", "--no-plots",
