@@ -231,33 +231,6 @@ def test_sigterm_and_sighup_stop_a_run_as_ctrl_c_does(tmp_path, signum):
     assert not fresh.exists() and not staging_left(tmp_path)
 
 
-@OTHER_SIGNALS
-def test_sigterm_and_sighup_while_the_figures_are_written_keep_the_earlier_results(tmp_path, signum):
-    out = tmp_path / "out"
-    assert subprocess.run([sys.executable, "-m", "acroboter", "run", "--duration", "0.2", "--method", "mlm",
-                           "--no-plots", "-q", "--out", str(out)], capture_output=True, timeout=300).returncode == 0
-    before = {p.name: p.read_bytes() for p in out.iterdir()}
-    code, err, _, _ = interrupt(tmp_path, ["run", "--duration", "0.2", "--method", "penalty", "--out", str(out), "-q"],
-                                ("acroboter.report.report", "", "write_figures"), group=False, repeat=True,
-                                signum=signum)
-    assert_interrupted(code, err, signum)
-    assert {p.name: p.read_bytes() for p in out.iterdir()} == before and not staging_left(tmp_path)
-
-
-@pytest.mark.needs_animation
-def test_sigterm_while_a_video_is_encoded_leaves_no_partial_file(tmp_path):
-    """Issue 36: a time-out of `animate` left a .partial.mp4."""
-    out = tmp_path / "run"
-    assert subprocess.run([sys.executable, "-m", "acroboter", "run", "--duration", "10", "--method", "penalty",
-                           "--no-plots", "-q", "--out", str(out)], capture_output=True, timeout=300).returncode == 0
-    before = {p.name: p.read_bytes() for p in out.iterdir()}
-    code, err, _, _ = interrupt(tmp_path, ["animate", str(out), "--renderer", "matplotlib", "-q"],
-                                ("acroboter.cli.animate", "", "write_complete"), group=False, wait_for="ffmpeg",
-                                signum=signal.SIGTERM)
-    assert_interrupted(code, err, signal.SIGTERM)
-    assert {p.name: p.read_bytes() for p in out.iterdir()} == before and not staging_left(tmp_path)
-
-
 @pytest.mark.needs_dask
 @GROUP
 def test_while_a_dask_study_runs(tmp_path, group):
@@ -275,22 +248,31 @@ def test_while_a_dask_study_runs(tmp_path, group):
         assert not Path(f"/proc/{pid}").exists() or "(Z)" in Path(f"/proc/{pid}/stat").read_text()
 
 
-@GROUP
-def test_while_the_figures_are_written(tmp_path, group):
+# Ctrl-C to the group or the process alone; SIGTERM (`kill`, `timeout`) and SIGHUP (a closed terminal) stop a command
+# as Ctrl-C does (issue 36: SIGTERM left a staging folder, a time-out of animate a .partial.mp4)
+SIGNAL_CASES = pytest.mark.parametrize(("group", "signum"), [(True, signal.SIGINT), (False, signal.SIGINT),
+                                                              (False, signal.SIGTERM), (False, signal.SIGHUP)],
+                                       ids=["group", "process", "SIGTERM", "SIGHUP"])
+
+
+@SIGNAL_CASES
+def test_while_the_figures_are_written(tmp_path, group, signum):
     """The CSVs are staged, the figures being drawn: the earlier results stay as they were."""
     out = tmp_path / "out"
     assert subprocess.run([sys.executable, "-m", "acroboter", "run", "--duration", "0.2", "--method", "mlm",
                            "--no-plots", "-q", "--out", str(out)], capture_output=True, timeout=300).returncode == 0
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     code, err, _, _ = interrupt(tmp_path, ["run", "--duration", "0.2", "--method", "penalty", "--out", str(out), "-q"],
-                                ("acroboter.report.report", "", "write_figures"), group=group, repeat=True)
-    assert_interrupted(code, err)
+                                ("acroboter.report.report", "", "write_figures"), group=group, repeat=True,
+                                signum=signum)
+    assert_interrupted(code, err, signum)
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before and not staging_left(tmp_path)
 
 
 @pytest.mark.needs_animation
-@GROUP
-def test_while_a_video_is_encoded(tmp_path, group):
+@pytest.mark.parametrize(("group", "signum"), [(True, signal.SIGINT), (False, signal.SIGINT),
+                                              (False, signal.SIGTERM)], ids=["group", "process", "SIGTERM"])
+def test_while_a_video_is_encoded(tmp_path, group, signum):
     """ffmpeg (in a process group of its own: imageio-ffmpeg's) is killed before its input closes: it prints no
     complaint about a half frame, and the run's folder is as it was."""
     out = tmp_path / "run"
@@ -298,8 +280,9 @@ def test_while_a_video_is_encoded(tmp_path, group):
                            "--no-plots", "-q", "--out", str(out)], capture_output=True, timeout=300).returncode == 0
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     code, err, _, _ = interrupt(tmp_path, ["animate", str(out), "--renderer", "matplotlib", "-q"],
-                                ("acroboter.cli.animate", "", "write_complete"), group=group, wait_for="ffmpeg")
-    assert_interrupted(code, err)
+                                ("acroboter.cli.animate", "", "write_complete"), group=group, wait_for="ffmpeg",
+                                signum=signum)
+    assert_interrupted(code, err, signum)
     assert err.strip() == "interrupted", err
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before and not staging_left(tmp_path)
 
