@@ -36,3 +36,18 @@ def test_a_bad_sensing_option_is_named_as_the_option_not_as_the_spec_file(tmp_pa
     err = capsys.readouterr().err
     assert err.startswith("error: --sensing-noise bogus: expected one of the groups"), err
     assert "invalid model spec" not in err and not (tmp_path / "out").exists()
+
+
+def test_a_spec_path_that_is_no_file_says_what_it_is(tmp_path):
+    """Issue 36 (input files): /dev/zero was "nothing at this path"; an oversized file is refused unread."""
+    from acroboter.model.spec import MAX_SPEC_BYTES, SpecError, load_spec
+
+    with pytest.raises(SpecError, match="found a device or a pipe, not a file at this path"):
+        load_spec("/dev/zero")
+    big = tmp_path / "big.toml"
+    with big.open("wb") as f:  # sparse: no disk, no time
+        f.truncate(MAX_SPEC_BYTES + 1)
+    with pytest.raises(SpecError, match="expected a TOML spec of at most 1 MB, found 1 MB"):
+        load_spec(big)
+    with pytest.raises(SpecError, match="found nothing at this path"):
+        load_spec(tmp_path / "missing.toml")

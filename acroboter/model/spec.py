@@ -145,12 +145,19 @@ def parse_spec(data: dict, source: str = "<spec>") -> Spec:
     return spec
 
 
+MAX_SPEC_BYTES = 2**20  # 1 MB: the largest spec the caps allow is far smaller
+
+
 def load_spec(path: str | Path) -> Spec:
     """Read and validate a TOML spec file."""
     path = Path(path)
     if not path.is_file():
-        what = "a folder" if path.is_dir() else "nothing"
+        what = ("a folder" if path.is_dir() else "a device or a pipe, not a file" if path.exists() else
+                "nothing")
         raise SpecError(str(path), [("(file)", f"expected a readable TOML file, found {what} at this path")])
+    if (size := path.stat().st_size) > MAX_SPEC_BYTES:  # read only a bounded file: a spec is a few kB
+        raise SpecError(str(path), [("(file)", f"expected a TOML spec of at most {MAX_SPEC_BYTES // 2**20} MB, "
+                                               f"found {size / 2**20:.0f} MB")])
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as err:
