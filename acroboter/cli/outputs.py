@@ -295,7 +295,7 @@ class ResultsFolder:
         """Swap the staged records of a failed run into `failed/<command>/` (with `failure.txt`: `why`), leaving the
         command's good results as they were; returns their paths."""
         inner = self.staging / FAILED / self.command
-        entries = [entry for entry in self.staging.iterdir()]
+        entries = list(self.staging.iterdir())
         inner.mkdir(parents=True)
         for entry in entries:
             os.replace(entry, inner / entry.name)

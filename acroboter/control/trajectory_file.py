@@ -28,18 +28,26 @@ from pathlib import Path
 
 import numpy as np
 
+from ..model.ranges import COORDINATE, DURATION, MEAN_SPEED, PATH_YAW, PLAN_ACCEL
 from .path import SampledTrajectory, TrajectoryError
 
 POINT = ("x_m", "y_m", "z_m", "vx_m_s", "vy_m_s", "vz_m_s", "ax_m_s2", "ay_m_s2", "az_m_s2")
 # Bounds of a file (checked before it is read): 100,000 samples of 13 full-precision numbers are about 33 MB.
 MAX_BYTES = 64 * 2**20
 MAX_ROWS = 100_000
-# The ranges of the values, per column kind: the spec's (acroboter.model.ranges).
-LIMITS = {"t_s": (0.0, 1e6, "s", "the longest run"), "position": (1e4, "m", "the coordinates' window"),
-          "velocity": (100.0, "m/s", "a path's largest mean speed"),
-          "acceleration": (1000.0, "m/s²", "a plan's largest --max-accel"),
-          "yaw_rad": (3600.0 * math.pi / 180.0, "rad", "the spec's yaw_deg: ten turns"),
-          "yaw_rate_rad_s": (1e3, "rad/s", "a turn in 6 ms"), "yaw_acc_rad_s2": (1e5, "rad/s²", "")}
+# The ranges of the values, (low, high, unit, why) per column kind: the spec's and the options' own
+# (acroboter.model.ranges), the yaw in radians.
+_YAW_TURN = math.radians(PATH_YAW.high)
+_KINDS = {"time": (0.0, DURATION.high, "s", "the longest run"),
+          "position": (COORDINATE.low, COORDINATE.high, "m", "the coordinates' window"),
+          "velocity": (-MEAN_SPEED.high, MEAN_SPEED.high, "m/s", "a path's largest mean speed"),
+          "acceleration": (-PLAN_ACCEL.high, PLAN_ACCEL.high, "m/s²", "a plan's largest --max-accel"),
+          "yaw": (-_YAW_TURN, _YAW_TURN, "rad", "the spec's yaw_deg: ten turns"),
+          "yaw rate": (-1e3, 1e3, "rad/s", "a turn in 6 ms"), "yaw acceleration": (-1e5, 1e5, "rad/s²", "")}
+LIMITS = {"t_s": _KINDS["time"], "yaw_rad": _KINDS["yaw"], "yaw_rate_rad_s": _KINDS["yaw rate"],
+          "yaw_acc_rad_s2": _KINDS["yaw acceleration"],
+          **{name: _KINDS["position"] for name in POINT[0:3]}, **{name: _KINDS["velocity"] for name in POINT[3:6]},
+          **{name: _KINDS["acceleration"] for name in POINT[6:9]}}
 # Continuity: a row further from the last than JUMP_FACTOR × (Δt·|v| + Δt²·|a|) + JUMP_SLACK_M is a jump.
 JUMP_FACTOR = 4.0
 JUMP_SLACK_M = 1e-3
@@ -125,23 +133,10 @@ def _bounded_text(path: Path) -> str:
             from None
 
 
-def _limit(name: str) -> tuple[float, float, str, str]:
-    """(low, high, unit, why) of a column's values."""
-    if name == "t_s":
-        return LIMITS["t_s"]
-    if name in LIMITS:
-        high, unit, why = LIMITS[name]
-        return -high, high, unit, why
-    kind = {"x_m": "position", "y_m": "position", "z_m": "position", "vx_m_s": "velocity", "vy_m_s": "velocity",
-            "vz_m_s": "velocity"}.get(name, "acceleration")
-    high, unit, why = LIMITS[kind]
-    return -high, high, unit, why
-
-
 def _values(path: Path, rows: list[tuple[int, str]], header: list[str], wanted: list[str]) -> np.ndarray:
     """The wanted columns of every row as numbers, each finite and within its range."""
     index = [header.index(c) for c in wanted]
-    limits = [_limit(name) for name in wanted]
+    limits = [LIMITS[name] for name in wanted]
     data = np.empty((len(rows), len(wanted)))
     for r, (n, line) in enumerate(rows):
         cells = next(csv.reader([line]))

@@ -166,10 +166,12 @@ class Plant(CableEvents):
         self._winch = [lay.winch_index.get(c.name) for c in model.spec.cables]
         self._fixed_length = [c.length for c in self.physical_spec.cables]
         physical = self.physical_spec
-        weight = sum(b.mass for b in physical.bodies) * float(np.linalg.norm(physical.gravity))
+        mass = sum(b.mass for b in physical.bodies)
+        weight = mass * float(np.linalg.norm(physical.gravity))
         self.tension_tol = TENSION_TOL_REL * max(1.0, weight)
         self.push_tol = PUSH_TOL_REL * max(1.0, weight)
-        self._weight = weight
+        # the crane's energy scale's weight: in at least Earth's gravity (without gravity the scale is not 0)
+        self._scale_weight = max(weight, mass * STANDARD_GRAVITY)
         self.gap_tol = GAP_TOL
 
     def _compiled_loop(self, model):
@@ -246,10 +248,7 @@ class Plant(CableEvents):
         self.cable_gap[:] = gap
         n = self.n
         lengths = [self._length(c, x[:n]) for c in range(len(self.cable_names))]
-        # the crane's energy scale: its weight (in at least Earth's gravity: without gravity the scale is not 0)
-        # times its longest cable
-        mass = sum(b.mass for b in self.physical_spec.bodies)
-        self._potential_scale = max(self._weight, mass * STANDARD_GRAVITY) * max(lengths, default=1.0)
+        self._potential_scale = self._scale_weight * max(lengths, default=1.0)  # the crane's energy scale
         self._peak_kinetic = 0.0
         self._peak_terms = 0.0  # the largest Σ|term| of the balance so far: its rounding
         self._energy_start = self.mechanical_energy(x[:n], x[n : 2 * n])
