@@ -51,6 +51,9 @@ _EXPORTS = {
     "PlantParameterError": "acroboter.model.physical",
     "mjcf_xml": "acroboter.model.mjcf_model",
     "MujocoPlant": "acroboter.sim.mujoco_plant",
+    "PlanningError": "acroboter.planning.ideal_motion",
+    "StaticLimitError": "acroboter.planning.checks",
+    "CertificateError": "acroboter.planning.planner",
 }
 
 __all__ = ["__version__", *sorted(_EXPORTS)]

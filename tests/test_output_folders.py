@@ -25,6 +25,7 @@ import pytest
 
 from acroboter.cli import outputs
 from acroboter.cli.outputs import MANIFEST, STAGING_PREFIX
+from acroboter.sim.plant import SimulationError
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -209,11 +210,13 @@ def test_an_empty_or_unusable_out_is_refused_before_any_work(command, given, tmp
 
 
 @pytest.mark.parametrize("command", EVERY)
-@pytest.mark.parametrize("failure, code", [(OSError(28, "No space left on device"), 3), (KeyboardInterrupt(), 130)])
+@pytest.mark.parametrize("failure, code", [(OSError(28, "No space left on device"), 3), (KeyboardInterrupt(), 130),
+                                           (SimulationError("the loop diverged"), 3)])
 def test_a_failed_or_interrupted_run_leaves_the_folder_as_it_was(command, failure, code, tmp_path, capsys,
                                                                 monkeypatch):
-    """The work done and staged, it fails (a full disk) or is interrupted just before the swap: the earlier
-    results and the user's files are as they were, no staging folder is left, and a fresh --out is not made."""
+    """The work done and staged, it fails (a full disk, a computation that cannot run: exit 3) or is interrupted
+    just before the swap: the earlier results and the user's files are as they were byte for byte, no staging
+    folder is left, and a fresh --out is not made (issue 36: exit 3 keeps the last good results, every command)."""
     _, _, _, narrow, narrower = COMMANDS[command]
     out = tmp_path / "out"
     out.mkdir()

@@ -181,6 +181,20 @@ def test_a_margin_the_statics_do_not_leave_is_refused_with_the_largest_that_woul
         crane.plan(margin=0.45)
 
 
+def test_a_limit_exceeded_somewhere_is_named_before_a_margin_missed_earlier(tmp_path):
+    """Issue 34 item 5: limits [24, 26.9] N with a 10 % margin: at the start the static need (26.754 N) only
+    misses the margin's bound (26.61 N), but on the lifted half of the paper's path it exceeds the limit itself
+    (26.965 N). The refusal named s = 0.000 and suggested a smaller margin, which cannot help; it now names the
+    place where the limit is exceeded."""
+    text = re.sub(r'(cable = "L\d")', r"\1\nlimits = [24.0, 26.9]", DEFAULT.read_text())
+    (tmp_path / "limited.toml").write_text(text)
+    crane = acroboter.Crane.from_toml(tmp_path / "limited.toml")
+    with pytest.raises(StaticLimitError, match=r"^no timing can help: at s = 0\.\d+ .*beyond its limit 26\.9 N; "
+                                               r"raise the limit") as caught:
+        crane.plan(margin=0.1)
+    assert "s = 0.000" not in str(caught.value) and "margin" not in str(caught.value)
+
+
 @pytest.mark.parametrize("kwargs, message", [
     ({"margin": -0.05}, "margin: expected 0 <= margin < 0.5"),
     ({"margin": 0.5}, "margin: expected 0 <= margin < 0.5"),

@@ -302,7 +302,9 @@ class Crane:
         optionally with the tracked point's speed ≤ `max_speed` (m/s) and acceleration ≤ `max_accel` (m/s²).
         Returns a Plan: `plan.trajectory` for `simulate(trajectory=...)`, `plan.to_csv(path)` for `acroboter run
         --trajectory FILE`, `plan.summary()`. A need at rest beyond the limits anywhere on the path (no timing can
-        help) is a StaticLimitError naming the place and the input; other failures a PlanningError (ValueErrors).
+        help) is a StaticLimitError naming the place and the input; a plan whose certificate failed a
+        CertificateError holding the plan (`err.plan`, its `certificate.failure` says why); other failures a
+        PlanningError (all ValueErrors).
         `corners` on a waypoint path: "rest" (default), every edge from rest to rest with the swing included, the
         edges solved one by one; "swing", the swing carried over the corners, `window` phases optimised together in
         a receding window (default 2; 0: the whole path in one solve, slow on long paths; docs/planning.md)."""

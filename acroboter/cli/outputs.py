@@ -138,19 +138,28 @@ def _inside(out: Path, relative: str) -> Path | None:
     return out.joinpath(*parts)
 
 
-def _remove_entry(out: Path, entry: dict | None) -> None:
-    """Remove the files a manifest entry lists, then its folders where they are left empty."""
-    if entry is None:
-        return
-    for name in entry["files"]:
+def _remove_files(out: Path, names: Iterable[str]) -> None:
+    """Remove the files (or links) of these manifest paths; a path that leaves `out` is skipped."""
+    for name in names:
         target = _inside(out, name)
         if target is not None and (target.is_file() or target.is_symlink()):
             target.unlink()
-    for name in sorted(entry["folders"], key=lambda n: -len(Path(n).parts)):  # deepest first
+
+
+def _remove_empty_folders(out: Path, names: Iterable[str]) -> None:
+    """Remove these manifest folders, deepest first, each only when empty: a file the user put there keeps it."""
+    for name in sorted(names, key=lambda n: -len(Path(n).parts)):
         target = _inside(out, name)
         if target is not None and target.is_dir() and not target.is_symlink():
             with contextlib.suppress(OSError):
-                target.rmdir()  # only when empty
+                target.rmdir()
+
+
+def _remove_entry(out: Path, entry: dict | None) -> None:
+    """Remove the files a manifest entry lists, then its folders where they are left empty."""
+    if entry is not None:
+        _remove_files(out, entry["files"])
+        _remove_empty_folders(out, entry["folders"])
 
 
 def _alive(pid: int) -> bool:
@@ -222,15 +231,17 @@ class ResultsFolder:
             self.discard()
             raise
 
-    def ours(self) -> set[str]:
+    def ours(self, replaces: Iterable[str] | None = None) -> set[str]:
         """The files (relative paths) the manifest lists for the entries this run replaces."""
         manifest = read_manifest(self.out)
-        return {f for c in self.replaces for f in manifest.get(c, {}).get("files", [])}
+        entries = self.replaces if replaces is None else replaces
+        return {f for c in entries for f in manifest.get(c, {}).get("files", [])}
 
-    def claim(self, names: Iterable[str]) -> None:
+    def claim(self, names: Iterable[str], replaces: Iterable[str] | None = None) -> None:
         """Refuse (OutputFolderError) when a result to be written under one of `names` (relative paths) would
-        replace a file, or sit where a file or folder is, that no earlier run of this command wrote."""
-        ours = self.ours()
+        replace a file, or sit where a file or folder is, that no earlier run of this command (or of the
+        `replaces` entries) wrote."""
+        ours = self.ours(replaces)
         for name in names:
             target = _inside(self.out, name)
             if target is None:
@@ -247,49 +258,7 @@ class ResultsFolder:
 
     def publish(self) -> list[Path]:
         """Swap the staged results in; returns their paths in the output folder."""
-        out, staging = self.out, self.staging
-        new = sorted((str(p.relative_to(staging)) for p in staging.rglob("*") if not p.is_dir()),
-                     key=lambda n: (Path(n).name == "summary.json", n))  # the summary last
-        self.claim(new)  # a user's file under a new result's name stays; the results are refused instead
-        manifest = read_manifest(out)
-        old_files = [f for c in self.replaces for f in manifest.get(c, {}).get("files", [])]
-        old_folders = {f for c in self.replaces for f in manifest.get(c, {}).get("folders", [])}
-        kept_files, kept_folders = [], set()
-        if self.accumulate:  # the earlier results of other names stay (and stay this command's)
-            kept_files = [f for f in old_files if f not in new and (t := _inside(out, f)) is not None
-                          and (t.is_file() or t.is_symlink())]
-            kept_folders, old_files, old_folders = old_folders, [f for f in old_files if f in new], set()
-        with deferred_interrupt():
-            # first the union: killed at any point from here, the next run still knows every file as its own
-            write_manifest(out, {**manifest, self.command: {"files": sorted({*old_files, *new, *kept_files}),
-                                                            "folders": sorted(old_folders | kept_folders)}})
-            for name in old_files:
-                target = _inside(out, name)
-                if target is not None and (target.is_file() or target.is_symlink()):
-                    target.unlink()
-            folders = set()
-            for name in new:
-                target = out / name
-                for parent in reversed(list(Path(name).parents)[:-1]):
-                    if not (out / parent).is_dir():
-                        (out / parent).mkdir()
-                        folders.add(str(parent))
-                    elif str(parent) in old_folders:
-                        folders.add(str(parent))
-                os.replace(staging / name, target)
-            for name in sorted(old_folders - folders, key=lambda n: -len(Path(n).parts)):  # deepest first
-                target = _inside(out, name)
-                if target is not None and target.is_dir() and not target.is_symlink():
-                    with contextlib.suppress(OSError):
-                        target.rmdir()  # only when empty: a file the user put there keeps it
-            entries = {c: e for c, e in manifest.items() if c not in self.replaces}
-            entries[self.command] = {"files": [*new, *sorted(kept_files)], "folders": sorted(folders | kept_folders)}
-            if not self.command.endswith(failed_entry("")):  # a good run: its command's failure record is stale
-                _remove_entry(out, entries.pop(failed_entry(self.command), None))
-            write_manifest(out, entries)
-            shutil.rmtree(staging, ignore_errors=True)
-            self.published = True  # a Ctrl-C held back during the swap is raised after this: the results are in
-        return [out / name for name in new]
+        return self._swap_in(self.command, self.replaces, self.accumulate)
 
     def publish_failed(self, why: str) -> list[Path]:
         """Swap the staged records of a failed run into `failed/<command>/` (with `failure.txt`: `why`), leaving the
@@ -301,12 +270,47 @@ class ResultsFolder:
             os.replace(entry, inner / entry.name)
         (inner / "failure.txt").write_text(f"acroboter {self.command} failed (exit 3); its results in "
                                            f"{self.out} are those of its last good run.\n{why}\n", encoding="utf-8")
-        command, replaces, accumulate = self.command, self.replaces, self.accumulate
-        self.command, self.replaces, self.accumulate = failed_entry(command), (failed_entry(command),), False
-        try:
-            return self.publish()
-        finally:
-            self.command, self.replaces, self.accumulate = command, replaces, accumulate
+        record = failed_entry(self.command)
+        return self._swap_in(record, (record,), accumulate=False)
+
+    def _swap_in(self, entry: str, replaces: tuple[str, ...], accumulate: bool) -> list[Path]:
+        """Move the staged files in under the manifest entry `entry`, removing the files of the `replaces` entries
+        (all of them, or with `accumulate` only those of the new names)."""
+        out, staging = self.out, self.staging
+        new = sorted((str(p.relative_to(staging)) for p in staging.rglob("*") if not p.is_dir()),
+                     key=lambda n: (Path(n).name == "summary.json", n))  # the summary last
+        self.claim(new, replaces)  # a user's file under a new result's name stays; the results are refused instead
+        manifest = read_manifest(out)
+        old_files = [f for c in replaces for f in manifest.get(c, {}).get("files", [])]
+        old_folders = {f for c in replaces for f in manifest.get(c, {}).get("folders", [])}
+        kept_files, kept_folders = [], set()
+        if accumulate:  # the earlier results of other names stay (and stay this command's)
+            kept_files = [f for f in old_files if f not in new and (t := _inside(out, f)) is not None
+                          and (t.is_file() or t.is_symlink())]
+            kept_folders, old_files, old_folders = old_folders, [f for f in old_files if f in new], set()
+        with deferred_interrupt():
+            # first the union: killed at any point from here, the next run still knows every file as its own
+            write_manifest(out, {**manifest, entry: {"files": sorted({*old_files, *new, *kept_files}),
+                                                     "folders": sorted(old_folders | kept_folders)}})
+            _remove_files(out, old_files)
+            folders = set()
+            for name in new:
+                for parent in reversed(list(Path(name).parents)[:-1]):
+                    if not (out / parent).is_dir():
+                        (out / parent).mkdir()
+                        folders.add(str(parent))
+                    elif str(parent) in old_folders:
+                        folders.add(str(parent))
+                os.replace(staging / name, out / name)
+            _remove_empty_folders(out, old_folders - folders)
+            entries = {c: e for c, e in manifest.items() if c not in replaces}
+            entries[entry] = {"files": [*new, *sorted(kept_files)], "folders": sorted(folders | kept_folders)}
+            if entry == self.command:  # a good run: its command's failure record is stale
+                _remove_entry(out, entries.pop(failed_entry(self.command), None))
+            write_manifest(out, entries)
+            shutil.rmtree(staging, ignore_errors=True)
+            self.published = True  # a Ctrl-C held back during the swap is raised after this: the results are in
+        return [out / name for name in new]
 
     def discard(self) -> None:
         """Leave the folder as it was: the staging folder goes, and a folder this call made if it is empty."""

@@ -8,7 +8,8 @@ active, the margin achieved, the certificate, provenance) and plan.png (s(t) and
 
 Exit codes: 0 planned; 2 bad input (an option, the spec, a trajectory file, limits that cannot hold the load at
 rest somewhere on the path: no timing can help, the place and the input named); 3 no plan (the problem not
-solved, the certificate failed); 130 interrupted.
+solved; a plan whose certificate failed is written into failed/plan/, marked so, beside the last plan that held);
+130 interrupted.
 """
 
 from __future__ import annotations
@@ -104,6 +105,7 @@ def _plan(args: argparse.Namespace, folder) -> int:
     from ..model.spec import SpecError
     from ..planning.checks import StaticLimitError
     from ..planning.ideal_motion import PlanningError
+    from ..planning.planner import CertificateError
     from ..runtime.compiled import StaleModelError
     from ..sim.statics import EquilibriumError
     from .run import provenance
@@ -116,6 +118,7 @@ def _plan(args: argparse.Namespace, folder) -> int:
     except (SpecError, StaleModelError, EquilibriumError, TrajectoryError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    failure = None
     try:
         plan = crane.plan(margin=args.margin, max_speed=args.max_speed, max_accel=args.max_accel,
                           trajectory=trajectory, intervals=args.intervals, certify=not args.no_certificate,
@@ -123,12 +126,15 @@ def _plan(args: argparse.Namespace, folder) -> int:
     except StaticLimitError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    except CertificateError as err:  # solved, but not flown within the limits: written apart, exit 3
+        plan, failure = err.plan, str(err)
     except PlanningError as err:
         print(f"error: {err}", file=sys.stderr)
         return 3
     out = folder.staging
     plan.to_csv(out / "trajectory.csv")
     summary = plan.summary()
+    summary["status"] = "planned" if failure is None else "certificate failed"
     summary["spec"] = crane.name
     summary["trajectory_file"] = None if args.trajectory is None else str(args.trajectory)
     args.plant, args.plant_params = "own", {}
@@ -138,6 +144,12 @@ def _plan(args: argparse.Namespace, folder) -> int:
         from ..report.plan_figures import plan_figure
 
         plan_figure(plan, out / "plan.png")
+    if failure is not None:
+        written = folder.publish_failed(failure)
+        print(f"error: {failure}", file=sys.stderr)
+        print(f"the failing plan ({plan.duration:.4g} s) is in {written[0].parent}/, not a result: the results in "
+              f"{args.out}/ are those of the last plan that held", file=sys.stderr)
+        return 3
     folder.publish()
     active = sorted({a["input"] for a in plan.active})
     corners = {"rest": ", every edge rest to rest", "swing": ""}[plan.corners]

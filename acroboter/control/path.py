@@ -173,6 +173,17 @@ class DesiredPath:
 Motion = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
 
 
+def motion_time_scale(path: DesiredPath, duration: float, samples: int = 2001) -> float:
+    """The tracked point's fastest time scale over [0, duration] (s): its peak speed over its peak acceleration
+    (a quintic edge of T s has 0.325 T; inf for a point that does not accelerate). What a sampled controller must
+    resolve: the divergence message names a path faster than that as too fast for the crane."""
+    rows = path.table(np.linspace(0.0, duration, samples))
+    ns, p = path.n_signals, path.layout.path_signal
+    speed = float(np.linalg.norm(rows[:, ns + p: ns + p + 3], axis=1).max())
+    accel = float(np.linalg.norm(rows[:, 2 * ns + p: 2 * ns + p + 3], axis=1).max())
+    return speed / accel if accel > 0 else math.inf
+
+
 class TrajectoryError(ValueError):
     """A user trajectory that cannot drive the controller (shapes, non-finite values, times)."""
 

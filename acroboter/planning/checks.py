@@ -54,30 +54,34 @@ def static_needs(model, geometry: PathGeometry) -> tuple[np.ndarray, np.ndarray,
 
 
 def check_statics(model, geometry: PathGeometry, lower, upper, low, high, margin: float) -> np.ndarray:
-    """StaticLimitError at the first place where the inputs at rest are beyond the limits, or beyond them less the
-    margin (with the largest margin that would leave room); returns the static needs (places x inputs)."""
+    """StaticLimitError at the first place where the inputs at rest are beyond the limits, else at the first where
+    they are beyond them less the margin (with the largest margin that would leave room); returns the static needs
+    (places x inputs)."""
     lay = model.layout
     taus, points, needs = static_needs(model, geometry)
-    for k, u in enumerate(needs):
-        for i, value in enumerate(u):
-            tol = 1e-9 * max(1.0, abs(value))
-            raw = value > upper[i] + tol or value < lower[i] - tol
-            tight = value > high[i] + tol or value < low[i] - tol
-            if not (raw or tight):
-                continue
-            unit, name = lay.input_units[i], lay.inputs[i]
-            where = geometry.place(float(taus[k]), points[k])
-            if raw:
-                limit = upper[i] if value > upper[i] else lower[i]
-                raise StaticLimitError(f"no timing can help: at {where} holding the load at rest needs {name} = "
-                                       f"{value:.4g} {unit}, beyond its limit {limit:.4g} {unit}; raise the limit or "
-                                       "change the path there")
-            bound = high[i] if value > high[i] else low[i]
-            room = worst_static_margin(needs, lower, upper)
-            raise StaticLimitError(f"no timing can help with a margin of {100 * margin:.4g} %: at {where} holding the "
-                                   f"load at rest needs {name} = {value:.5g} {unit}, beyond {bound:.5g} {unit} (its "
-                                   f"limits less the margin); the statics along the path leave a margin of at most "
-                                   f"{100 * max(room, 0.0):.3g} %: give a smaller --margin or wider limits")
+    # the limits themselves first, anywhere on the path: where they are exceeded no margin can help, so a place
+    # that only misses the margin must not be named before it
+    for beyond_limits in (True, False):
+        for k, u in enumerate(needs):
+            for i, value in enumerate(u):
+                tol = 1e-9 * max(1.0, abs(value))
+                raw = value > upper[i] + tol or value < lower[i] - tol
+                tight = value > high[i] + tol or value < low[i] - tol
+                if not (raw if beyond_limits else tight):
+                    continue
+                unit, name = lay.input_units[i], lay.inputs[i]
+                where = geometry.place(float(taus[k]), points[k])
+                if raw:
+                    limit = upper[i] if value > upper[i] else lower[i]
+                    raise StaticLimitError(f"no timing can help: at {where} holding the load at rest needs {name} = "
+                                           f"{value:.4g} {unit}, beyond its limit {limit:.4g} {unit}; raise the limit "
+                                           "or change the path there")
+                bound = high[i] if value > high[i] else low[i]
+                room = worst_static_margin(needs, lower, upper)
+                raise StaticLimitError(f"no timing can help with a margin of {100 * margin:.4g} %: at {where} holding "
+                                       f"the load at rest needs {name} = {value:.5g} {unit}, beyond {bound:.5g} {unit} "
+                                       f"(its limits less the margin); the statics along the path leave a margin of at "
+                                       f"most {100 * max(room, 0.0):.3g} %: give a smaller --margin or wider limits")
     return needs
 
 
@@ -97,10 +101,14 @@ class Certificate:
     margin_achieved: float  # fraction of the span (inputs with two finite limits)
     margin_input: str | None
     beyond_margin: float  # the largest excess beyond the tightened limits, fraction of the span (≤ 0: none)
+    failure: str | None = None  # why the certificate failed (diverged, saturated, beyond a limit), None if it held
 
 
 def certify(model, path: DesiredPath, q0: np.ndarray, duration: float, lower, upper, low, high) -> Certificate:
-    """With more inputs than servo-constraints the controller needs the limits to choose its internal force (the
+    """The certificate of a planned trajectory; a flight that failed (diverged, saturated) is a Certificate whose
+    `failure` says why, with the figures of the flight up to there.
+
+    With more inputs than servo-constraints the controller needs the limits to choose its internal force (the
     bounded distribution; unbounded, its least-squares choice can make a cable push): they are then applied, and
     a control step whose task the limits did not let it meet (saturated) fails the certificate as an excess would."""
     spec, lay = model.spec, model.layout
@@ -109,19 +117,21 @@ def certify(model, path: DesiredPath, q0: np.ndarray, duration: float, lower, up
     controller = make_controller("mlm", model, path, Gains.from_spec(spec), limits=limits)
     run = simulate(model, path, controller, setup_default(model, path), q0, duration, spec.controller.rate_hz,
                    spec.simulation.step, allow_divergence=True)
+    failure = None
     if run.diverged_at is not None:
-        raise PlanningError(f"the certificate failed: the planned trajectory flown by MLM diverged at t = "
-                            f"{run.diverged_at:.2f} s ({run.divergence})")
+        failure = (f"the certificate failed: the planned trajectory flown by MLM diverged at t = "
+                   f"{run.diverged_at:.2f} s ({run.divergence})")
     held = np.flatnonzero(run.saturated) if spare else []
-    if len(held):
+    if failure is None and len(held):
         on = [lay.inputs[i] for i in np.flatnonzero(run.limit_state[held[0]] != 0)]
-        raise PlanningError(f"the certificate failed: flown by MLM, the limits did not let the controller meet its "
-                            f"task at t = {run.t[held[0]]:.3f} s (on a limit: {', '.join(on) or 'none'}); give a "
-                            "larger --margin (the closed loop's deviations from the ideal inputs need it)")
+        failure = (f"the certificate failed: flown by MLM, the limits did not let the controller meet its task at t = "
+                   f"{run.t[held[0]]:.3f} s (on a limit: {', '.join(on) or 'none'}); give a larger --margin (the "
+                   "closed loop's deviations from the ideal inputs need it)")
     achieved, i = margin_achieved(run.u, lower, upper)
     span = np.where(np.isfinite(high - low), high - low, 1.0)
     over = np.maximum(run.u - high, low - run.u) / span
     over = np.where(np.isnan(over), -np.inf, over)
     rows = Scenario.from_model(model).position_rows
     error = 1e3 * float(np.linalg.norm(run.sigma[:, rows], axis=1).max())
-    return Certificate(run.t, run.u, error, achieved, None if i is None else lay.inputs[i], float(over.max()))
+    return Certificate(run.t, run.u, error, achieved, None if i is None else lay.inputs[i], float(over.max()),
+                       failure)

@@ -45,6 +45,15 @@ CORNERS = ("rest", "swing")
 NODE_GAP_S = 1e-6
 
 
+class CertificateError(PlanningError):
+    """The plan was solved but its certificate failed: `plan` is the Plan, its `certificate.failure` says why (the
+    CLI writes it into failed/plan/ and exits 3; a caller may still look at it, never fly it unawares)."""
+
+    def __init__(self, message: str, plan: Plan):
+        super().__init__(message)
+        self.plan = plan
+
+
 @dataclass
 class Plan:
     """A retimed path: `duration` (s), the optimiser's grid (`times`, the path parameter `s` ∈ [0, 1] with its
@@ -135,7 +144,8 @@ class Plan:
         }
         if self.certificate is not None:
             c = self.certificate
-            out["certificate"] = {"method": "mlm, own plant, limits not applied",
+            out["certificate"] = {"method": "mlm, own plant, limits not applied", "passed": c.failure is None,
+                                  "failure": c.failure,
                                   "max_position_error_mm": c.max_position_error_mm,
                                   "margin_achieved": finite(c.margin_achieved), "margin_input": c.margin_input,
                                   "beyond_bounds": c.beyond_margin, "tolerance": CERTIFICATE_TOLERANCE}
@@ -192,10 +202,12 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
         flown_path = TrajectoryPath(spec, lay, trajectory, trajectory.duration, float(path.start_yaw))
         result.certificate = certify(model, flown_path, q0, trajectory.duration, lower, upper, low, high)
         c = result.certificate
-        if c.margin_achieved < -CERTIFICATE_TOLERANCE:
-            raise PlanningError(f"the certificate failed: flown by MLM on the own plant, the planned trajectory takes "
-                                f"{c.margin_input} {100 * -c.margin_achieved:.3g} % of its span beyond its limits; "
-                                "give a larger --margin (the closed loop's deviations from the ideal inputs need it)")
+        if c.failure is None and c.margin_achieved < -CERTIFICATE_TOLERANCE:
+            c.failure = (f"the certificate failed: flown by MLM on the own plant, the planned trajectory takes "
+                         f"{c.margin_input} {100 * -c.margin_achieved:.3g} % of its span beyond its limits; give a "
+                         "larger --margin (the closed loop's deviations from the ideal inputs need it)")
+        if c.failure is not None:
+            raise CertificateError(c.failure, result)
         if c.beyond_margin > 0:
             result.warnings.append(f"flown by MLM, {c.margin_input} came within {100 * c.margin_achieved:.3g} % of the "
                                    f"span of a limit (the plan keeps {100 * margin:.3g} %): the margin absorbed the "

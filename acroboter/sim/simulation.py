@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..control.controllers import Controller, SingularSystemError
-from ..control.path import DesiredPath
+from ..control.path import DesiredPath, motion_time_scale
 from ..model.spec import MAX_CONTROL_STEPS
 from .plant import Plant, SimulationError
 from .plants import PLANTS, check_mujoco_timestep, setup_default  # noqa: F401 (the names' old home)
@@ -19,6 +19,10 @@ from .stateful_controller import STEP_CODES, StatefulController
 
 # Control periods whose plant stage signals are evaluated at once (see simulate).
 STAGE_CHUNK = 500
+# A diverged run on a path whose time scale (peak speed / peak acceleration, 0.325 of a quintic edge's duration) is
+# below this many control periods is reported as a path too fast for the crane: a sampled controller that holds its
+# input a period cannot follow an edge of fewer than about six periods, whatever the plant then says.
+TOO_FAST_PERIODS = 2.0
 
 
 def simulate(
@@ -72,11 +76,25 @@ def simulate(
         # x is the plant's state at the last instant the controller computed (a failure stops before the plant step)
         if sensor is not None and (trouble := sensor.trouble(x[: model.layout.n])) is not None:
             divergence = f"{trouble}; then {divergence}"
+        if (too_fast := path_too_fast(path, timing)) is not None:
+            divergence = f"{too_fast}; then {divergence}"
         if not allow_divergence or kept == 0:  # kept == 0: not one instant was recorded, nothing to report
             raise SimulationError(f"{controller.name}: the loop diverged at t = {diverged_at:.2f} s: {divergence}")
         records.keep(kept)  # the instants before it went wrong
         return records.result(controller.name, plant, wall, diverged_at, divergence)
     return records.result(controller.name, plant, wall, None, None)
+
+
+def path_too_fast(path: DesiredPath, timing: RunTiming) -> str | None:
+    """What to say of a path too fast for the sampled controller (None when it is not): its time scale against the
+    control period."""
+    scale = motion_time_scale(path, timing.steps * timing.period)
+    if not scale < TOO_FAST_PERIODS * timing.period:
+        return None
+    return (f"the path is too fast for the crane: it changes on a time scale of {1e3 * scale:.3g} ms (peak speed / "
+            f"peak acceleration), {scale / timing.period:.2g} control periods of {1e3 * timing.period:.3g} ms where a "
+            f"sampled controller needs at least {TOO_FAST_PERIODS:g}; slow it (path.mean_speed, the trajectory's "
+            "timing, or `acroboter plan`)")
 
 
 @dataclass(frozen=True)
