@@ -51,3 +51,34 @@ def test_a_spec_path_that_is_no_file_says_what_it_is(tmp_path):
         load_spec(big)
     with pytest.raises(SpecError, match="found nothing at this path"):
         load_spec(tmp_path / "missing.toml")
+
+
+@pytest.mark.parametrize("target", ["notes.txt", "lab_crane.toml", "/dev/null", "crane"])
+def test_an_mjcf_target_that_is_no_xml_file_is_refused_at_parse_time(target, tmp_path, monkeypatch, capsys):
+    """Issue 36 (MJCF paths): `mjcf -o lab_crane.toml` replaced the spec itself with XML, and `-o newdir/` wrote a
+    file called newdir. -o takes *.xml, a folder (existing, or a name ending in /) or -; the rest is refused
+    before the spec is read, and nothing is written."""
+    from acroboter.cli.mjcf import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "lab_crane.toml").write_text("mine")
+    with pytest.raises(SystemExit) as stop:
+        main(["lab_crane", "-o", target, "--pose", "spec"])
+    assert stop.value.code == 2
+    assert "an MJCF file is named *.xml" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["lab_crane.toml"]
+    assert (tmp_path / "lab_crane.toml").read_text() == "mine"
+
+
+@pytest.mark.needs_mujoco
+def test_an_mjcf_folder_is_named_by_a_trailing_slash_and_a_kernel_path_is_refused(tmp_path, monkeypatch, capsys):
+    from acroboter.cli.mjcf import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["lab_crane", "-o", "models/", "--pose", "spec", "-q"]) == 0
+    assert (tmp_path / "models" / "lab_crane.xml").read_text().lstrip().startswith(("<mujoco", "<!--"))
+    assert main(["lab_crane", "-o", "/dev/acroboter-test.xml", "--pose", "spec", "-q"]) == 2
+    assert "/dev is the kernel's file system" in capsys.readouterr().err
+    from pathlib import Path
+
+    assert not Path("/dev/acroboter-test.xml").exists()

@@ -32,6 +32,18 @@ from .outputs import out_path, partial_path, remove_stale_partials, results_fold
 TIMESTEP = dataclasses.replace(MUJOCO_TIMESTEP, name="timestep")  # --timestep: MuJoCo's step, as run's option
 
 
+def xml_target(text: str) -> str:
+    """-o: a folder (an existing one, or a name ending in /), a file named *.xml, or - for stdout. Any other file
+    name is refused at parse time: `-o lab_crane.toml` would replace the spec itself with XML. Kept as text: the
+    trailing / that says "a folder" is gone from a Path."""
+    out_path(text)  # an empty name refused
+    target = text.strip()
+    if target == "-" or target.endswith(("/", os.sep)) or Path(target).is_dir() or Path(target).suffix == ".xml":
+        return target
+    raise argparse.ArgumentTypeError(f"{target}: an MJCF file is named *.xml (give crane.xml, a folder ending in /, "
+                                     "or - for stdout)")
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     from ..model.mjcf_model import DEFAULT_TIMESTEP
 
@@ -39,8 +51,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("spec", type=spec_file, nargs="?", default=None,
                    help="model spec TOML (default: the paper's crane, model_spec/acroboter.toml)")
-    p.add_argument("-o", "--out", type=out_path, default=None,
-                   help="the XML file to write (default: <spec name>.xml in the current folder; - for stdout)")
+    p.add_argument("-o", "--out", type=xml_target, default=None,
+                   help="the XML file to write (*.xml), or a folder (an existing one, or a name ending in /) to "
+                        "write <spec name>.xml into (default: the current folder; - for stdout)")
     p.add_argument("--timestep", type=ranged(TIMESTEP), default=DEFAULT_TIMESTEP,
                    help="MuJoCo's time step in s, at most 100,000 per control period of the spec; the cables' "
                         "constraint time constant is two steps (default: %(default)g, where the agreement with the "
@@ -72,13 +85,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: --timestep: {problem.replace('mujoco_timestep', 'timestep')}", file=sys.stderr)
         return 2  # before any work: a model that steps that finely is no model to simulate with
     out, folder = None, None
-    if str(args.out) != "-":  # checked before any work (the static pose compiles the crane's library)
-        out = args.out if args.out is not None else Path(f"{spec.name}.xml")
-        if out.is_dir() or args.out is None:  # into a folder (the current one by default): <spec name>.xml
-            folder = out if out.is_dir() else Path(".")
-            out = folder / f"{spec.name}.xml"
-        problem = file_write_problem(out)
-        if problem:
+    if args.out != "-":  # checked before any work (the static pose compiles the crane's library)
+        out = Path(args.out) if args.out is not None else Path(".")
+        if args.out is None or args.out.endswith(("/", os.sep)) or out.is_dir():  # into a folder: <spec name>.xml
+            folder, out = out, out / f"{spec.name}.xml"  # made if missing, checked by results_folder
+        elif problem := file_write_problem(out):
             print(f"error: -o {args.out}: {problem}: give a file in a folder you can write to, or - for stdout",
                   file=sys.stderr)
             return 2
@@ -112,7 +123,7 @@ def _write(args: argparse.Namespace, spec, spec_path: Path, out: Path | None, mu
         model = mujoco.MjModel.from_xml_string(xml)
     except ValueError as err:  # a model this writer should never produce: say so, write nothing
         raise RuntimeError(f"MuJoCo refused the MJCF written for {spec_path}: {err}") from err
-    if out is None:
+    if out is None:  # -o -
         sys.stdout.write(xml)
         return 0
     if staged is not None:
