@@ -212,6 +212,7 @@ def test_a_plan_whose_certificate_fails_is_kept_apart_from_the_last_plan_that_he
     assert summary["certificate"]["passed"] is False and "beyond its limits" in summary["certificate"]["failure"]
     assert summary["certificate"]["margin_achieved"] < 0  # the measured excess, written
     assert "the certificate failed" in err and f"{record}/" in err and "not a result" in err
+    assert "not planned (certificate failed)" in err
     # the next good plan removes the record
     monkeypatch.setattr("acroboter.api.crane.Crane.plan", lambda self, **kwargs: held)
     assert main(["--spec", str(spec), "--out", str(out), "-q"]) == 0

@@ -366,3 +366,32 @@ def test_a_ctrl_c_that_a_weakref_callback_swallows_is_not_lost(capsys):
     finally:
         sys.unraisablehook = hook
     assert not state.received and seen == [ZeroDivisionError]
+
+
+def test_ctrl_c_stops_the_plans_solve_within_an_iteration(tmp_path):
+    """Issue 34 item 5: Ctrl-C took 8-11 s to stop a plan, IPOPT going on to the end of its solve (no Python runs
+    inside it). Its iteration callback now polls the signal and ends the solve: IPOPT's own status says it was
+    stopped (User_Requested_Stop), not that it finished, and the command exits 130 with nothing written."""
+    spec_text = (SPEC_DIR / "acroboter.toml").read_text()
+    spec_text = re.sub(r'(cable = "L\d")', r"\1\nlimits = [24.0, 29.0]", spec_text)
+    spec_text = re.sub(r"waypoints = \[.*?\n\]", "waypoints = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.1]]", spec_text,
+                       flags=re.S)
+    (tmp_path / "lift.toml").write_text(spec_text.replace("yaw_deg = 90.0", "yaw_deg = 0.0"))
+    status = tmp_path / "ipopt-status"
+    record = f"""
+import casadi
+_solve = casadi.Opti.solve
+def _recorded(self, *args, **kwargs):
+    try:
+        return _solve(self, *args, **kwargs)
+    finally:
+        pathlib.Path({str(status)!r}).write_text(str(self.stats().get("return_status")))
+casadi.Opti.solve = _recorded
+"""
+    out = tmp_path / "plan"
+    code, err, _, _ = interrupt(tmp_path, ["plan", "--spec", str(tmp_path / "lift.toml"), "--intervals", "24",
+                                           "--no-certificate", "--out", str(out), "-q"],
+                                ("casadi", "Opti", "solve"), group=False, extra=record)
+    assert_interrupted(code, err)
+    assert status.read_text() == "User_Requested_Stop"
+    assert not out.exists() and not staging_left(tmp_path)

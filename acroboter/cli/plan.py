@@ -8,7 +8,9 @@ active, the margin achieved, the certificate, provenance) and plan.png (s(t) and
 
 Exit codes: 0 planned; 2 bad input (an option, the spec, a trajectory file, limits that cannot hold the load at
 rest somewhere on the path: no timing can help, the place and the input named); 3 no plan (the problem not
-solved; a plan whose certificate failed is written into failed/plan/, marked so, beside the last plan that held);
+solved; a plan that is not the one asked for, a solve that did not reach the optimum (a fallback timing), a
+--max-speed/--max-accel the written samples exceed or a failed certificate, is written into failed/plan/, its
+summary's status saying which, beside the last plan that held);
 130 interrupted.
 """
 
@@ -105,7 +107,7 @@ def _plan(args: argparse.Namespace, folder) -> int:
     from ..model.spec import SpecError
     from ..planning.checks import StaticLimitError
     from ..planning.ideal_motion import PlanningError
-    from ..planning.planner import CertificateError
+    from ..planning.planner import PlanFailure
     from ..runtime.compiled import StaleModelError
     from ..sim.statics import EquilibriumError
     from .run import provenance
@@ -126,7 +128,7 @@ def _plan(args: argparse.Namespace, folder) -> int:
     except StaticLimitError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    except CertificateError as err:  # solved, but not flown within the limits: written apart, exit 3
+    except PlanFailure as err:  # a plan, but not the one asked for (a fallback, a bound, the certificate)
         plan, failure = err.plan, str(err)
     except PlanningError as err:
         print(f"error: {err}", file=sys.stderr)
@@ -134,7 +136,6 @@ def _plan(args: argparse.Namespace, folder) -> int:
     out = folder.staging
     plan.to_csv(out / "trajectory.csv")
     summary = plan.summary()
-    summary["status"] = "planned" if failure is None else "certificate failed"
     summary["spec"] = crane.name
     summary["trajectory_file"] = None if args.trajectory is None else str(args.trajectory)
     args.plant, args.plant_params = "own", {}
@@ -147,8 +148,8 @@ def _plan(args: argparse.Namespace, folder) -> int:
     if failure is not None:
         written = folder.publish_failed(failure)
         print(f"error: {failure}", file=sys.stderr)
-        print(f"the failing plan ({plan.duration:.4g} s) is in {written[0].parent}/, not a result: the results in "
-              f"{args.out}/ are those of the last plan that held", file=sys.stderr)
+        print(f"not planned ({plan.status}): the timing returned ({plan.duration:.4g} s) is in {written[0].parent}/, "
+              f"not a result; the results in {args.out}/ are those of the last plan that held", file=sys.stderr)
         return 3
     folder.publish()
     active = sorted({a["input"] for a in plan.active})

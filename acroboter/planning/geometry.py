@@ -101,6 +101,20 @@ class PathGeometry:
         s, ds, dds = quintic_array((t - path.edge_t0[k]) / T)
         return k + s, ds / T, dds / T**2
 
+    def own_peaks(self, phase: int | None = None, samples: int = 2001) -> tuple[float, float]:
+        """The tracked point's peak speed (m/s) and acceleration (m/s²) on the path's own timing, over the whole
+        path or one phase: a uniform slowdown by f divides them by f and f²."""
+        start, stop = 0.0, self.path_duration
+        if phase is not None and self.edges:
+            start = float(self.path.edge_t0[phase])
+            stop = start + self.phases[phase][2]
+        tau, rate, accel = self.own_timing(np.linspace(start, stop, samples))
+        _, d1, d2 = self.evaluate(tau)
+        rows = self.point_rows
+        velocity = d1[:, rows] * rate[:, None]
+        acceleration = d2[:, rows] * rate[:, None] ** 2 + d1[:, rows] * accel[:, None]
+        return float(np.linalg.norm(velocity, axis=1).max()), float(np.linalg.norm(acceleration, axis=1).max())
+
     def place(self, tau: float, point=None) -> str:
         """Where τ is, in words: 's = 0.46 (x, y, z = 0.25, 0.25, 0.45 m)' (s = τ / D)."""
         if point is None:

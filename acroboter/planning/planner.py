@@ -43,15 +43,26 @@ DEFAULT_WINDOW = 2
 CORNERS = ("rest", "swing")
 # The two samples at a node of the grid, one on each side (s).
 NODE_GAP_S = 1e-6
+# IPOPT's answers that are its optimum; any other (a fallback kept, out of iterations) is reported as not planned.
+OPTIMAL = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+# A bound on the tracked point's speed or acceleration holds on the written samples to this relative tolerance
+# (rounding; the optimiser keeps it retiming.KINEMATIC_SLACK inside at its nodes).
+KINEMATIC_TOLERANCE = 1e-9
 
 
-class CertificateError(PlanningError):
-    """The plan was solved but its certificate failed: `plan` is the Plan, its `certificate.failure` says why (the
-    CLI writes it into failed/plan/ and exits 3; a caller may still look at it, never fly it unawares)."""
+class PlanFailure(PlanningError):
+    """A plan was computed but is not what was asked: a solve that did not reach the optimum (the timing returned
+    is a fallback), a bound it does not hold, or (CertificateError) a failed certificate. `plan` is the Plan, its
+    `failures` say why (the CLI writes it into failed/plan/ and exits 3; a caller may look at it, never fly it
+    unawares)."""
 
     def __init__(self, message: str, plan: Plan):
         super().__init__(message)
         self.plan = plan
+
+
+class CertificateError(PlanFailure):
+    """The plan's certificate failed (its `certificate.failure` says why)."""
 
 
 @dataclass
@@ -93,6 +104,27 @@ class Plan:
     end_state: np.ndarray | None = None  # the ideal motion's last state (q, q̇, σ, σ̇): the swing a plan leaves
     certificate: Certificate | None = None
     warnings: list[str] = field(default_factory=list)
+    failures: list[str] = field(default_factory=list)  # why this is not the plan asked for (empty: it is)
+    max_speed: float | None = None  # the bounds asked for (m/s, m/s²)
+    max_accel: float | None = None
+
+    @property
+    def status(self) -> str:
+        """"planned", or what failed: "solve failed", "bounds not held", "certificate failed" (joined by "; ")."""
+        if not self.failures:
+            return "planned"
+        kinds = []
+        for text in self.failures:
+            kind = ("certificate failed" if text.startswith("the certificate") else
+                    "bounds not held" if text.startswith("max_") else "solve failed")
+            if kind not in kinds:
+                kinds.append(kind)
+        return "; ".join(kinds)
+
+    def kinematic_peaks(self) -> tuple[float, float]:
+        """The written trajectory's peak speed (m/s) and acceleration (m/s²) over its samples."""
+        return (float(np.linalg.norm(self.velocities, axis=1).max()),
+                float(np.linalg.norm(self.accelerations, axis=1).max()))
 
     @property
     def positions(self) -> np.ndarray:
@@ -118,7 +150,10 @@ class Plan:
         def finite(v):
             return float(v) if math.isfinite(v) else None
 
+        speed, accel = self.kinematic_peaks()
         out = {
+            "status": self.status,
+            "failures": self.failures,
             "duration_s": self.duration,
             "path_duration_s": self.path_duration,
             "uniform_slowdown_duration_s": self.uniform_duration,
@@ -133,6 +168,8 @@ class Plan:
                        for i, (name, unit, lo, hi, blo, bhi) in enumerate(zip(
                            self.input_names, self.input_units, *self.limits, *self.bounds, strict=True))},
             "active_limits": self.active,
+            "max_speed_m_s": self.max_speed, "peak_speed_m_s": speed,
+            "max_accel_m_s2": self.max_accel, "peak_accel_m_s2": accel,
             "intervals": self.intervals,
             "corners": self.corners,
             "window": self.window,
@@ -197,6 +234,8 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
         corners=corners if geometry.edges else "swing", window=window,
         phase_duration=None if problem.phase_slowdown is None else problem.phase_slowdown[1],
         solves=solution.windows, end_state=solution.states[-1].copy())
+    result.max_speed, result.max_accel = max_speed, max_accel
+    result.failures = unmet(solution, result)
     if certify_plan:
         # what is certified is the written trajectory (its samples, interpolated), as `run --trajectory` flies it
         flown_path = TrajectoryPath(spec, lay, trajectory, trajectory.duration, float(path.start_yaw))
@@ -207,12 +246,37 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
                          f"{c.margin_input} {100 * -c.margin_achieved:.3g} % of its span beyond its limits; give a "
                          "larger --margin (the closed loop's deviations from the ideal inputs need it)")
         if c.failure is not None:
-            raise CertificateError(c.failure, result)
-        if c.beyond_margin > 0:
+            result.failures.append(c.failure)
+        elif c.beyond_margin > 0:
             result.warnings.append(f"flown by MLM, {c.margin_input} came within {100 * c.margin_achieved:.3g} % of the "
                                    f"span of a limit (the plan keeps {100 * margin:.3g} %): the margin absorbed the "
                                    "closed loop's deviations")
+    if result.failures:
+        error = CertificateError if result.status == "certificate failed" else PlanFailure
+        raise error("; ".join(result.failures), result)
     return result
+
+
+def unmet(solution: Solution, plan: Plan) -> list[str]:
+    """What keeps the plan from being the one asked for, before its certificate: a solve that did not reach
+    IPOPT's optimum (its timing a fallback), a max_speed or max_accel the written samples exceed."""
+    out = []
+    for record in solution.windows:
+        if record.get("status") not in OPTIMAL:
+            phases = ", ".join(str(j + 1) for j in record.get("phases", []))
+            kept = ("its own timing slowed from rest was kept" if record.get("status") == "quintic_slowdown_kept"
+                    else f"IPOPT stopped with {record.get('status')}")
+            out.append(f"the time-optimal problem of phase(s) {phases} was not solved ({kept}"
+                       + (f": {record['reason']}" if record.get("reason") else "") + "): the timing returned is "
+                       f"not the fastest ({plan.duration:.4g} s; the best uniform slowdown {plan.uniform_duration:.4g} "
+                       "s); try more --intervals or a larger margin")
+    speed, accel = plan.kinematic_peaks()
+    for name, bound, peak, unit in (("max_speed", plan.max_speed, speed, "m/s"),
+                                    ("max_accel", plan.max_accel, accel, "m/s²")):
+        if bound is not None and peak > bound * (1.0 + KINEMATIC_TOLERANCE):
+            out.append(f"{name} not held: the written trajectory reaches {peak:.6g} {unit} against {bound:.6g} "
+                       f"{unit} (the bound is kept at the optimiser's nodes; give more --intervals)")
+    return out
 
 
 def sample(geometry: PathGeometry, solution: Solution, n: int) -> SampledTrajectory:

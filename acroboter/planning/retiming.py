@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
+from ..process.interrupts import interrupt_pending
 from .geometry import PathGeometry
 from .ideal_motion import IdealDynamics, PlanningError, inputs_at, rk4_step
 from .limits import best_spare, spare_constraints
@@ -51,8 +52,19 @@ MAX_STEP_S = 0.1
 # configuration there and every rate within this per second (m and unit vectors: a centimetre, a centimetre per
 # second).
 REST_TOL = 1e-2
+# max_speed and max_accel are kept at the nodes this fraction inside: IPOPT meets a constraint to its tolerance
+# (sumsqr ≤ bound² to 1e-8, 5e-5 of a 0.01 m/s² bound), and the written samples between nodes must hold it too.
+KINEMATIC_SLACK = 1e-3
 # The fewest intervals a phase (an edge of a waypoint path) gets.
 MIN_PHASE_INTERVALS = 6
+
+
+def _stop_when_interrupted(iteration: int) -> None:
+    """IPOPT's iteration callback: a Ctrl-C (SIGTERM, SIGHUP) received meanwhile stops the solve (the exception ends
+    it as User_Requested_Stop; the signal is raised as CasADi returns, acroboter.process.interrupts). Without a
+    Python callback no Python runs inside the solve, and Ctrl-C waited for its end (8-11 s)."""
+    if interrupt_pending():
+        raise KeyboardInterrupt
 
 
 @dataclass
@@ -155,9 +167,25 @@ class Retiming:
         over = np.where(np.isnan(over), -np.inf, over)  # inf - inf: an unbounded side
         return float(np.max(over)) if over.size else -math.inf
 
+    def kinematic_factor(self, phase: int | None = None) -> float:
+        """The smallest slowdown of the path's own timing (or of one phase's) that keeps the tracked point within
+        max_speed and max_accel (1 without them): the own timing's peaks divided by f and f²."""
+        factor = 0.0
+        if self.max_speed is not None or self.max_accel is not None:
+            speed, accel = self.geo.own_peaks(phase)
+            if self.max_speed is not None:
+                factor = max(factor, speed / self.max_speed)
+            if self.max_accel is not None:
+                factor = max(factor, math.sqrt(accel / self.max_accel))
+        return factor * (1.0 + BISECTION_RELATIVE)
+
     def best_uniform(self) -> float:
         """The smallest slowdown factor (within BISECTION_RELATIVE) whose ideal motion keeps every input within
-        the tightened limits, by bisection; PlanningError when none up to MAX_SLOWDOWN does."""
+        the tightened limits, by bisection, and the tracked point within max_speed and max_accel;
+        PlanningError when none up to MAX_SLOWDOWN does."""
+        return max(self._input_uniform(), self.kinematic_factor())
+
+    def _input_uniform(self) -> float:
         low, high = None, 1.0
         while self.excess(self.uniform(high)[1]) > 0:
             low, high = high, 2.0 * high
@@ -169,6 +197,8 @@ class Retiming:
             while self.excess(self.uniform(low)[1]) <= 0:
                 high, low = low, low / 2.0
                 if low < 1e-3:
+                    if self.max_speed is not None or self.max_accel is not None:
+                        return low  # the kinematic bounds bound it (best_uniform)
                     raise PlanningError("the path is feasible at a thousandth of its own timing: the limits do not "
                                         "bound this motion; give max_speed / max_accel (--max-speed, --max-accel)")
         while high - low > BISECTION_RELATIVE * high:
@@ -287,9 +317,7 @@ class Retiming:
         opti.minimize(total)
         opti.set_initial(A, np.asarray(guess_a, float)[None, :])
         opti.set_initial(durations, list(guess_T))
-        opti.solver("ipopt", {"print_time": False},
-                    {"print_level": 5 if verbose else 0, "max_iter": max_iter, "tol": 1e-8, "sb": "yes",
-                     "constr_viol_tol": 1e-9, **ACCEPTABLE, **self.ipopt})
+        self._configure(opti, max_iter, verbose)
         started = time.perf_counter()
         try:
             value = opti.solve().value
@@ -313,6 +341,13 @@ class Retiming:
         return Part(np.asarray(value(durations)).ravel(), np.asarray(value(A)).ravel(), np.asarray(value(X)).T,
                     chosen, record["status"], record["iterations"], [record],
                     [substeps] * len(which))
+
+    def _configure(self, opti: ca.Opti, max_iter: int, verbose: bool) -> None:
+        """IPOPT with its stopping rule (ACCEPTABLE) and the Ctrl-C poll."""
+        opti.callback(_stop_when_interrupted)  # Ctrl-C within an iteration, not at the solve's end
+        opti.solver("ipopt", {"print_time": False},
+                    {"print_level": 5 if verbose else 0, "max_iter": max_iter, "tol": 1e-8, "sb": "yes",
+                     "constr_viol_tol": 1e-9, **ACCEPTABLE, **self.ipopt})
 
     def stepper(self, substeps: int) -> ca.Function:
         """One interval with `substeps` RK4 steps (rk4_step), built once per count."""
@@ -342,9 +377,9 @@ class Retiming:
             tau, tau_d = X[2 * n, k], X[2 * n + 1, k]
             a = A[min(k, N - 1)]
             _, d1, d2 = self.geo.function(tau)
-            if self.max_speed is not None:
+            if self.max_speed is not None and k > 0:  # the start's speed is given (x_start), no variable of the problem
                 v = d1[rows] * tau_d
-                opti.subject_to(ca.sumsqr(v) <= self.max_speed**2)
+                opti.subject_to(ca.sumsqr(v) <= (self.max_speed * (1.0 - KINEMATIC_SLACK)) ** 2)
             if self.max_accel is not None:
                 acc = d2[rows] * tau_d**2 + d1[rows] * a
-                opti.subject_to(ca.sumsqr(acc) <= self.max_accel**2)
+                opti.subject_to(ca.sumsqr(acc) <= (self.max_accel * (1.0 - KINEMATIC_SLACK)) ** 2)

@@ -59,7 +59,8 @@ def phase_uniform(problem, x_start: np.ndarray, j: int, factor: float) -> tuple[
 
 def phase_factor(problem, x: np.ndarray, j: int, high: float) -> float:
     """The smallest factor (within PHASE_BISECTION) of phase j's own timing that keeps the inputs within the bounds
-    from the state x; PlanningError when none up to MAX_SLOWDOWN does."""
+    from the state x, and the tracked point within max_speed and max_accel; PlanningError when none up to
+    MAX_SLOWDOWN does."""
     def feasible(f):
         return problem.excess(phase_uniform(problem, x, j, f)[1]) <= 0
 
@@ -72,7 +73,8 @@ def phase_factor(problem, x: np.ndarray, j: int, high: float) -> float:
     lo = hi / 2.0
     while lo > 1e-3 and feasible(lo):
         hi, lo = lo, lo / 2.0
-    return bisect_factor(feasible, lo, hi, PHASE_BISECTION)
+    # and the tracked point within max_speed / max_accel (the fallback of an edge IPOPT does not solve is this)
+    return max(bisect_factor(feasible, lo, hi, PHASE_BISECTION), problem.kinematic_factor(j))
 
 
 def bisect_factor(serves, bad: float, good: float, relative: float) -> float:

@@ -89,6 +89,13 @@ class _Remembered:
             raise Interrupted(self.signum)
 
 
+def interrupt_pending() -> bool:
+    """Whether a signal waits in an open remembered_interrupt block: a long CasADi call's Python callback (IPOPT's
+    iteration callback) polls this and raises, which ends the solve at once; the signal itself is raised as CasADi
+    returns."""
+    return any(state.caught for state in _ACTIVE)
+
+
 def inside_casadi(frame) -> bool:
     """Whether the Python stack at `frame` runs inside a CasADi call (a frame of its SWIG module on it)."""
     while frame is not None:
