@@ -131,12 +131,14 @@ def test_the_receding_window_on_a_lift_in_two_edges_is_the_sum_of_the_half_lifts
     """The lift in two edges of 0.05 m, at rest at the corner: the window of one phase (each edge from the state the
     one before leaves, acroboter.planning.windows) gives the sum of the two half lifts' bang-bang durations (the CC
     stays at rest: nothing carries over the corner), the whole-path optimum. Measured 2026-12-03 with 16 intervals:
-    windowed 1.00600 s, the whole path in one solve 1.00591 s (0.01 %; 42 s against 61 s, not run here)."""
+    windowed 1.00600 s, the whole path in one solve 1.00591 s (0.01 %; 42 s against 61 s, not run here). Since
+    2026-12-06 the inputs hold the bounds at every millisecond, not only at the optimiser's nodes (they left them by
+    0.0135 N just before a node, where σ̈ jumps): the bounds moved in by 0.016 N cost 0.3 %, 1.00916 s (+1.06 %)."""
     crane = acroboter.Crane.from_toml(lift_spec(tmp_path, 24.0, 29.0, stops=(0.05,)))
     plan = crane.plan(margin=0.05, intervals=16, certify=False, window=1, corners="swing")
     expected = fastest_lift(24.25, 28.75, 0.0, 0.05) + fastest_lift(24.25, 28.75, 0.05, LIFT)
     assert plan.window == 1 and [s["phases"] for s in plan.solves] == [[0], [1]]
-    assert plan.duration == pytest.approx(expected, rel=0.01)
+    assert plan.duration == pytest.approx(expected, rel=0.012)
     assert plan.duration <= min(plan.phase_duration, plan.uniform_duration)
     winches = plan.inputs[:, :3]
     assert winches.max() <= 28.75 + 1e-6 and winches.min() >= 24.25 - 1e-6
@@ -243,7 +245,7 @@ def test_a_rest_to_rest_edge_leaves_the_connector_at_rest_where_a_free_one_leave
     for corners in ("rest", "swing"):
         plan = crane.plan(margin=0.05, intervals=8, certify=False, corners=corners)
         end = plan.end_state
-        x, _, _ = hold(end, 0.0, 3.0)
+        x = hold(end, 0.0, 3.0)[0]
         swing[corners] = float(np.abs(np.asarray(x)[n : 2 * n]).max())  # the largest rate after 3 s held
         if corners == "rest":
             assert np.abs(end[n : 2 * n]).max() <= 1.05 * REST_TOL  # the chain's RK4 steps are not the solve's
@@ -275,3 +277,18 @@ def test_max_speed_and_max_accel_hold_on_the_written_samples_or_the_plan_says_no
     # never slower than the best uniform slowdown that keeps the same bounds (one edge from rest to rest)
     if plan.status == "planned":
         assert plan.duration <= plan.uniform_duration * (1 + 1e-3)
+
+
+def test_the_planned_inputs_hold_the_bounds_at_every_instant_by_the_lift_oracle(tmp_path):
+    """Issue 34 ("the margin leaks"): the optimiser bounded the inputs at the start of each RK4 step only, and a
+    bang-bang input peaks at an interval's end, just before σ̈ jumps: on this lift (limits [24, 29] N, margin 20 %:
+    bounds [25, 28] N, 8 intervals) the ideal inputs reached 28.023 N. The oracle's input law u = a(z) z̈ + b(z, ż),
+    on the written trajectory every millisecond, now stays within the bounds (measured 27.99996 N, 2026-12-06)."""
+    crane = acroboter.Crane.from_toml(lift_spec(tmp_path, 24.0, 29.0))
+    plan = crane.plan(margin=0.2, intervals=8, certify=False)
+    t = np.arange(0.0, plan.duration, 1e-3)
+    position, velocity, acceleration = plan.trajectory(t)
+    a, b = lift_coefficients(position[:, 2] - position[0, 2], velocity[:, 2])
+    u = a * acceleration[:, 2] + b
+    assert u.max() <= 28.0 + 1e-3 and u.min() >= 25.0 - 1e-3
+    assert plan.margin_achieved >= 0.2 - 1e-6  # as the plan itself reports it, on its own 1 ms grid

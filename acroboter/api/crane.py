@@ -319,6 +319,7 @@ class Crane:
             if value is not None:
                 range_.check(value, name)
         path = self.desired(trajectory, duration)
+        _plannable(path, self.spec.controller.rate_hz)  # before any work: a bounded problem, a path that moves
         start = self.equilibrium(trajectory, duration)
         return plan(self.model.data(), path, start.q, float(margin), max_speed, max_accel, int(intervals), certify,
                     verbose, window, corners)
@@ -478,3 +479,18 @@ def _duration(path: DesiredPath, duration: float | None) -> float:
             or duration <= 0:
         raise ValueError(f"duration: expected a positive number of seconds, found {duration!r}")
     return float(duration)
+
+
+def _plannable(path, rate_hz: float) -> None:
+    """TrajectoryError for a path `plan` cannot retime: longer than a run may be (the plan is sampled and certified
+    like a run: a 163-byte file ending at t = 1e6 s took 10 GB), or one whose tracked point never moves."""
+    from ..control.path import TrajectoryError, motion_time_scale
+    from ..model.spec import MAX_CONTROL_STEPS
+
+    steps = path.duration * rate_hz
+    if steps > MAX_CONTROL_STEPS:
+        raise TrajectoryError(f"the path lasts {path.duration:g} s, {steps:,.0f} control steps at {rate_hz:g} Hz, more "
+                              f"than the {MAX_CONTROL_STEPS:,} a run may have: plan a shorter path")
+    if motion_time_scale(path, path.duration) == float("inf"):
+        raise TrajectoryError("the path's tracked point never moves: nothing to retime (the yaw alone is not "
+                              "planned)")

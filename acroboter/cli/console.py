@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
 from importlib import import_module
 
@@ -86,6 +87,7 @@ def configure_logging(verbosity: int) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    program = argv is None  # the `acroboter` program itself (not a caller in a process that goes on)
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = argparse.ArgumentParser(prog="acroboter", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -125,7 +127,14 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"acroboter: {line}", file=sys.stderr)
         return 3
-    return command([*prefix, *arguments])
+    code = command([*prefix, *arguments])
+    if program:  # the command is done, its folder as its code says: a SIGTERM during the interpreter's shutdown (a
+        # third of a second) exited 143, "folder as it was", over published results
+        from ..process.interrupts import SIGNALS
+
+        for signum in SIGNALS:
+            signal.signal(signum, signal.SIG_IGN)
+    return code
 
 
 def forward(command: str):

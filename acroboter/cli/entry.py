@@ -256,13 +256,15 @@ def folder_write_problem(folder: Path) -> str | None:
 
 def file_write_problem(path: Path) -> str | None:
     """Why the file `path` (through a link: its target) cannot be written or replaced (None: it can)."""
-    from .outputs import SYSTEM_FOLDERS
+    from .outputs import SYSTEM_FOLDERS, WRITABLE_SYSTEM_FOLDERS
 
     target = path.resolve() if path.is_symlink() else path
     if target.exists() and not target.is_file():
         return f"{path} is not a regular file"
     where = Path(os.path.abspath(target.parent))
     for system in SYSTEM_FOLDERS:  # /dev/x.xml "worked" as root, into a tmpfs that is gone at the next boot
+        if any(where.is_relative_to(ok) for ok in WRITABLE_SYSTEM_FOLDERS):
+            break
         if where == Path(system) or where.is_relative_to(system):
             return f"{system} is the kernel's file system, which holds no file of results"
     return folder_write_problem(target.parent)

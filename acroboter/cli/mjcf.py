@@ -87,9 +87,16 @@ def main(argv: list[str] | None = None) -> int:
     out, folder = None, None
     if args.out != "-":  # checked before any work (the static pose compiles the crane's library)
         out = Path(args.out) if args.out is not None else Path(".")
+        problem = None
         if args.out is None or args.out.endswith(("/", os.sep)) or out.is_dir():  # into a folder: <spec name>.xml
             folder, out = out, out / f"{spec.name}.xml"  # made if missing, checked by results_folder
-        elif problem := file_write_problem(out):
+        elif out.exists() and os.path.samefile(out, spec_path):  # `mjcf s.xml -o s.xml`, or a link to the spec
+            problem = f"it is the spec being read ({spec_path})"
+        elif out.is_symlink():  # the link is replaced by the file, never written through (animate does the same)
+            problem = file_write_problem(Path(os.path.abspath(out)).parent / "_")
+        else:
+            problem = file_write_problem(out)
+        if problem:
             print(f"error: -o {args.out}: {problem}: give a file in a folder you can write to, or - for stdout",
                   file=sys.stderr)
             return 2
@@ -130,7 +137,7 @@ def _write(args: argparse.Namespace, spec, spec_path: Path, out: Path | None, mu
         (staged.staging / out.name).write_text(xml)
         staged.publish()
     else:
-        target = out.resolve() if out.is_symlink() else out  # a link keeps pointing at the written file
+        target = out  # a link is replaced by the file: written through, it wrote over whatever it named (a spec)
         # Written beside the target and renamed: an interrupted write never leaves half an XML; the temporary
         # file carries this process's id, and one a killed mjcf left is removed by the next write of the file.
         remove_stale_partials(target)

@@ -112,8 +112,8 @@ def read_manifest(out: Path) -> dict[str, dict[str, list[str]]]:
         commands = doc["commands"]
         return {str(c): {"files": [str(f) for f in e.get("files", [])],
                          "folders": [str(f) for f in e.get("folders", [])]} for c, e in commands.items()}
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
-        return {}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError):  # RecursionError: JSON nested
+        return {}                                                                          # thousands deep
 
 
 def write_manifest(out: Path, commands: dict[str, dict[str, list[str]]]) -> None:
@@ -131,10 +131,17 @@ def write_manifest(out: Path, commands: dict[str, dict[str, list[str]]]) -> None
 
 
 def _inside(out: Path, relative: str) -> Path | None:
-    """`out / relative` for a manifest path that stays inside `out` (None for one that does not)."""
+    """`out / relative` for a manifest path that stays inside `out` (None for one that does not): no absolute
+    path, no `..`, and no folder on the way that is a symbolic link (`sub -> ../victim` with "sub/mlm.csv" in a
+    copied manifest removed a file outside the folder)."""
     parts = Path(relative).parts
     if not parts or Path(relative).is_absolute() or ".." in parts:
         return None
+    where = out
+    for part in parts[:-1]:
+        where = where / part
+        if where.is_symlink():
+            return None
     return out.joinpath(*parts)
 
 
@@ -361,6 +368,8 @@ def remove_stale_partials(target: Path) -> None:
 
 # Kernel file systems: they hold no folder of results (a mkdir there says "No such file or directory").
 SYSTEM_FOLDERS = ("/proc", "/sys", "/dev")
+# ... but /dev/shm is an ordinary tmpfs a user may write results into
+WRITABLE_SYSTEM_FOLDERS = ("/dev/shm",)
 
 
 def unfit_folder(out: Path) -> str | None:
@@ -369,6 +378,8 @@ def unfit_folder(out: Path) -> str | None:
     if resolved == Path(resolved.anchor):
         return "it is the file system's root: give a folder of its own (e.g. results)"
     for system in SYSTEM_FOLDERS:
+        if any(resolved.is_relative_to(ok) for ok in WRITABLE_SYSTEM_FOLDERS):
+            break
         if resolved == Path(system) or resolved.is_relative_to(system):
             return f"{system} is the kernel's file system, which holds no folder of results: give another folder"
     if out.is_symlink() and not out.exists():

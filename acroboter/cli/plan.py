@@ -125,7 +125,7 @@ def _plan(args: argparse.Namespace, folder) -> int:
         plan = crane.plan(margin=args.margin, max_speed=args.max_speed, max_accel=args.max_accel,
                           trajectory=trajectory, intervals=args.intervals, certify=not args.no_certificate,
                           window=args.window, corners=args.corners)
-    except StaticLimitError as err:
+    except (StaticLimitError, TrajectoryError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     except PlanFailure as err:  # a plan, but not the one asked for (a fallback, a bound, the certificate)

@@ -85,7 +85,11 @@ def read_trajectory_csv(path: str | Path) -> SampledTrajectory:
     if len(lines) - 1 > MAX_ROWS:
         raise TrajectoryError(f"trajectory file {path}: {len(lines) - 1} samples, more than {MAX_ROWS:,}: sample "
                               "the trajectory more coarsely (between samples it is interpolated, quintic Hermite)")
-    header_line, header = lines[0][0], [c.strip() for c in next(csv.reader([lines[0][1]]))]
+    header_line, header = lines[0][0], [c.strip() for c in _cells(path, lines[0])]
+    if len(set(header)) != len(header):
+        twice = sorted({c for c in header if header.count(c) > 1})
+        raise TrajectoryError(f"trajectory file {path}, line {header_line}: column {', '.join(twice)} named twice; "
+                              "give each column once")
     missing = [c for c in ("t_s", *POINT) if c not in header]
     if missing:
         raise TrajectoryError(f"trajectory file {path}, line {header_line}: no column {', '.join(missing)}; expected "
@@ -127,10 +131,20 @@ def _bounded_text(path: Path) -> str:
                                       f"{MAX_BYTES // 2**20} MB ({MAX_ROWS:,} samples need about half of it): sample "
                                       "the trajectory more coarsely")
             raw = f.read(MAX_BYTES + 1)
-        return raw.decode("utf-8")
+        return raw.decode("utf-8-sig")  # -sig: the byte-order mark spreadsheets write ("CSV UTF-8") goes
     except (OSError, UnicodeDecodeError) as err:
         raise TrajectoryError(f"trajectory file {path}: cannot read it ({getattr(err, 'strerror', None) or err})") \
             from None
+
+
+def _cells(path: Path, numbered: tuple[int, str]) -> list[str]:
+    """One CSV line's cells; TrajectoryError naming the line for what the csv module refuses (a field of more than
+    131,072 characters, an unclosed quote)."""
+    n, line = numbered
+    try:
+        return next(csv.reader([line]))
+    except csv.Error as err:
+        raise TrajectoryError(f"trajectory file {path}, line {n}: not a CSV row ({err})") from None
 
 
 def _values(path: Path, rows: list[tuple[int, str]], header: list[str], wanted: list[str]) -> np.ndarray:
@@ -139,7 +153,7 @@ def _values(path: Path, rows: list[tuple[int, str]], header: list[str], wanted: 
     limits = [LIMITS[name] for name in wanted]
     data = np.empty((len(rows), len(wanted)))
     for r, (n, line) in enumerate(rows):
-        cells = next(csv.reader([line]))
+        cells = _cells(path, (n, line))
         if len(cells) != len(header):
             raise TrajectoryError(f"trajectory file {path}, line {n}: {len(cells)} values for {len(header)} columns")
         for c, (name, i) in enumerate(zip(wanted, index, strict=True)):

@@ -159,9 +159,12 @@ def load_spec(path: str | Path) -> Spec:
         raise SpecError(str(path), [("(file)", f"expected a TOML spec of at most {MAX_SPEC_BYTES // 2**20} MB, "
                                                f"found {size / 2**20:.0f} MB")])
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # -sig: a byte-order mark (Windows editors) goes
     except tomllib.TOMLDecodeError as err:
         raise SpecError(str(path), [("(syntax)", f"expected valid TOML, found a syntax error: {err}")]) from None
+    except RecursionError:  # tomllib parses nesting recursively: 500 levels of [[[...]]] exhausted the stack
+        raise SpecError(str(path), [("(syntax)", "expected a TOML spec, found arrays or tables nested too deep for "
+                                                 "the parser (a spec nests a few levels)")]) from None
     except (OSError, UnicodeDecodeError) as err:
         raise SpecError(str(path), [("(file)", f"expected a readable UTF-8 TOML file, found: {err}")]) from None
     return parse_spec(data, str(path))

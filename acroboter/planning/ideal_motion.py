@@ -125,7 +125,8 @@ def spare_inputs(system: np.ndarray, m: int, count: int) -> list[int]:
 def rk4_step(dynamics: IdealDynamics, geometry, substeps: int) -> ca.Function:
     """One interval of h seconds with the path acceleration τ̈ held: state x = (q, q̇, τ, τ̇), `substeps`
     RK4 steps. Returns the end state, the inputs at the start of each substep (n_inputs x substeps; with a spare
-    input, at its value 0) and their change per unit of the spare input (n_inputs x substeps, 0 without one)."""
+    input, at its value 0) and their change per unit of the spare input (n_inputs x substeps, 0 without one), and
+    the same two at the interval's end with its τ̈ (n_inputs x 1 each)."""
     n = dynamics.layout.n
     x = ca.MX.sym("x", 2 * n + 2)
     a = ca.MX.sym("tau_dd")
@@ -147,8 +148,12 @@ def rk4_step(dynamics: IdealDynamics, geometry, substeps: int) -> ca.Function:
         k3 = rate(state + dt / 2 * k2)[0]
         k4 = rate(state + dt * k3)[0]
         state = state + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    return ca.Function("interval", [x, a, h], [state, ca.horzcat(*inputs), ca.horzcat(*directions)],
-                       ["x", "tau_dd", "h"], ["x_end", "u", "direction"])
+    # the inputs at the interval's end with its own τ̈ (the left limit at the next node, where τ̈ jumps): a
+    # bang-bang timing's input peaks there, and the next interval's start sees it only after the jump
+    _, u_end, direction_end = rate(state)
+    return ca.Function("interval", [x, a, h], [state, ca.horzcat(*inputs), ca.horzcat(*directions), u_end,
+                                               direction_end if dynamics.spares else ca.MX.zeros(u_end.shape)],
+                       ["x", "tau_dd", "h"], ["x_end", "u", "direction", "u_end", "direction_end"])
 
 
 def inputs_at(dynamics: IdealDynamics, geometry, x, a):

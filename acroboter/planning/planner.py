@@ -43,6 +43,13 @@ DEFAULT_WINDOW = 2
 CORNERS = ("rest", "swing")
 # The two samples at a node of the grid, one on each side (s).
 NODE_GAP_S = 1e-6
+# The planned inputs are checked between the optimiser's nodes on a grid of this step (s), and may leave the bounds
+# there by at most INPUT_TOLERANCE of the span (rounding; the optimiser bounds every RK4 step's start and every
+# interval's end, where a bang-bang timing's input peaks).
+CHECK_STEP_S = 1e-3
+INPUT_TOLERANCE = 1e-6
+# Solves again with the bounds moved in where the inputs leave them between the nodes (solve_within_bounds).
+TIGHTEN_ROUNDS = 2
 # IPOPT's answers that are its optimum; any other (a fallback kept, out of iterations) is reported as not planned.
 OPTIMAL = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 # A bound on the tracked point's speed or acceleration holds on the written samples to this relative tolerance
@@ -107,6 +114,7 @@ class Plan:
     failures: list[str] = field(default_factory=list)  # why this is not the plan asked for (empty: it is)
     max_speed: float | None = None  # the bounds asked for (m/s, m/s²)
     max_accel: float | None = None
+    bounds_moved_in: dict = field(default_factory=dict)  # input -> how far the optimiser's bounds were moved in
 
     @property
     def status(self) -> str:
@@ -116,7 +124,7 @@ class Plan:
         kinds = []
         for text in self.failures:
             kind = ("certificate failed" if text.startswith("the certificate") else
-                    "bounds not held" if text.startswith("max_") else "solve failed")
+                    "bounds not held" if text.startswith(("max_", "the planned inputs")) else "solve failed")
             if kind not in kinds:
                 kinds.append(kind)
         return "; ".join(kinds)
@@ -168,6 +176,7 @@ class Plan:
                        for i, (name, unit, lo, hi, blo, bhi) in enumerate(zip(
                            self.input_names, self.input_units, *self.limits, *self.bounds, strict=True))},
             "active_limits": self.active,
+            "bounds_moved_in": self.bounds_moved_in,
             "max_speed_m_s": self.max_speed, "peak_speed_m_s": speed,
             "max_accel_m_s2": self.max_accel, "peak_accel_m_s2": accel,
             "intervals": self.intervals,
@@ -218,9 +227,9 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
                                    window=window)
     else:
         problem = Retiming(dynamics, geometry, q0, low, high, max_speed=max_speed, max_accel=max_accel)
-    solution = problem.solve(intervals, verbose=verbose)
+    solution, grid_times, grid_inputs, tightened_by = solve_within_bounds(problem, intervals, low, high, verbose)
     trajectory = sample(geometry, solution, problem.n)
-    achieved, where = margin_achieved(solution.inputs, lower, upper)
+    achieved, where = margin_achieved(np.vstack([solution.inputs, grid_inputs]), lower, upper)
     result = Plan(
         duration=solution.duration, path_duration=geometry.path_duration, times=solution.times,
         s=solution.states[:, -2] / geometry.end, sd=solution.states[:, -1] / geometry.end,
@@ -235,7 +244,10 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
         phase_duration=None if problem.phase_slowdown is None else problem.phase_slowdown[1],
         solves=solution.windows, end_state=solution.states[-1].copy())
     result.max_speed, result.max_accel = max_speed, max_accel
+    result.bounds_moved_in = {lay.inputs[i]: float(v) for i, v in enumerate(tightened_by) if v > 0}
     result.failures = unmet(solution, result)
+    if (leak := between_nodes(grid_times, grid_inputs, low, high, list(lay.inputs), list(lay.input_units))):
+        result.failures.append(leak)
     if certify_plan:
         # what is certified is the written trajectory (its samples, interpolated), as `run --trajectory` flies it
         flown_path = TrajectoryPath(spec, lay, trajectory, trajectory.duration, float(path.start_yaw))
@@ -277,6 +289,46 @@ def unmet(solution: Solution, plan: Plan) -> list[str]:
             out.append(f"{name} not held: the written trajectory reaches {peak:.6g} {unit} against {bound:.6g} "
                        f"{unit} (the bound is kept at the optimiser's nodes; give more --intervals)")
     return out
+
+
+def solve_within_bounds(problem, intervals: int, low, high, verbose: bool):
+    """The problem solved, and its inputs on a CHECK_STEP_S grid: (solution, grid times, grid inputs, how far the
+    optimiser's bounds were moved in, per input). Where the inputs leave the bounds between the optimiser's nodes
+    (a rest-to-rest plan's chain carries each corner's residual swing into the next edge, which the edge's own
+    solve started at rest), the problem is solved again with those bounds moved in by the excess and a fifth, at
+    most TIGHTEN_ROUNDS times (the check that follows, `between_nodes`, reports what is left)."""
+    base_low, base_high = problem.lower.copy(), problem.upper.copy()
+    span = np.where(np.isfinite(high - low), high - low, 1.0)
+    for attempt in range(TIGHTEN_ROUNDS + 1):
+        solution = problem.solve(intervals, verbose=verbose)
+        # the inputs at every instant (a CHECK_STEP_S grid), not only where the optimiser looks
+        times, inputs = problem.inputs_on_grid(solution, CHECK_STEP_S)
+        with np.errstate(invalid="ignore"):
+            above = np.nan_to_num(np.max(inputs - high, axis=0), nan=0.0, neginf=0.0)
+            below = np.nan_to_num(np.max(low - inputs, axis=0), nan=0.0, neginf=0.0)
+        if attempt == TIGHTEN_ROUNDS or max((above / span).max(), (below / span).max()) <= INPUT_TOLERANCE:
+            break
+        problem.upper = problem.upper - 1.2 * np.maximum(above, 0.0)
+        problem.lower = problem.lower + 1.2 * np.maximum(below, 0.0)
+    with np.errstate(invalid="ignore"):  # inf - inf: an unbounded side, never moved
+        moved = np.maximum(base_high - problem.upper, problem.lower - base_low)
+    problem.lower, problem.upper = base_low, base_high
+    return solution, times, inputs, np.nan_to_num(moved, nan=0.0)
+
+
+def between_nodes(times: np.ndarray, inputs: np.ndarray, low, high, names: list[str], units: list[str]) -> str | None:
+    """What to say of planned inputs that leave the bounds (the limits less the margin) between the optimiser's
+    nodes by more than INPUT_TOLERANCE of the span (None when they do not)."""
+    span = np.where(np.isfinite(high - low), high - low, 1.0)
+    over = np.maximum(inputs - high, low - inputs) / span
+    over = np.where(np.isnan(over), -np.inf, over)
+    if not over.size or over.max() <= INPUT_TOLERANCE:
+        return None
+    k, i = np.unravel_index(np.argmax(over), over.shape)
+    bound = high[i] if inputs[k, i] > high[i] else low[i]
+    return (f"the planned inputs leave the bounds between the optimiser's nodes: {names[i]} = {inputs[k, i]:.6g} "
+            f"{units[i]} at t = {times[k]:.3f} s against {bound:.6g} {units[i]} (the limits less the margin), on a "
+            f"{1e3 * CHECK_STEP_S:g} ms grid; give more --intervals")
 
 
 def sample(geometry: PathGeometry, solution: Solution, n: int) -> SampledTrajectory:

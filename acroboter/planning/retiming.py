@@ -151,7 +151,7 @@ class Retiming:
         key = (acc.size, substeps)
         if key not in self._check_cache:
             self._check_cache[key] = self.stepper(substeps).mapaccum(acc.size)
-        xs, us, ds = self._check_cache[key](x0, acc[None, :], h)
+        xs, us, ds, _, _ = self._check_cache[key](x0, acc[None, :], h)
         states = np.vstack([np.asarray(x0, float)[None, :], np.asarray(xs).T])
         base, directions = np.asarray(us).T, np.asarray(ds).T
         if final:
@@ -278,7 +278,7 @@ class Retiming:
         # it solves reliably, where multiple shooting's many redundant states of the natural coordinates made it
         # wander)
         x0 = ca.DM(x_start)
-        x_end, inputs, directions = step.mapaccum(N)(x0, A, steps)
+        x_end, inputs, directions, ends, d_ends = step.mapaccum(N)(x0, A, steps)
         X = ca.horzcat(x0, x_end)
         boundaries = np.concatenate([[0], np.cumsum(sub)])
         for i, j in enumerate(which):  # each phase from its start to its end
@@ -294,12 +294,12 @@ class Retiming:
             opti.subject_to(X[2 * n + 1, N] == 0)
         last, last_direction = inputs_at(self.dyn, self.geo, X[:, N], A[N - 1])
         u_all, d_all = ca.horzcat(inputs, last), ca.horzcat(directions, last_direction)
-        bounded, d_bounded = u_all, d_all
+        bounded, d_bounded = ca.horzcat(u_all, ends), ca.horzcat(d_all, d_ends)  # each interval's end too
         if tail_s > 0:
             count = max(1, int(math.ceil(tail_s / (substeps * MAX_STEP_S))))
-            _, held, d_held = step.mapaccum(count)(X[:, N], ca.DM.zeros(1, count),
+            _, held, d_held, _, _ = step.mapaccum(count)(X[:, N], ca.DM.zeros(1, count),
                                                    ca.DM.ones(1, count) * (tail_s / count))
-            bounded, d_bounded = ca.horzcat(u_all, held), ca.horzcat(d_all, d_held)
+            bounded, d_bounded = ca.horzcat(bounded, held), ca.horzcat(d_bounded, d_held)
         if self.dyn.spares:  # some internal force keeps the inputs within the bounds (limits.spare_constraints)
             for expr, low in spare_constraints(bounded, d_bounded, self.lower, self.upper, self.dyn.spare_signs,
                                                self.dyn.spare_at_rest):
@@ -353,6 +353,21 @@ class Retiming:
         raise PlanningError(f"the time-optimal problem was not solved ({failed}, also with {RETRY}); the best "
                             f"uniform slowdown ({uniform_duration:.4g} s) is feasible: try more --intervals or a "
                             "larger margin")
+
+    def inputs_on_grid(self, solution: Solution, step_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """The ideal inputs along a solution every `step_s` seconds at most (times, steps x l): each interval
+        integrated again from its node state with RK4 steps no longer than step_s, σ̈ held. The optimiser bounds
+        them only at the start of its own (coarser) RK4 steps: this is what lies between."""
+        h = np.diff(solution.times)
+        m = max(1, int(math.ceil(h.max() / step_s)))
+        key = ("map", h.size, m)
+        if key not in self._check_cache:
+            self._check_cache[key] = self.stepper(m).map(h.size)
+        _, us, ds, _, _ = self._check_cache[key](solution.states[:-1].T, solution.tau_dd[None, :], h[None, :])
+        base, directions = np.asarray(us).T, np.asarray(ds).T  # interval by interval, m steps each
+        times = (solution.times[:-1, None] + np.arange(m)[None, :] * (h[:, None] / m)).ravel()
+        inputs = self.fit_spare(base, directions)
+        return np.append(times, solution.times[-1]), np.vstack([inputs, solution.inputs[-1:]])
 
     def stepper(self, substeps: int) -> ca.Function:
         """One interval with `substeps` RK4 steps (rk4_step), built once per count."""

@@ -33,6 +33,23 @@ class AnimationInputError(Exception):
     """The folder cannot be animated (bad input, exit 2): the message names the cause and the fix."""
 
 
+# What a results folder's files may weigh before they are read (a 3 GB sparse CSV took 15.8 GB to load): a run's
+# summary is kilobytes; its CSV at the cap of 360,000 control instants about 0.8 GB for the default crane.
+MAX_SUMMARY_BYTES = 16 * 2**20
+MAX_CSV_BYTES = 2**30
+
+
+def _bounded(path: Path, limit: int) -> None:
+    """AnimationInputError for a file larger than `limit` bytes (checked before it is read)."""
+    try:
+        size = path.stat().st_size
+    except OSError:
+        return  # missing or unreadable: the reader says so
+    if size > limit:
+        raise AnimationInputError(f"{path} is {size / 2**20:,.0f} MB, more than the {limit // 2**20:,} MB any "
+                                  "`acroboter run` writes: it is not a run's record; re-run `acroboter run`")
+
+
 # --- reading the folder ---------------------------------------------------------------------------
 
 
@@ -42,12 +59,18 @@ def read_summary(folder: Path) -> dict:
         raise AnimationInputError(f"expected a results folder (as `acroboter run --out` writes), found {what} at "
                                   f"{folder}: give the folder that holds summary.json and the <method>.csv files")
     path = folder / "summary.json"
+    _bounded(path, MAX_SUMMARY_BYTES)
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
+        summary = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise AnimationInputError(f"{folder} has no summary.json: give a folder written by `acroboter run`") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise AnimationInputError(f"{path} is not valid JSON ({err}): re-run `acroboter run` to write it") from None
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as err:
+        why = "nested too deep" if isinstance(err, RecursionError) else err
+        raise AnimationInputError(f"{path} is not valid JSON ({why}): re-run `acroboter run` to write it") from None
+    if not isinstance(summary, dict) or not isinstance(summary.get("methods", {}), dict):
+        raise AnimationInputError(f"{path} is not a run's summary (expected an object with \"methods\"): re-run "
+                                  "`acroboter run` to write it")
+    return summary
 
 
 def methods_that_ran(summary: dict, folder: Path) -> list[str]:
@@ -58,6 +81,7 @@ def methods_that_ran(summary: dict, folder: Path) -> list[str]:
 
 def read_columns(path: Path) -> dict[str, np.ndarray]:
     """A results CSV as {column: values}."""
+    _bounded(path, MAX_CSV_BYTES)
     try:
         with path.open(newline="", encoding="utf-8") as f:
             header = next(csv.reader(f))
@@ -187,13 +211,19 @@ def body_point(centre: np.ndarray, axes: np.ndarray, xi) -> np.ndarray:
 
 def _column(columns: dict[str, np.ndarray], name: str, path: Path | None) -> np.ndarray:
     try:
-        return columns[name]
+        values = columns[name]
     except KeyError:
         where = f"{path} has" if path is not None else "the columns have"
         raise AnimationInputError(
             f"{where} no column {name}: the pose (q_<body>.r_x_m, ..., q_<body>.w_z) and the moving anchors "
             "(anchor_<name>_x_m, ...) are needed to draw the crane; results written before acroboter recorded them "
             "lack them: re-run `acroboter run` to write them") from None
+    bad = np.flatnonzero(~np.isfinite(values))
+    if bad.size:  # a run records finite poses only (a diverged one stops before): this is not a run's record
+        where = f"{path}, line {bad[0] + 2}" if path is not None else f"row {bad[0] + 1}"
+        raise AnimationInputError(f"{where}: {name} is {values[bad[0]]}, not a pose a run records: re-run "
+                                  "`acroboter run` to write it")
+    return values
 
 
 def outline_order(local: dict[str, np.ndarray]) -> list[str | None]:
