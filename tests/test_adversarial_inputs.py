@@ -144,3 +144,27 @@ def test_mjcf_never_writes_over_its_spec_through_a_link_or_by_name(tmp_path, mon
     (tmp_path / "elsewhere.toml").write_text("mine")
     assert main(["lab_crane", "--pose", "spec", "-o", "other.xml", "-q"]) == 0
     assert not (tmp_path / "other.xml").is_symlink() and (tmp_path / "elsewhere.toml").read_text() == "mine"
+
+
+@pytest.mark.parametrize(("given", "why"), [("missing", "nothing at this path"), ("a file", "a file at this path"),
+                                            ("/usr", "no generated code in it"), ("/proc", "kernel's file system")])
+def test_check_out_must_be_a_folder_of_generated_code(given, why, tmp_path, capsys):
+    """`check --out missing` and `--out afile` said "generated/ is stale" (exit 1) with 150 "missing" lines;
+    `--out /usr` walked the whole tree (122,345 lines)."""
+    from acroboter.cli.generate import main
+
+    target = {"missing": str(tmp_path / "missing"), "a file": str(REPO / "README.md")}.get(given, given)
+    with pytest.raises(SystemExit) as stop:
+        main(["check", "--out", target])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert f"--out {target}: " in err and why in err
+
+
+def test_generate_takes_a_spec_after_its_options_and_an_examples_name(tmp_path, capsys):
+    """`generate --out DIR --no-compile-check SPEC` was "unrecognized arguments: SPEC"; `generate lab_crane` was
+    "found nothing at this path"."""
+    from acroboter.cli.generate import main
+
+    assert main(["generate", "--out", str(tmp_path / "gen"), "--no-compile-check", "lab_crane"]) == 0
+    assert (tmp_path / "gen" / "lab_crane" / "manifest.json").is_file()

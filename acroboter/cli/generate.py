@@ -213,23 +213,43 @@ def cmd_check(spec_paths: list[Path], committed: Path, whole_tree: bool) -> int:
     return 0
 
 
+def _not_generated_folder(out: Path) -> str | None:
+    """Why `check --out` cannot compare `out` (None: it can): it must be a folder of generated code, one
+    <crane>/manifest.json at least (`check --out /usr` walked the whole tree, a missing folder was "stale")."""
+    from .outputs import unfit_folder
+
+    if (problem := unfit_folder(out)) is not None:
+        return problem
+    if not out.is_dir():
+        return f"{'a file' if out.exists() else 'nothing'} at this path; give a folder `acroboter generate` wrote"
+    try:
+        if not any((entry / "manifest.json").is_file() for entry in out.iterdir() if entry.is_dir()):
+            return "no generated code in it (no <crane>/manifest.json); give a folder `acroboter generate` wrote"
+    except OSError as err:
+        return f"cannot read it ({err.strerror or err})"
+    return None
+
+
 @guarded
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="acroboter", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("command", choices=["generate", "check"],
                         help="generate the C, or check generated/ is fresh")
-    parser.add_argument("specs", nargs="*", help="spec files (default: every model_spec/*.toml)")
+    parser.add_argument("specs", nargs="*", type=spec_file,
+                        help="spec files or examples' names (default: every model_spec/*.toml)")
     parser.add_argument("--out", type=out_path, default=None,
                         help="the folder written (generate; default: generated/ in a checkout, else ./generated) "
                              "or compared (check; default: the shipped generated/)")
     parser.add_argument("--no-compile-check", action="store_true",
                         help="generate: skip compiling each spec's C before it replaces the previous files")
-    args = parser.parse_args(argv)
+    args = parser.parse_intermixed_args(argv)  # `generate --out DIR SPEC`: a spec after the options too
     if args.out is None:
         args.out = DEFAULT_GENERATED if args.command == "generate" else GENERATED_DIR
     if args.command == "generate":
         check_out_folder(parser, args.out)
+    elif (problem := _not_generated_folder(args.out)) is not None:
+        parser.error(f"--out {args.out}: {problem}")
     try:
         if args.command == "generate":
             with no_empty_folder_left(args.out):  # a failed generate leaves no empty --out it made
