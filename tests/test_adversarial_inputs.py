@@ -168,3 +168,17 @@ def test_generate_takes_a_spec_after_its_options_and_an_examples_name(tmp_path, 
 
     assert main(["generate", "--out", str(tmp_path / "gen"), "--no-compile-check", "lab_crane"]) == 0
     assert (tmp_path / "gen" / "lab_crane" / "manifest.json").is_file()
+
+
+@pytest.mark.parametrize("argv", [["run", "--method", "mlm,,", "--duration", "0.1"], ["sweep", "--alphas", "1,,2"],
+                                  ["run", "--iterations", "3,", "--duration", "0.1"]])
+def test_an_empty_item_in_a_list_option_is_refused(argv, tmp_path, capsys):
+    """`--alphas 1,,2` and `--method mlm,,` were taken silently (a value left out, or a typo)."""
+    from acroboter.cli.console import main
+
+    try:
+        code = main([*argv, "--out", str(tmp_path / "out")])
+    except SystemExit as stop:
+        code = stop.code
+    assert code == 2 and "empty item" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

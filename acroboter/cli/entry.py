@@ -160,7 +160,10 @@ def ranged_list(range_: Range) -> Callable[[str], list]:
     """Comma-separated numbers, each in `range_` (repeats dropped, order kept)."""
 
     def parse(text: str) -> list:
-        items = [item.strip() for item in str(text).split(",") if item.strip()]
+        items = [item.strip() for item in str(text).split(",")]
+        if not all(items):  # `1,,2` or a trailing comma: a number left out, or a typo
+            raise argparse.ArgumentTypeError(f"expected comma-separated numbers, each {range_.text()}, found an "
+                                             f"empty item in '{text}'")
         if not items:
             raise argparse.ArgumentTypeError(f"expected comma-separated numbers, each {range_.text()}, found '{text}'")
         try:
@@ -227,8 +230,10 @@ def spec_file(text: str) -> Path:
 def check_out_folder(parser: argparse.ArgumentParser, out: Path, option: str = "--out") -> None:
     """--out must be creatable and writable: found before any work, not after it (parser.error: exit 2).
     A folder made for the check is removed again (the command makes it when it writes)."""
-    from .outputs import missing_folders, remove_if_empty
+    from .outputs import missing_folders, remove_if_empty, unfit_folder
 
+    if (problem := unfit_folder(out)) is not None:  # /proc said "No such file or directory"
+        parser.error(f"cannot write into {option} {out}: {problem}")
     made = missing_folders(out)
     try:
         out.mkdir(parents=True, exist_ok=True)

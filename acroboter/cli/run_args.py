@@ -139,7 +139,10 @@ def _sensing_overrides(p: argparse.ArgumentParser, args: argparse.Namespace):
 def expand_methods(requested: list[str] | None, iterations: list[int]) -> list[str]:
     names = []
     for item in requested or ["mlm", "penalty", "iterative"]:
-        names += [m.strip() for m in item.split(",") if m.strip()]
+        names += [m.strip() for m in item.split(",")]
+    if not all(names):  # `mlm,,` or `mlm,`: a method left out, or a typo
+        raise ValueError(f"expected comma-separated methods (mlm, penalty, iterative or iterative-N), found an "
+                         f"empty item in '{','.join(requested or [])}'")
     methods = []
     for name in names:
         if name == "iterative":

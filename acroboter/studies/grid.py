@@ -65,8 +65,9 @@ def parse_values(text: str, what: str = "values", range_: Range | None = None) -
         return value
 
     for item in (s.strip() for s in text.split(",")):
-        if not item:
-            continue
+        if not item:  # `1,,2` or a trailing comma: a value left out, or a typo
+            raise ValueError(f"{head}expected comma-separated numbers or START:STOP[:PER_DECADE] ranges, found an "
+                             f"empty item in '{text}'")
         parts = item.split(":")
         try:
             nums = [float(p) for p in parts]
