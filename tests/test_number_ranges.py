@@ -207,7 +207,8 @@ def command_parser(name: str) -> tuple[argparse.ArgumentParser, Any, tuple]:
     def capture(self, *args, **kwargs):
         raise _Captured(self)
 
-    with mock.patch.object(argparse.ArgumentParser, "parse_args", capture):
+    with mock.patch.object(argparse.ArgumentParser, "parse_args", capture), \
+            mock.patch.object(argparse.ArgumentParser, "parse_intermixed_args", capture):
         try:
             main([*prefix])
         except _Captured as got:
