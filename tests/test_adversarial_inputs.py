@@ -182,3 +182,28 @@ def test_an_empty_item_in_a_list_option_is_refused(argv, tmp_path, capsys):
         code = stop.code
     assert code == 2 and "empty item" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_full_disk_says_where_and_what_to_do(tmp_path, capsys, monkeypatch):
+    """"error: [Errno 28] No space left on device" named neither the file nor the fix."""
+    import errno
+
+    from acroboter.cli import outputs
+    from acroboter.cli.run import main
+
+    def full(self):
+        raise OSError(errno.ENOSPC, "No space left on device", str(self.out / "summary.json"))
+
+    monkeypatch.setattr(outputs.ResultsFolder, "publish", full)
+    assert main(["--duration", "0.1", "--method", "mlm", "--no-plots", "-q", "--out", str(tmp_path / "out")]) == 3
+    err = capsys.readouterr().err
+    assert f"No space left on device writing {tmp_path / 'out' / 'summary.json'}: free some space" in err
+
+
+@pytest.mark.needs_mujoco
+def test_a_mujoco_step_that_does_not_divide_is_named_by_its_option(tmp_path, capsys):
+    from acroboter.cli.run import main
+
+    assert main(["--plant", "mujoco", "--mujoco-timestep", "0.0003", "--duration", "0.1", "--method", "mlm", "-q",
+                 "--no-plots", "--out", str(tmp_path / "out")]) == 2
+    assert "--mujoco-timestep: 0.0003 s must divide" in capsys.readouterr().err

@@ -342,7 +342,7 @@ def test_outputs_are_checked_before_any_work(results, tmp_path, capsys, monkeypa
     _refused([r, "--out", str(tmp_path / "a.gif"), "-q"], capsys, "'.gif'", "use --gif")
     _refused([r, "--out", str(tmp_path / "a.avi"), "-q"], capsys, "'.avi'")
     _refused([r, "--gif", str(tmp_path / "a.mp4"), "-q"], capsys, "--gif", "ending in .gif", "use --out")
-    _refused([r, "--out", "/proc/a.mp4", "-q"], capsys, "cannot write into the folder /proc", "--out /proc/a.mp4")
+    _refused([r, "--out", "/proc/a.mp4", "-q"], capsys, "/proc is the kernel's file system", "--out /proc/a.mp4")
     _refused([r, "--gif", "/proc/a.gif", "--no-mp4", "-q"], capsys, "--gif /proc/a.gif")
     missing = tmp_path / "nonexist"
     _refused([r, "--out", str(missing / "a.mp4"), "-q"], capsys, f"the folder {missing} does not exist")

@@ -194,8 +194,18 @@ def _call_until_parsed(main, argv: list[str], parse: bool) -> tuple[argparse.Arg
         reached.append(self)
         raise _Parsed
 
+    original_intermixed = argparse.ArgumentParser.parse_intermixed_args
+
+    def intermixed_then_stop(self, args=None, namespace=None):  # `generate --out DIR SPEC` (acroboter.cli.generate)
+        if parse:
+            self.allow_abbrev = False
+            original_intermixed(self, args, namespace)
+        reached.append(self)
+        raise _Parsed
+
     stderr = io.StringIO()
     argparse.ArgumentParser.parse_args = parse_then_stop
+    argparse.ArgumentParser.parse_intermixed_args = intermixed_then_stop
     try:
         with contextlib.redirect_stderr(stderr), contextlib.redirect_stdout(io.StringIO()):
             main(argv)
@@ -207,6 +217,7 @@ def _call_until_parsed(main, argv: list[str], parse: bool) -> tuple[argparse.Arg
         return None, f"argparse refused it: {stderr.getvalue().strip()}"
     finally:
         argparse.ArgumentParser.parse_args = original
+        argparse.ArgumentParser.parse_intermixed_args = original_intermixed
     return None, "the command returned without parsing its options (nothing checked)"
 
 

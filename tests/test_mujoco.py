@@ -175,7 +175,7 @@ def _umask() -> int:
 
 @pytest.mark.parametrize("target, message", [
     ("/nonexistent-folder/x.xml", "does not exist"),
-    ("/dev/null", "is not a regular file"),
+    ("/dev/null", "an MJCF file is named *.xml"),
 ])
 def test_mjcf_command_refuses_outputs_it_cannot_write_before_any_work(target, message):
     proc = subprocess.run([sys.executable, "-m", "acroboter.mjcf", str(SPECS[0]), "-o", target],

@@ -96,7 +96,7 @@ def guarded(main: Callable[..., int]) -> Callable[..., int]:
                 print(f"error: {err}", file=sys.stderr)
                 return EXIT_BAD_INPUT
             if isinstance(err, _cannot_run_errors()):
-                print(f"error: {err}", file=sys.stderr)
+                print(f"error: {_described(err)}", file=sys.stderr)
                 return EXIT_CANNOT_RUN
             if os.environ.get("ACROBOTER_TRACEBACK"):
                 traceback.print_exc()
@@ -105,6 +105,18 @@ def guarded(main: Callable[..., int]) -> Callable[..., int]:
             return EXIT_CANNOT_RUN
 
     return wrapper
+
+
+def _described(err: Exception) -> str:
+    """An error's message; a full disk or a quota says where and what to do ("[Errno 28] No space left on device"
+    said neither)."""
+    import errno
+
+    if isinstance(err, OSError) and err.errno in (errno.ENOSPC, errno.EDQUOT):
+        where = f" writing {err.filename}" if err.filename else ""
+        return (f"{err.strerror}{where}: free some space on that file system, or give another --out (the output "
+                "folder is as it was)")
+    return str(err)
 
 
 def core_import_problem(err: BaseException) -> str | None:

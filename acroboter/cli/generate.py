@@ -248,9 +248,11 @@ def main(argv: list[str] | None = None) -> int:
         args.out = DEFAULT_GENERATED if args.command == "generate" else GENERATED_DIR
     if args.command == "generate":
         check_out_folder(parser, args.out)
-    elif (problem := _not_generated_folder(args.out)) is not None:
-        parser.error(f"--out {args.out}: {problem}")
     try:
+        if args.command == "check":
+            load_all(_specs(args.specs))  # a bad spec is named first, then the folder it is compared with
+            if (problem := _not_generated_folder(args.out)) is not None:
+                parser.error(f"--out {args.out}: {problem}")
         if args.command == "generate":
             with no_empty_folder_left(args.out):  # a failed generate leaves no empty --out it made
                 return cmd_generate(_specs(args.specs), args.out, check_compiles=not args.no_compile_check)

@@ -30,7 +30,7 @@ def check_mujoco_timestep(plant_step: float, dt, control_period: float | None = 
         text = f"{plant_step / k:.6g}"
         if math.isclose(float(text) * k, plant_step, rel_tol=1e-12):
             break
-    raise ValueError(f"mujoco_timestep {dt:g} s must divide the spec's plant step simulation.step = {plant_step:g} s "
+    raise ValueError(f"mujoco_timestep: {dt:g} s must divide the spec's plant step simulation.step = {plant_step:g} s "
                      f"(MuJoCo steps {count:.4g} times per plant step): give e.g. {text} s")
 
 
