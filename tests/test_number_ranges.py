@@ -219,7 +219,7 @@ def command_parser(name: str) -> tuple[argparse.ArgumentParser, Any, tuple]:
 PARSERS = {name: command_parser(name) for name in COMMANDS}
 # Options that take text, not a number (a path, a name, a method whose N is checked as its own number).
 TEXT_OPTIONS = {"spec", "specs", "out", "cache_dir", "limits_spec", "results", "method", "methods", "scheduler",
-                "gif", "command", "which", "path", "trajectory"}
+                "gif", "command", "which", "path", "trajectory", "certify"}
 
 
 def numeric_options() -> tuple[list, list[str]]:

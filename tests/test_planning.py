@@ -292,3 +292,23 @@ def test_the_planned_inputs_hold_the_bounds_at_every_instant_by_the_lift_oracle(
     u = a * acceleration[:, 2] + b
     assert u.max() <= 28.0 + 1e-3 and u.min() >= 25.0 - 1e-3
     assert plan.margin_achieved >= 0.2 - 1e-6  # as the plan itself reports it, on its own 1 ms grid
+
+
+def test_the_certificate_flies_every_method_asked_for_with_the_limits_applied(tmp_path):
+    """Issue 34 item 1: the certificate flew MLM only, with the limits not applied. Now each method asked for flies
+    the written trajectory at the spec's rate with the limits applied, as `run` would; measured 2026-12-06 on the
+    lift at 20 %, 8 intervals: MLM, penalty and iterative-3 all hold, 1.486 mm worst error. A method that is no
+    controller's name is refused before any work."""
+    from acroboter.planning.ideal_motion import PlanningError
+
+    crane = acroboter.Crane.from_toml(lift_spec(tmp_path, 24.0, 29.0))
+    with pytest.raises(PlanningError, match="certify: expected True, False or methods"):
+        crane.plan(margin=0.2, intervals=8, certify=["mlm", "pid"])
+    plan = crane.plan(margin=0.2, intervals=8, certify=["mlm", "penalty"])
+    flights = plan.certificate.flights
+    assert list(flights) == ["mlm", "penalty"] and plan.certificate.failure is None
+    for figures in flights.values():
+        assert figures["saturated_s"] == 0 and figures["diverged_at_s"] is None
+        assert 0 < figures["max_position_error_mm"] < 5.0
+        assert figures["margin_achieved"] >= 0  # the limits applied: never beyond them
+    assert plan.summary()["certificate"]["method"] == "mlm, penalty, own plant, limits applied"

@@ -305,6 +305,8 @@ class Crane:
         help) is a StaticLimitError naming the place and the input; a plan whose certificate failed a
         CertificateError holding the plan (`err.plan`, its `certificate.failure` says why); other failures a
         PlanningError (all ValueErrors).
+        `certify`: True flies the plan with MLM at the spec's rate on the own plant, the limits applied; a method
+        name or a list of them ("penalty", "iterative-3") flies it with each; False skips it.
         `corners` on a waypoint path: "rest" (default), every edge from rest to rest with the swing included, the
         edges solved one by one; "swing", the swing carried over the corners, `window` phases optimised together in
         a receding window (default 2; 0: the whole path in one solve, slow on long paths; docs/planning.md)."""
@@ -318,6 +320,8 @@ class Crane:
         for name, value, range_ in (("max_speed", max_speed, PLAN_SPEED), ("max_accel", max_accel, PLAN_ACCEL)):
             if value is not None:
                 range_.check(value, name)
+        if not isinstance(certify, bool):  # method names: each flies the plan in the certificate
+            certify = _certified_methods(certify)
         path = self.desired(trajectory, duration)
         _plannable(path, self.spec.controller.rate_hz)  # before any work: a bounded problem, a path that moves
         start = self.equilibrium(trajectory, duration)
@@ -494,3 +498,18 @@ def _plannable(path, rate_hz: float) -> None:
     if motion_time_scale(path, path.duration) == float("inf"):
         raise TrajectoryError("the path's tracked point never moves: nothing to retime (the yaw alone is not "
                               "planned)")
+
+
+def _certified_methods(methods) -> tuple[str, ...]:
+    """The certificate's methods, each a controller's name (a PlanningError, before any work, for another)."""
+    import re
+
+    from ..planning.ideal_motion import PlanningError
+
+    names = tuple([methods] if isinstance(methods, str) else methods)
+    for name in names:
+        if not (name in ("mlm", "penalty") or re.fullmatch(r"iterative-[1-9][0-9]{0,2}", str(name))):
+            raise PlanningError(f"certify: expected True, False or methods (mlm, penalty, iterative-N), found {name!r}")
+    if not names:
+        raise PlanningError("certify: no method given; give False to skip the certificate")
+    return names

@@ -2,7 +2,8 @@
 
 A thin layer over the library (acroboter.Crane.plan, docs/planning.md): the fastest timing of the spec's path
 (or of a trajectory file's geometry) whose ideal motion keeps every input within its limits less the margin,
-certified by flying it with MLM on the own plant. Writes into --out (staged, swapped in whole):
+certified by flying it with the spec's controllers (--certify, MLM by default) on the own plant, limits applied.
+Writes into --out (staged, swapped in whole):
 trajectory.csv (what `acroboter run --trajectory FILE` reads), summary.json (duration, where the limits are
 active, the margin achieved, the certificate, provenance) and plan.png (s(t) and the inputs against the limits).
 
@@ -68,14 +69,24 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="with --corners swing: phases (edges) optimised together in a receding window, each window "
                         "from the state the phases before it leave; 0 solves the whole path at once (slow on long "
                         "paths), 0..1000 (default: 2)")
+    p.add_argument("--certify", default="mlm", metavar="METHODS",
+                   help="the methods that fly the plan in its certificate, at the spec's rate on the own plant with "
+                        "the limits applied: mlm, penalty, iterative or iterative-N, comma-separated (default: "
+                        "%(default)s)")
     p.add_argument("--no-certificate", action="store_true",
-                   help="skip flying the plan with MLM on the own plant (the certificate)")
+                   help="skip flying the plan (the certificate)")
     p.add_argument("--out", type=out_path, default=Path("results/plan"), help="output folder (default: %(default)s)")
     p.add_argument("--cache-dir", type=Path, default=None,
                    help="where compiled models are cached (default: $ACROBOTER_CACHE_DIR, else the per-user cache)")
     p.add_argument("--no-plots", action="store_true", help="skip plan.png")
     p.add_argument("-q", "--quiet", action="store_true", help="print only the result's line")
     args = p.parse_args(argv)
+    from .run_args import expand_methods
+
+    try:
+        args.certify = expand_methods([args.certify], [3])
+    except ValueError as err:
+        p.error(f"--certify: {err}")
     try:
         if args.out.exists() and not args.out.is_dir():
             p.error(f"--out {args.out} is a file, not a folder")
@@ -123,7 +134,8 @@ def _plan(args: argparse.Namespace, folder) -> int:
     failure = None
     try:
         plan = crane.plan(margin=args.margin, max_speed=args.max_speed, max_accel=args.max_accel,
-                          trajectory=trajectory, intervals=args.intervals, certify=not args.no_certificate,
+                          trajectory=trajectory, intervals=args.intervals,
+                          certify=False if args.no_certificate else args.certify,
                           window=args.window, corners=args.corners)
     except (StaticLimitError, TrajectoryError) as err:
         print(f"error: {err}", file=sys.stderr)
@@ -139,7 +151,7 @@ def _plan(args: argparse.Namespace, folder) -> int:
     summary["spec"] = crane.name
     summary["trajectory_file"] = None if args.trajectory is None else str(args.trajectory)
     args.plant, args.plant_params = "own", {}
-    summary["provenance"] = provenance(args, crane.spec, crane.gains(), ["mlm"], plan.duration)
+    summary["provenance"] = provenance(args, crane.spec, crane.gains(), list(args.certify), plan.duration)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     if not args.no_plots:
         from ..report.plan_figures import plan_figure
@@ -157,8 +169,9 @@ def _plan(args: argparse.Namespace, folder) -> int:
     print(f"spec {crane.name}: planned {plan.duration:.4g} s{corners} (the path's own timing {plan.path_duration:.4g} "
           f"s, its best uniform slowdown {plan.uniform_duration:.4g} s); margin {100 * plan.margin:.3g} %, achieved "
           f"{100 * plan.margin_achieved:.3g} % planned" + (
-              f", {100 * plan.certificate.margin_achieved:.3g} % flown (MLM, max position error "
-              f"{plan.certificate.max_position_error_mm:.3g} mm)" if plan.certificate is not None else "")
+              f", {100 * plan.certificate.margin_achieved:.3g} % flown (limits applied; max position error "
+              + ", ".join(f"{m} {f['max_position_error_mm']:.3g} mm" for m, f in plan.certificate.flights.items())
+              + ")" if plan.certificate is not None else "")
           + f"; limits active: {', '.join(active) or 'none'}; solved in {plan.solve_s:.3g} s")
     for w in plan.warnings:
         print(f"warning: {w}")

@@ -1,16 +1,16 @@
 """The checks around a retiming: the statics along the path before it (a need at rest beyond the limits is
-one no timing can help), and after it the certificate: the planned trajectory flown by the project's own
-closed loop (MLM on the own plant, the limits not applied, so an excess shows) with its inputs compared
-with the limits and the margin.
+one no timing can help), and after it the certificate: the planned trajectory flown by the spec's controllers
+(MLM by default, every method asked for) at the spec's rate on the own plant with the limits applied, as a run
+flies it: it fails where a flight diverges or the limits do not let a controller meet its task (saturated).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..control.controllers import Gains, make_controller, unbounded
+from ..control.controllers import Gains, make_controller
 from ..control.path import DesiredPath
 from ..sim.records import Scenario
 from ..sim.simulation import setup_default, simulate
@@ -93,7 +93,10 @@ def worst_static_margin(needs: np.ndarray, lower, upper) -> float:
 
 @dataclass
 class Certificate:
-    """The planned trajectory flown by MLM on the own plant from the static start, the limits not applied."""
+    """The planned trajectory flown on the own plant from the static start, the limits applied, by each method
+    asked for (`flights`: method -> its figures). The arrays and figures are the first method's (MLM by default);
+    `failure` is the first failure of any (diverged, or saturated: a step whose task the limits did not let the
+    controller meet), None when every flight held."""
 
     times: np.ndarray
     inputs: np.ndarray  # per control instant
@@ -102,36 +105,43 @@ class Certificate:
     margin_input: str | None
     beyond_margin: float  # the largest excess beyond the tightened limits, fraction of the span (≤ 0: none)
     failure: str | None = None  # why the certificate failed (diverged, saturated, beyond a limit), None if it held
+    flights: dict = field(default_factory=dict)  # method -> {max_position_error_mm, margin_achieved, saturated_s, …}
 
 
-def certify(model, path: DesiredPath, q0: np.ndarray, duration: float, lower, upper, low, high) -> Certificate:
-    """The certificate of a planned trajectory; a flight that failed (diverged, saturated) is a Certificate whose
-    `failure` says why, with the figures of the flight up to there.
-
-    With more inputs than servo-constraints the controller needs the limits to choose its internal force (the
-    bounded distribution; unbounded, its least-squares choice can make a cable push): they are then applied, and
-    a control step whose task the limits did not let it meet (saturated) fails the certificate as an excess would."""
+def certify(model, path: DesiredPath, q0: np.ndarray, duration: float, lower, upper, low, high,
+            methods: tuple[str, ...] = ("mlm",)) -> Certificate:
+    """The certificate of a planned trajectory (see Certificate); a flight that failed is reported with its figures
+    up to there."""
     spec, lay = model.spec, model.layout
-    spare = lay.l > lay.k
-    limits = spec.input_limits() if spare else unbounded(spec)
-    controller = make_controller("mlm", model, path, Gains.from_spec(spec), limits=limits)
-    run = simulate(model, path, controller, setup_default(model, path), q0, duration, spec.controller.rate_hz,
-                   spec.simulation.step, allow_divergence=True)
-    failure = None
-    if run.diverged_at is not None:
-        failure = (f"the certificate failed: the planned trajectory flown by MLM diverged at t = "
-                   f"{run.diverged_at:.2f} s ({run.divergence})")
-    held = np.flatnonzero(run.saturated) if spare else []
-    if failure is None and len(held):
-        on = [lay.inputs[i] for i in np.flatnonzero(run.limit_state[held[0]] != 0)]
-        failure = (f"the certificate failed: flown by MLM, the limits did not let the controller meet its task at t = "
-                   f"{run.t[held[0]]:.3f} s (on a limit: {', '.join(on) or 'none'}); give a larger --margin (the "
-                   "closed loop's deviations from the ideal inputs need it)")
-    achieved, i = margin_achieved(run.u, lower, upper)
-    span = np.where(np.isfinite(high - low), high - low, 1.0)
-    over = np.maximum(run.u - high, low - run.u) / span
-    over = np.where(np.isnan(over), -np.inf, over)
     rows = Scenario.from_model(model).position_rows
-    error = 1e3 * float(np.linalg.norm(run.sigma[:, rows], axis=1).max())
-    return Certificate(run.t, run.u, error, achieved, None if i is None else lay.inputs[i], float(over.max()),
-                       failure)
+    span = np.where(np.isfinite(high - low), high - low, 1.0)
+    first, failure, flights = None, None, {}
+    for method in methods:
+        controller = make_controller(method, model, path, Gains.from_spec(spec), limits=spec.input_limits())
+        run = simulate(model, path, controller, setup_default(model, path), q0, duration, spec.controller.rate_hz,
+                       spec.simulation.step, allow_divergence=True)
+        why = None
+        if run.diverged_at is not None:
+            why = (f"the certificate failed: the planned trajectory flown by {method} diverged at t = "
+                   f"{run.diverged_at:.2f} s ({run.divergence})")
+        held = np.flatnonzero(run.saturated)
+        if why is None and len(held):
+            on = [lay.inputs[i] for i in np.flatnonzero(run.limit_state[held[0]] != 0)]
+            why = (f"the certificate failed: flown by {method} with the limits applied, the limits did not let the "
+                   f"controller meet its task at t = {run.t[held[0]]:.3f} s (on a limit: {', '.join(on) or 'none'}; "
+                   f"{len(held) / spec.controller.rate_hz:.3g} s in all); give a larger --margin (the closed loop's "
+                   "deviations from the ideal inputs need it)")
+        achieved, i = margin_achieved(run.u, lower, upper)
+        over = np.maximum(run.u - high, low - run.u) / span
+        over = np.where(np.isnan(over), -np.inf, over)
+        error = 1e3 * float(np.nanmax(np.linalg.norm(run.sigma[:, rows], axis=1)))
+        flight = Certificate(run.t, run.u, error, achieved, None if i is None else lay.inputs[i],
+                             float(over.max()), why)
+        flights[method] = {"max_position_error_mm": error, "margin_achieved": float(achieved),
+                           "margin_input": flight.margin_input, "beyond_bounds": flight.beyond_margin,
+                           "saturated_s": len(held) / spec.controller.rate_hz, "diverged_at_s": run.diverged_at,
+                           "failure": why}
+        first = first or flight
+        failure = failure or why
+    first.failure, first.flights = failure, flights
+    return first

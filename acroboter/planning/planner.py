@@ -190,8 +190,8 @@ class Plan:
         }
         if self.certificate is not None:
             c = self.certificate
-            out["certificate"] = {"method": "mlm, own plant, limits not applied", "passed": c.failure is None,
-                                  "failure": c.failure,
+            out["certificate"] = {"method": f"{', '.join(c.flights) or 'mlm'}, own plant, limits applied",
+                                  "passed": c.failure is None, "failure": c.failure, "flights": c.flights,
                                   "max_position_error_mm": c.max_position_error_mm,
                                   "margin_achieved": finite(c.margin_achieved), "margin_input": c.margin_input,
                                   "beyond_bounds": c.beyond_margin, "tolerance": CERTIFICATE_TOLERANCE}
@@ -199,7 +199,7 @@ class Plan:
 
 
 def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_speed: float | None = None,
-         max_accel: float | None = None, intervals: int = DEFAULT_INTERVALS, certify_plan: bool = True,
+         max_accel: float | None = None, intervals: int = DEFAULT_INTERVALS, certify_plan: bool | tuple = True,
          verbose: bool = False, window: int | None = None, corners: str = "rest") -> Plan:
     """`corners` (a waypoint path): "rest", every edge from rest to rest, the swing included (acroboter.planning.
     edges); "swing", the swing carried over the corners, the edges optimised together: `window` phases per
@@ -251,7 +251,8 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
     if certify_plan:
         # what is certified is the written trajectory (its samples, interpolated), as `run --trajectory` flies it
         flown_path = TrajectoryPath(spec, lay, trajectory, trajectory.duration, float(path.start_yaw))
-        result.certificate = certify(model, flown_path, q0, trajectory.duration, lower, upper, low, high)
+        methods = ("mlm",) if certify_plan is True else tuple(certify_plan)
+        result.certificate = certify(model, flown_path, q0, trajectory.duration, lower, upper, low, high, methods)
         c = result.certificate
         if c.failure is None and c.margin_achieved < -CERTIFICATE_TOLERANCE:
             c.failure = (f"the certificate failed: flown by MLM on the own plant, the planned trajectory takes "
