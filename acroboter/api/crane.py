@@ -311,7 +311,7 @@ class Crane:
         edges solved one by one; "swing", the swing carried over the corners, `window` phases optimised together in
         a receding window (default 2; 0: the whole path in one solve, slow on long paths; docs/planning.md)."""
         from ..model.ranges import MARGIN, PLAN_ACCEL, PLAN_INTERVALS, PLAN_SPEED, PLAN_WINDOW
-        from ..planning.planner import plan
+        from ..planning.planner import certified_methods, check_plannable, plan
 
         MARGIN.check(margin, "margin")
         PLAN_INTERVALS.check(intervals, "intervals")
@@ -321,9 +321,9 @@ class Crane:
             if value is not None:
                 range_.check(value, name)
         if not isinstance(certify, bool):  # method names: each flies the plan in the certificate
-            certify = _certified_methods(certify)
+            certify = certified_methods(certify)
         path = self.desired(trajectory, duration)
-        _plannable(path, self.spec.controller.rate_hz)  # before any work: a bounded problem, a path that moves
+        check_plannable(path, self.spec.controller.rate_hz)  # before any work: a bounded problem, a path that moves
         start = self.equilibrium(trajectory, duration)
         return plan(self.model.data(), path, start.q, float(margin), max_speed, max_accel, int(intervals), certify,
                     verbose, window, corners)
@@ -483,33 +483,3 @@ def _duration(path: DesiredPath, duration: float | None) -> float:
             or duration <= 0:
         raise ValueError(f"duration: expected a positive number of seconds, found {duration!r}")
     return float(duration)
-
-
-def _plannable(path, rate_hz: float) -> None:
-    """TrajectoryError for a path `plan` cannot retime: longer than a run may be (the plan is sampled and certified
-    like a run: a 163-byte file ending at t = 1e6 s took 10 GB), or one whose tracked point never moves."""
-    from ..control.path import TrajectoryError, motion_time_scale
-    from ..model.spec import MAX_CONTROL_STEPS
-
-    steps = path.duration * rate_hz
-    if steps > MAX_CONTROL_STEPS:
-        raise TrajectoryError(f"the path lasts {path.duration:g} s, {steps:,.0f} control steps at {rate_hz:g} Hz, more "
-                              f"than the {MAX_CONTROL_STEPS:,} a run may have: plan a shorter path")
-    if motion_time_scale(path, path.duration) == float("inf"):
-        raise TrajectoryError("the path's tracked point never moves: nothing to retime (the yaw alone is not "
-                              "planned)")
-
-
-def _certified_methods(methods) -> tuple[str, ...]:
-    """The certificate's methods, each a controller's name (a PlanningError, before any work, for another)."""
-    import re
-
-    from ..planning.ideal_motion import PlanningError
-
-    names = tuple([methods] if isinstance(methods, str) else methods)
-    for name in names:
-        if not (name in ("mlm", "penalty") or re.fullmatch(r"iterative-[1-9][0-9]{0,2}", str(name))):
-            raise PlanningError(f"certify: expected True, False or methods (mlm, penalty, iterative-N), found {name!r}")
-    if not names:
-        raise PlanningError("certify: no method given; give False to skip the certificate")
-    return names

@@ -12,13 +12,15 @@ never a silent result.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..control.path import DesiredPath, SampledTrajectory, TrajectoryPath
+from ..control.path import DesiredPath, SampledTrajectory, TrajectoryError, TrajectoryPath, motion_time_scale
 from ..control.trajectory_file import write_trajectory_csv
+from ..model.spec import MAX_CONTROL_STEPS
 from .checks import Certificate, certify, check_statics
 from .edges import EdgeRetiming
 from .geometry import PathGeometry
@@ -253,17 +255,17 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
         flown_path = TrajectoryPath(spec, lay, trajectory, trajectory.duration, float(path.start_yaw))
         methods = ("mlm",) if certify_plan is True else tuple(certify_plan)
         result.certificate = certify(model, flown_path, q0, trajectory.duration, lower, upper, low, high, methods)
-        c = result.certificate
+        c, first = result.certificate, methods[0]
         if c.failure is None and c.margin_achieved < -CERTIFICATE_TOLERANCE:
-            c.failure = (f"the certificate failed: flown by MLM on the own plant, the planned trajectory takes "
+            c.failure = (f"the certificate failed: flown by {first} on the own plant, the planned trajectory takes "
                          f"{c.margin_input} {100 * -c.margin_achieved:.3g} % of its span beyond its limits; give a "
                          "larger --margin (the closed loop's deviations from the ideal inputs need it)")
         if c.failure is not None:
             result.failures.append(c.failure)
         elif c.beyond_margin > 0:
-            result.warnings.append(f"flown by MLM, {c.margin_input} came within {100 * c.margin_achieved:.3g} % of the "
-                                   f"span of a limit (the plan keeps {100 * margin:.3g} %): the margin absorbed the "
-                                   "closed loop's deviations")
+            result.warnings.append(f"flown by {first}, {c.margin_input} came within {100 * c.margin_achieved:.3g} % "
+                                   f"of the span of a limit (the plan keeps {100 * margin:.3g} %): the margin absorbed "
+                                   "the closed loop's deviations")
     if result.failures:
         error = CertificateError if result.status == "certificate failed" else PlanFailure
         raise error("; ".join(result.failures), result)
@@ -358,3 +360,26 @@ def sample(geometry: PathGeometry, solution: Solution, n: int) -> SampledTraject
     pick = [slice(p, p + 4), slice(ns + p, ns + p + 4), slice(2 * ns + p, 2 * ns + p + 4)]
     position, velocity, acceleration = (rows[:, s] for s in pick)
     return SampledTrajectory(times, position, velocity, acceleration)
+
+
+def check_plannable(path, rate_hz: float) -> None:
+    """TrajectoryError for a path `plan` cannot retime: longer than a run may be (the plan is sampled and certified
+    like a run: a 163-byte file ending at t = 1e6 s took 10 GB), or one whose tracked point never moves."""
+    steps = path.duration * rate_hz
+    if steps > MAX_CONTROL_STEPS:
+        raise TrajectoryError(f"the path lasts {path.duration:g} s, {steps:,.0f} control steps at {rate_hz:g} Hz, more "
+                              f"than the {MAX_CONTROL_STEPS:,} a run may have: plan a shorter path")
+    if motion_time_scale(path, path.duration) == float("inf"):
+        raise TrajectoryError("the path's tracked point never moves: nothing to retime (the yaw alone is not "
+                              "planned)")
+
+
+def certified_methods(methods) -> tuple[str, ...]:
+    """The certificate's methods, each a controller's name (a PlanningError, before any work, for another)."""
+    names = tuple([methods] if isinstance(methods, str) else methods)
+    for name in names:
+        if not (name in ("mlm", "penalty") or re.fullmatch(r"iterative-[1-9][0-9]{0,2}", str(name))):
+            raise PlanningError(f"certify: expected True, False or methods (mlm, penalty, iterative-N), found {name!r}")
+    if not names:
+        raise PlanningError("certify: no method given; give False to skip the certificate")
+    return names
