@@ -207,3 +207,12 @@ def test_a_mujoco_step_that_does_not_divide_is_named_by_its_option(tmp_path, cap
     assert main(["--plant", "mujoco", "--mujoco-timestep", "0.0003", "--duration", "0.1", "--method", "mlm", "-q",
                  "--no-plots", "--out", str(tmp_path / "out")]) == 2
     assert "--mujoco-timestep: 0.0003 s must divide" in capsys.readouterr().err
+
+
+def test_bench_limits_spec_takes_an_examples_name(capsys):
+    """`bench --limits-spec lab_crane` read a file called lab_crane; it takes examples' names as --spec does."""
+    from acroboter.cli.bench import main
+
+    with pytest.raises(SystemExit) as stop:
+        main(["--limits-spec", "lab_cran"])
+    assert stop.value.code == 2 and "did you mean lab_crane?" in capsys.readouterr().err

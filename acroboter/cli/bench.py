@@ -66,8 +66,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="plants of the default robustness study whose 20 s runs (every method, with and without "
                              "integral action, reference and fast path) give the Monte Carlo throughput (0..200, 0: "
                              "skip; default: %(default)s)")
-    parser.add_argument("--limits-spec", type=Path, default=example_spec("acroboter_4cable"),
-                        help="crane on which the cost of input limits is timed (default: %(default)s)")
+    parser.add_argument("--limits-spec", type=spec_file, default=example_spec("acroboter_4cable"),
+                        help="crane on which the cost of input limits is timed: a spec file or an example's name "
+                             "(default: %(default)s)")
     parser.add_argument("--out", type=out_path, default=Path("results"), help="folder for bench.json")
     args = parser.parse_args(argv)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
