@@ -311,7 +311,7 @@ class Crane:
         edges solved one by one; "swing", the swing carried over the corners, `window` phases optimised together in
         a receding window (default 2; 0: the whole path in one solve, slow on long paths; docs/planning.md)."""
         from ..model.ranges import MARGIN, PLAN_ACCEL, PLAN_INTERVALS, PLAN_SPEED, PLAN_WINDOW
-        from ..planning.planner import certified_methods, check_plannable, plan
+        from ..planning.planner import check_plannable, plan
 
         MARGIN.check(margin, "margin")
         PLAN_INTERVALS.check(intervals, "intervals")
@@ -321,12 +321,25 @@ class Crane:
             if value is not None:
                 range_.check(value, name)
         if not isinstance(certify, bool):  # method names: each flies the plan in the certificate
-            certify = certified_methods(certify)
+            certify = self._certified(certify)
         path = self.desired(trajectory, duration)
         check_plannable(path, self.spec.controller.rate_hz)  # before any work: a bounded problem, a path that moves
         start = self.equilibrium(trajectory, duration)
         return plan(self.model.data(), path, start.q, float(margin), max_speed, max_accel, int(intervals), certify,
                     verbose, window, corners)
+
+    def _certified(self, methods) -> tuple[str, ...]:
+        """The certificate's methods, each checked as `method_name` checks it (a PlanningError before any work)."""
+        from ..planning.ideal_motion import PlanningError
+
+        names = (methods,) if isinstance(methods, str) else tuple(methods)
+        if not names:
+            raise PlanningError("certify: no method given; give False to skip the certificate")
+        try:
+            return tuple(self.method_name(name) for name in names)
+        except ValueError as err:
+            raise PlanningError(f"certify: expected True, False or methods (mlm, penalty, iterative-N): {err}") \
+                from None
 
     def simulate(self, method: str = "penalty", duration: float | None = None,
                  trajectory: Trajectory | None = None, iterations: int | None = None,

@@ -176,8 +176,6 @@ def ranged_list(range_: Range) -> Callable[[str], list]:
         if not all(items):  # `1,,2` or a trailing comma: a number left out, or a typo
             raise argparse.ArgumentTypeError(f"expected comma-separated numbers, each {range_.text()}, found an "
                                              f"empty item in '{text}'")
-        if not items:
-            raise argparse.ArgumentTypeError(f"expected comma-separated numbers, each {range_.text()}, found '{text}'")
         try:
             return list(dict.fromkeys(range_.parse(item) for item in items))
         except ValueError as err:
@@ -273,15 +271,11 @@ def folder_write_problem(folder: Path) -> str | None:
 
 def file_write_problem(path: Path) -> str | None:
     """Why the file `path` (through a link: its target) cannot be written or replaced (None: it can)."""
-    from .outputs import SYSTEM_FOLDERS, WRITABLE_SYSTEM_FOLDERS
+    from .outputs import kernel_folder
 
     target = path.resolve() if path.is_symlink() else path
     if target.exists() and not target.is_file():
         return f"{path} is not a regular file"
-    where = Path(os.path.abspath(target.parent))
-    for system in SYSTEM_FOLDERS:  # /dev/x.xml "worked" as root, into a tmpfs that is gone at the next boot
-        if any(where.is_relative_to(ok) for ok in WRITABLE_SYSTEM_FOLDERS):
-            break
-        if where == Path(system) or where.is_relative_to(system):
-            return f"{system} is the kernel's file system, which holds no file of results"
+    if (system := kernel_folder(target.parent)) is not None:  # /dev/x.xml "worked" as root, into a passing tmpfs
+        return f"{system} is the kernel's file system, which holds no file of results"
     return folder_write_problem(target.parent)

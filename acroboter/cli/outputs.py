@@ -372,16 +372,21 @@ SYSTEM_FOLDERS = ("/proc", "/sys", "/dev")
 WRITABLE_SYSTEM_FOLDERS = ("/dev/shm",)
 
 
+def kernel_folder(path: Path) -> str | None:
+    """The kernel's file system (/proc, /sys, /dev but /dev/shm) that `path` is in, None when it is in none."""
+    resolved = Path(os.path.abspath(path))
+    if any(resolved.is_relative_to(ok) for ok in WRITABLE_SYSTEM_FOLDERS):
+        return None
+    return next((system for system in SYSTEM_FOLDERS if resolved.is_relative_to(system)), None)
+
+
 def unfit_folder(out: Path) -> str | None:
     """Why `out` cannot hold a results folder, in words that name the real cause (None: it may)."""
     resolved = Path(os.path.abspath(out))
     if resolved == Path(resolved.anchor):
         return "it is the file system's root: give a folder of its own (e.g. results)"
-    for system in SYSTEM_FOLDERS:
-        if any(resolved.is_relative_to(ok) for ok in WRITABLE_SYSTEM_FOLDERS):
-            break
-        if resolved == Path(system) or resolved.is_relative_to(system):
-            return f"{system} is the kernel's file system, which holds no folder of results: give another folder"
+    if (system := kernel_folder(out)) is not None:
+        return f"{system} is the kernel's file system, which holds no folder of results: give another folder"
     if out.is_symlink() and not out.exists():
         return (f"it is a symbolic link to {os.readlink(out)}, which does not exist: create that folder, or remove "
                 "the link")

@@ -17,7 +17,7 @@ from ..sim.simulation import setup_default, simulate
 from ..sim.statics import EquilibriumError, solve_equilibrium
 from .geometry import PathGeometry
 from .ideal_motion import PlanningError
-from .limits import margin_achieved
+from .limits import beyond_bounds, margin_achieved
 
 # Places along the path where the statics are checked (besides every waypoint of a spec path).
 STATIC_SAMPLES = 101
@@ -114,7 +114,6 @@ def certify(model, path: DesiredPath, q0: np.ndarray, duration: float, lower, up
     up to there."""
     spec, lay = model.spec, model.layout
     rows = Scenario.from_model(model).position_rows
-    span = np.where(np.isfinite(high - low), high - low, 1.0)
     first, failure, flights = None, None, {}
     for method in methods:
         controller = make_controller(method, model, path, Gains.from_spec(spec), limits=spec.input_limits())
@@ -132,8 +131,7 @@ def certify(model, path: DesiredPath, q0: np.ndarray, duration: float, lower, up
                    f"{len(held) / spec.controller.rate_hz:.3g} s in all); give a larger --margin (the closed loop's "
                    "deviations from the ideal inputs need it)")
         achieved, i = margin_achieved(run.u, lower, upper)
-        over = np.maximum(run.u - high, low - run.u) / span
-        over = np.where(np.isnan(over), -np.inf, over)
+        over = beyond_bounds(run.u, low, high)
         error = 1e3 * float(np.nanmax(np.linalg.norm(run.sigma[:, rows], axis=1)))
         flight = Certificate(run.t, run.u, error, achieved, None if i is None else lay.inputs[i],
                              float(over.max()), why)

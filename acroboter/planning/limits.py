@@ -24,6 +24,15 @@ def tightened(lower: np.ndarray, upper: np.ndarray, margin: float) -> tuple[np.n
     return low, high
 
 
+def beyond_bounds(inputs: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """Each input's step beyond its bounds (low, high), as a fraction of their span (1 for a bound without a finite
+    span): ≤ 0 within them, −inf on an unbounded side."""
+    span = np.where(np.isfinite(high - low), high - low, 1.0)
+    with np.errstate(invalid="ignore"):
+        over = np.maximum(inputs - high, low - inputs) / span
+    return np.where(np.isnan(over), -np.inf, over)  # inf - inf: an unbounded side
+
+
 def margin_achieved(inputs: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[float, int | None]:
     """(the smallest distance to a limit as a fraction of the span, over the inputs with two finite limits;
     the input it is on), (inf, None) when no input has two finite limits. `inputs`: samples x inputs."""

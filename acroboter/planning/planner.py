@@ -12,7 +12,6 @@ never a silent result.
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -25,7 +24,7 @@ from .checks import Certificate, certify, check_statics
 from .edges import EdgeRetiming
 from .geometry import PathGeometry
 from .ideal_motion import IdealDynamics, PlanningError
-from .limits import active_intervals, margin_achieved, tightened
+from .limits import active_intervals, beyond_bounds, margin_achieved, tightened
 from .retiming import Retiming, Solution
 from .windows import WindowedRetiming
 
@@ -229,7 +228,8 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
                                    window=window)
     else:
         problem = Retiming(dynamics, geometry, q0, low, high, max_speed=max_speed, max_accel=max_accel)
-    solution, grid_times, grid_inputs, tightened_by = solve_within_bounds(problem, intervals, low, high, verbose)
+    solution, _, grid_inputs, tightened_by, leak = solve_within_bounds(problem, intervals, low, high, list(lay.inputs),
+                                                                       list(lay.input_units), verbose)
     trajectory = sample(geometry, solution, problem.n)
     achieved, where = margin_achieved(np.vstack([solution.inputs, grid_inputs]), lower, upper)
     result = Plan(
@@ -248,7 +248,7 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
     result.max_speed, result.max_accel = max_speed, max_accel
     result.bounds_moved_in = {lay.inputs[i]: float(v) for i, v in enumerate(tightened_by) if v > 0}
     result.failures = unmet(solution, result)
-    if (leak := between_nodes(grid_times, grid_inputs, low, high, list(lay.inputs), list(lay.input_units))):
+    if leak is not None:
         result.failures.append(leak)
     if certify_plan:
         # what is certified is the written trajectory (its samples, interpolated), as `run --trajectory` flies it
@@ -294,37 +294,35 @@ def unmet(solution: Solution, plan: Plan) -> list[str]:
     return out
 
 
-def solve_within_bounds(problem, intervals: int, low, high, verbose: bool):
+def solve_within_bounds(problem, intervals: int, low, high, names: list[str], units: list[str], verbose: bool):
     """The problem solved, and its inputs on a CHECK_STEP_S grid: (solution, grid times, grid inputs, how far the
-    optimiser's bounds were moved in, per input). Where the inputs leave the bounds between the optimiser's nodes
-    (a rest-to-rest plan's chain carries each corner's residual swing into the next edge, which the edge's own
-    solve started at rest), the problem is solved again with those bounds moved in by the excess and a fifth, at
-    most TIGHTEN_ROUNDS times (the check that follows, `between_nodes`, reports what is left)."""
+    optimiser's bounds were moved in, per input, what is left outside the bounds: a message or None). Where the
+    inputs leave the bounds between the optimiser's nodes (a rest-to-rest plan's chain carries each corner's
+    residual swing into the next edge, which the edge's own solve started at rest), the problem is solved again
+    with those bounds moved in by the excess and a fifth, at most TIGHTEN_ROUNDS times."""
     base_low, base_high = problem.lower.copy(), problem.upper.copy()
-    span = np.where(np.isfinite(high - low), high - low, 1.0)
     for attempt in range(TIGHTEN_ROUNDS + 1):
         solution = problem.solve(intervals, verbose=verbose)
         # the inputs at every instant (a CHECK_STEP_S grid), not only where the optimiser looks
         times, inputs = problem.inputs_on_grid(solution, CHECK_STEP_S)
+        leak = between_nodes(times, inputs, low, high, names, units)
+        if leak is None or attempt == TIGHTEN_ROUNDS:
+            break
         with np.errstate(invalid="ignore"):
             above = np.nan_to_num(np.max(inputs - high, axis=0), nan=0.0, neginf=0.0)
             below = np.nan_to_num(np.max(low - inputs, axis=0), nan=0.0, neginf=0.0)
-        if attempt == TIGHTEN_ROUNDS or max((above / span).max(), (below / span).max()) <= INPUT_TOLERANCE:
-            break
         problem.upper = problem.upper - 1.2 * np.maximum(above, 0.0)
         problem.lower = problem.lower + 1.2 * np.maximum(below, 0.0)
     with np.errstate(invalid="ignore"):  # inf - inf: an unbounded side, never moved
         moved = np.maximum(base_high - problem.upper, problem.lower - base_low)
     problem.lower, problem.upper = base_low, base_high
-    return solution, times, inputs, np.nan_to_num(moved, nan=0.0)
+    return solution, times, inputs, np.nan_to_num(moved, nan=0.0), leak
 
 
 def between_nodes(times: np.ndarray, inputs: np.ndarray, low, high, names: list[str], units: list[str]) -> str | None:
     """What to say of planned inputs that leave the bounds (the limits less the margin) between the optimiser's
     nodes by more than INPUT_TOLERANCE of the span (None when they do not)."""
-    span = np.where(np.isfinite(high - low), high - low, 1.0)
-    over = np.maximum(inputs - high, low - inputs) / span
-    over = np.where(np.isnan(over), -np.inf, over)
+    over = beyond_bounds(inputs, low, high)
     if not over.size or over.max() <= INPUT_TOLERANCE:
         return None
     k, i = np.unravel_index(np.argmax(over), over.shape)
@@ -372,14 +370,3 @@ def check_plannable(path, rate_hz: float) -> None:
     if motion_time_scale(path, path.duration) == float("inf"):
         raise TrajectoryError("the path's tracked point never moves: nothing to retime (the yaw alone is not "
                               "planned)")
-
-
-def certified_methods(methods) -> tuple[str, ...]:
-    """The certificate's methods, each a controller's name (a PlanningError, before any work, for another)."""
-    names = tuple([methods] if isinstance(methods, str) else methods)
-    for name in names:
-        if not (name in ("mlm", "penalty") or re.fullmatch(r"iterative-[1-9][0-9]{0,2}", str(name))):
-            raise PlanningError(f"certify: expected True, False or methods (mlm, penalty, iterative-N), found {name!r}")
-    if not names:
-        raise PlanningError("certify: no method given; give False to skip the certificate")
-    return names

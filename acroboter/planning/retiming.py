@@ -32,7 +32,7 @@ import numpy as np
 from ..process.interrupts import interrupt_pending
 from .geometry import PathGeometry
 from .ideal_motion import IdealDynamics, PlanningError, inputs_at, rk4_step
-from .limits import best_spare, spare_constraints
+from .limits import best_spare, beyond_bounds, spare_constraints
 
 # The uniform slowdown's check: interval of the integration (s) and RK4 steps per interval.
 CHECK_INTERVAL_S = 0.1
@@ -166,9 +166,7 @@ class Retiming:
 
     def excess(self, inputs: np.ndarray) -> float:
         """The largest step of any input beyond its (tightened) limits, relative to the limits' span (≤ 0: within)."""
-        span = np.where(np.isfinite(self.upper - self.lower), self.upper - self.lower, 1.0)
-        over = np.maximum(inputs - self.upper, self.lower - inputs) / span
-        over = np.where(np.isnan(over), -np.inf, over)  # inf - inf: an unbounded side
+        over = beyond_bounds(inputs, self.lower, self.upper)
         return float(np.max(over)) if over.size else -math.inf
 
     def kinematic_factor(self, phase: int | None = None) -> float:
