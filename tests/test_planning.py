@@ -245,7 +245,7 @@ def test_a_rest_to_rest_edge_leaves_the_connector_at_rest_where_a_free_one_leave
     for corners in ("rest", "swing"):
         plan = crane.plan(margin=0.05, intervals=8, certify=False, corners=corners)
         end = plan.end_state
-        x = hold(end, 0.0, 3.0)[0]
+        x = hold(end, 0.0, 0.0, 3.0)[0]
         swing[corners] = float(np.abs(np.asarray(x)[n : 2 * n]).max())  # the largest rate after 3 s held
         if corners == "rest":
             assert np.abs(end[n : 2 * n]).max() <= 1.05 * REST_TOL  # the chain's RK4 steps are not the solve's

@@ -296,37 +296,34 @@ class Crane:
 
     def plan(self, margin: float = 0.05, max_speed: float | None = None, max_accel: float | None = None,
              trajectory: Trajectory | None = None, duration: float | None = None, intervals: int = 120,
-             certify: bool = True, verbose: bool = False, window: int | None = None, corners: str = "rest"):
+             certify: bool = True, verbose: bool = False, window: int | None = None, corners: str = "rest",
+             max_jerk: float | None = None, tolerance: float | None = None):
         """The fastest timing of the path's geometry (the spec's waypoints, or `trajectory`'s) whose ideal motion
         keeps every input within its limits less `margin` (a fraction of each limit span, docs/planning.md),
-        optionally with the tracked point's speed ≤ `max_speed` (m/s) and acceleration ≤ `max_accel` (m/s²).
-        Returns a Plan: `plan.trajectory` for `simulate(trajectory=...)`, `plan.to_csv(path)` for `acroboter run
-        --trajectory FILE`, `plan.summary()`. A need at rest beyond the limits anywhere on the path (no timing can
-        help) is a StaticLimitError naming the place and the input; a plan whose certificate failed a
-        CertificateError holding the plan (`err.plan`, its `certificate.failure` says why); other failures a
-        PlanningError (all ValueErrors).
+        optionally with the tracked point's speed ≤ `max_speed` (m/s), acceleration ≤ `max_accel` (m/s²) and jerk
+        ≤ `max_jerk` (m/s³: a smooth timing); with `tolerance` (m) the fastest smooth one whose flights by every
+        `certify` method stay within that position error. Returns a Plan: `plan.trajectory` for
+        `simulate(trajectory=...)`, `plan.to_csv(path)` for `acroboter run --trajectory FILE`, `plan.summary()`.
+        A need at rest beyond the limits anywhere on the path (no timing can help) is a StaticLimitError naming
+        the place and the input; a plan that is not the one asked for a PlanFailure holding it (`err.plan`; its
+        subclass CertificateError for a failed certificate); other failures a PlanningError (all ValueErrors).
         `certify`: True flies the plan with MLM at the spec's rate on the own plant, the limits applied; a method
         name or a list of them ("penalty", "iterative-3") flies it with each; False skips it.
         `corners` on a waypoint path: "rest" (default), every edge from rest to rest with the swing included, the
         edges solved one by one; "swing", the swing carried over the corners, `window` phases optimised together in
         a receding window (default 2; 0: the whole path in one solve, slow on long paths; docs/planning.md)."""
-        from ..model.ranges import MARGIN, PLAN_ACCEL, PLAN_INTERVALS, PLAN_SPEED, PLAN_WINDOW
-        from ..planning.planner import check_plannable, plan
+        from ..planning.planner import check_plannable
+        from ..planning.tolerance import check_plan_options, plan_path
 
-        MARGIN.check(margin, "margin")
-        PLAN_INTERVALS.check(intervals, "intervals")
-        if window is not None:
-            PLAN_WINDOW.check(window, "window")
-        for name, value, range_ in (("max_speed", max_speed, PLAN_SPEED), ("max_accel", max_accel, PLAN_ACCEL)):
-            if value is not None:
-                range_.check(value, name)
+        options = {"margin": margin, "max_speed": max_speed, "max_accel": max_accel, "max_jerk": max_jerk,
+                   "intervals": intervals, "verbose": verbose, "window": window, "corners": corners}
+        check_plan_options(options, tolerance, certify)
         if not isinstance(certify, bool):  # method names: each flies the plan in the certificate
             certify = self._certified(certify)
         path = self.desired(trajectory, duration)
         check_plannable(path, self.spec.controller.rate_hz)  # before any work: a bounded problem, a path that moves
         start = self.equilibrium(trajectory, duration)
-        return plan(self.model.data(), path, start.q, float(margin), max_speed, max_accel, int(intervals), certify,
-                    verbose, window, corners)
+        return plan_path(self.model.data(), path, start.q, certify, tolerance, **options)
 
     def _certified(self, methods) -> tuple[str, ...]:
         """The certificate's methods, each checked as `method_name` checks it (a PlanningError before any work)."""

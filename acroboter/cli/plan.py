@@ -10,8 +10,8 @@ active, the margin achieved, the certificate, provenance) and plan.png (s(t) and
 Exit codes: 0 planned; 2 bad input (an option, the spec, a trajectory file, limits that cannot hold the load at
 rest somewhere on the path: no timing can help, the place and the input named); 3 no plan (the problem not
 solved; a plan that is not the one asked for, a solve that did not reach the optimum (a fallback timing), a
---max-speed/--max-accel the written samples exceed or a failed certificate, is written into failed/plan/, its
-summary's status saying which, beside the last plan that held);
+--max-speed/--max-accel/--max-jerk the written samples exceed, a failed certificate or a --tolerance not met, is
+written into failed/plan/, its summary's status saying which, beside the last plan that held);
 130 interrupted.
 """
 
@@ -21,7 +21,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..model.ranges import MARGIN, PLAN_ACCEL, PLAN_INTERVALS, PLAN_SPEED, PLAN_WINDOW
+from ..model.ranges import MARGIN, PLAN_ACCEL, PLAN_INTERVALS, PLAN_JERK, PLAN_SPEED, PLAN_TOLERANCE, PLAN_WINDOW
 from ..process.interrupts import exit_status
 from ..process.locations import example_spec
 from .entry import carrying, guarded, ranged, spec_file
@@ -42,6 +42,26 @@ def _percent(text: str) -> float:
         raise argparse.ArgumentTypeError(message) from None
 
 
+# --tolerance's units, in metres
+LENGTH_UNITS = {"mm": 1e-3, "um": 1e-6, "µm": 1e-6, "m": 1.0}
+
+
+def _length(text: str) -> float:
+    """'0.1mm', '100um', '1e-4m' or a bare number of millimetres: metres in PLAN_TOLERANCE's range."""
+    raw = str(text).strip()
+    unit = next((u for u in ("mm", "um", "µm", "m") if raw.endswith(u)), "mm")
+    number = raw[: len(raw) - len(unit)].strip() if raw.endswith(unit) else raw
+    try:
+        value = float(number) * LENGTH_UNITS[unit]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"tolerance: expected a length as 0.1mm, 100um or 1e-4m (a bare number is in "
+                                         f"mm), found {text!r}") from None
+    try:
+        return PLAN_TOLERANCE.check(value, "tolerance")
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(f"{err} (metres; from {text!r})") from None
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
         prog="acroboter plan",
@@ -56,6 +76,15 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="a bound on the tracked point's speed, m/s, at most 100 (default: none)")
     p.add_argument("--max-accel", type=ranged(PLAN_ACCEL), default=None, metavar="M_S2",
                    help="a bound on the tracked point's acceleration, m/s², at most 1000 (default: none)")
+    p.add_argument("--max-jerk", type=ranged(PLAN_JERK), default=None, metavar="M_S3",
+                   help="a bound on the tracked point's jerk, m/s³, at most 1e5: the timing is then smooth (σ̈ "
+                        "continuous, 0 at every corner) (default: none, σ̈ held per interval)")
+    p.add_argument("--tolerance", type=carrying(_length, "tolerance", (PLAN_TOLERANCE,), "{}m"), default=None,
+                   metavar="LENGTH",
+                   help="the position error every --certify method may fly the plan with, as 0.1mm, 100um or 1e-4m "
+                        "(a bare number is in mm), 0.1 µm to 1 m: the fastest smooth timing whose flights stay "
+                        "within it, at any phase of the controller's clock, compared with the time-optimal timing "
+                        "and its best uniform slowdown that meets it (docs/planning.md) (default: none)")
     p.add_argument("--trajectory", type=Path, default=None, metavar="FILE",
                    help="retime this trajectory file's geometry instead of the spec's waypoints (the CSV format "
                         "of docs/planning.md: t_s, x_m, y_m, z_m, vx_m_s, ...)")
@@ -81,6 +110,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--no-plots", action="store_true", help="skip plan.png")
     p.add_argument("-q", "--quiet", action="store_true", help="print only the result's line")
     args = p.parse_args(argv)
+    if args.no_certificate and args.tolerance is not None:
+        p.error("--tolerance is judged by flying the plan: it cannot go with --no-certificate")
     from .run_args import expand_methods
 
     try:
@@ -136,7 +167,7 @@ def _plan(args: argparse.Namespace, folder) -> int:
         plan = crane.plan(margin=args.margin, max_speed=args.max_speed, max_accel=args.max_accel,
                           trajectory=trajectory, intervals=args.intervals,
                           certify=False if args.no_certificate else args.certify,
-                          window=args.window, corners=args.corners)
+                          window=args.window, corners=args.corners, max_jerk=args.max_jerk, tolerance=args.tolerance)
     except (StaticLimitError, TrajectoryError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
@@ -175,6 +206,13 @@ def _plan(args: argparse.Namespace, folder) -> int:
           + f"; limits active: {', '.join(active) or 'none'}; solved in {plan.solve_s:.3g} s")
     for w in plan.warnings:
         print(f"warning: {w}")
+    if plan.tolerance is not None:
+        t = plan.tolerance
+        uniform = t.get("uniform_slowdown_duration_s")
+        print(f"tolerance {t['asked_mm']:.3g} mm: flown within {t['flown_mm']:.3g} mm by {', '.join(t['methods'])} at "
+              f"every clock phase; the time-optimal timing {t.get('time_optimal_duration_s', float('nan')):.4g} s "
+              f"flies at {t.get('time_optimal_flown_mm', float('nan')):.3g} mm, its best uniform slowdown that meets "
+              f"the tolerance " + (f"{uniform:.4g} s" if uniform is not None else "was not found"))
     if not args.quiet:
         print(f"results in {args.out}/ (acroboter run --trajectory {args.out}/trajectory.csv flies it)")
     return 0

@@ -264,6 +264,10 @@ MARGIN = Range("margin", 0.0, 0.5, "", high_open=True,
 PLAN_SPEED = Range("max_speed", 0.0, 100.0, "m/s", low_open=True, why="a retiming's bound on the tracked point's speed")
 PLAN_ACCEL = Range("max_accel", 0.0, 1000.0, "m/s²", low_open=True,
                    why="a retiming's bound on the tracked point's acceleration (about 100 g at most)")
+PLAN_JERK = Range("max_jerk", 0.0, 1e5, "m/s³", low_open=True,
+                  why="a retiming's bound on the tracked point's jerk (a smooth timing: σ̈ continuous)")
+PLAN_TOLERANCE = Range("tolerance", 1e-7, 1.0, "m",
+                       why="a plan's flown position error (0.1 µm to 1 m): the flights of every method stay within it")
 PLAN_INTERVALS = Range("intervals", 4, 5000, "", whole=True,
                        why="the retiming's grid: intervals over the whole path (each edge gets at least 6)")
 PLAN_WINDOW = Range("window", 0, 1000, "", whole=True,

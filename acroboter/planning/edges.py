@@ -65,7 +65,7 @@ class EdgeRetiming(Retiming):
         factors = [self.rest_factor(j, counts[j], phase_factor(self, self.at_rest(j), j, factor)) for j in range(K)]
         self.phase_slowdown = (factors, float(sum(f * T for f, (_, _, T) in zip(factors, self.geo.phases,
                                                                                 strict=True))))
-        durations, tau_dd, records = [], [], []
+        durations, tau_dd, jerks, records = [], [], [], []
         status, iterations = "", 0
         from tqdm import tqdm
 
@@ -85,21 +85,24 @@ class EdgeRetiming(Retiming):
                     if needed <= m:
                         break
                     m, guess_a, guess_T = needed, part.tau_dd, float(part.durations[0])
-                edge_T, edge_a, edge_status = part.durations, part.tau_dd, part.status
+                edge_T, edge_a, edge_j, edge_status = part.durations, part.tau_dd, part.tau_ddd, part.status
             except PlanningError as unsolved:
                 # IPOPT gave no answer: the edge keeps its warm start, its own timing slowed from rest (feasible and
                 # ending at rest by rest_factor's bisection), and the summary says so
                 edge_T, edge_a, edge_status = np.array([warm_T]), warm_a, "quintic_slowdown_kept"
+                edge_j = np.zeros_like(warm_a)
                 records.append({"phases": [j], "intervals": counts[j], "status": edge_status, "iterations": 0,
                                 "reason": str(unsolved)})
             if not status or status == "Solve_Succeeded":
                 status = edge_status
             durations.append(edge_T)
             tau_dd.append(edge_a)
+            jerks.append(edge_j)
             bar.set_postfix_str(f"edge {j + 1}: {float(edge_T[0]):.3g} s ({edge_status})")
             bar.update()
         bar.close()
-        return self.chain(x0, counts, np.concatenate(durations), np.concatenate(tau_dd), status, iterations, records)
+        return self.chain(x0, counts, np.concatenate(durations), np.concatenate(tau_dd), status, iterations, records,
+                          np.concatenate(jerks))
 
     def grid_motion(self, j: int, count: int, factor: float, q: np.ndarray | None = None):
         """Edge j's own timing slowed by `factor` from rest (at q, else at corner j), σ̈ held per interval on `count`
@@ -131,7 +134,7 @@ class EdgeRetiming(Retiming):
         return bisect_factor(serves, bad, good, PHASE_BISECTION)
 
     def chain(self, x0: np.ndarray, counts: list[int], durations: np.ndarray, tau_dd: np.ndarray, status: str,
-              iterations: int, records: list[dict]) -> Part:
+              iterations: int, records: list[dict], tau_ddd: np.ndarray) -> Part:
         """The whole path's timing integrated from x0 in one chain (the corners' residual swing carried over):
         the node states and the inputs at every RK4 step start, with RK4 steps of at most MAX_STEP_S."""
         K = len(counts)
@@ -139,7 +142,8 @@ class EdgeRetiming(Retiming):
         x, k = np.asarray(x0, float), 0
         for j in range(K):
             m = _substeps([durations[j]], [counts[j]])
-            xs, u = self.run_grid(x, tau_dd[k : k + counts[j]], durations[j] / counts[j], m, final=j == K - 1)
+            xs, u = self.run_grid(x, tau_dd[k : k + counts[j]], durations[j] / counts[j], m, final=j == K - 1,
+                                  jerk=tau_ddd[k : k + counts[j]])
             inputs.append(u)
             states.append(xs[1:])
             substeps.append(m)
@@ -147,4 +151,4 @@ class EdgeRetiming(Retiming):
             x[-2:] = self.geo.phases[j][1], 0.0  # the corner exactly (σ ends there to the solver's tolerance)
             k += counts[j]
         return Part(np.asarray(durations, float), np.asarray(tau_dd, float), np.vstack(states), np.vstack(inputs),
-                    status, iterations, records, substeps)
+                    status, iterations, records, substeps, np.asarray(tau_ddd, float))

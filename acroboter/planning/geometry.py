@@ -64,6 +64,8 @@ class PathGeometry:
         d1 = ca.jacobian(g, tau)
         d2 = ca.jacobian(d1, tau)
         self.function = ca.Function("geometry", [tau], [g, d1, d2], ["tau"], ["g", "dg", "ddg"])
+        # g''' for a jerk bound (0 on a straight edge; piecewise constant on a trajectory's cubic spline)
+        self.third = ca.Function("geometry_third", [tau], [ca.jacobian(d2, tau)], ["tau"], ["dddg"])
         self._map: dict[int, ca.Function] = {}
         p = self.layout.path_signal
         self.point_rows, self.yaw_row = slice(p, p + 3), p + 3
@@ -101,9 +103,10 @@ class PathGeometry:
         s, ds, dds = quintic_array((t - path.edge_t0[k]) / T)
         return k + s, ds / T, dds / T**2
 
-    def own_peaks(self, phase: int | None = None, samples: int = 2001) -> tuple[float, float]:
-        """The tracked point's peak speed (m/s) and acceleration (m/s²) on the path's own timing, over the whole
-        path or one phase: a uniform slowdown by f divides them by f and f²."""
+    def own_peaks(self, phase: int | None = None, samples: int = 2001) -> tuple[float, float, float]:
+        """The tracked point's peak speed (m/s), acceleration (m/s²) and jerk (m/s³, the acceleration's differences
+        over the samples) on the path's own timing, over the whole path or one phase: a uniform slowdown by f divides
+        them by f, f² and f³."""
         start, stop = 0.0, self.path_duration
         if phase is not None and self.edges:
             start = float(self.path.edge_t0[phase])
@@ -113,7 +116,9 @@ class PathGeometry:
         rows = self.point_rows
         velocity = d1[:, rows] * rate[:, None]
         acceleration = d2[:, rows] * rate[:, None] ** 2 + d1[:, rows] * accel[:, None]
-        return float(np.linalg.norm(velocity, axis=1).max()), float(np.linalg.norm(acceleration, axis=1).max())
+        jerk = np.diff(acceleration, axis=0) / ((stop - start) / (samples - 1))
+        return (float(np.linalg.norm(velocity, axis=1).max()), float(np.linalg.norm(acceleration, axis=1).max()),
+                float(np.linalg.norm(jerk, axis=1).max()))
 
     def place(self, tau: float, point=None) -> str:
         """Where τ is, in words: 's = 0.46 (x, y, z = 0.25, 0.25, 0.45 m)' (s = τ / D)."""

@@ -123,37 +123,40 @@ def spare_inputs(system: np.ndarray, m: int, count: int) -> list[int]:
 
 
 def rk4_step(dynamics: IdealDynamics, geometry, substeps: int) -> ca.Function:
-    """One interval of h seconds with the path acceleration τ̈ held: state x = (q, q̇, τ, τ̇), `substeps`
-    RK4 steps. Returns the end state, the inputs at the start of each substep (n_inputs x substeps; with a spare
-    input, at its value 0) and their change per unit of the spare input (n_inputs x substeps, 0 without one), and
-    the same two at the interval's end with its τ̈ (n_inputs x 1 each)."""
+    """One interval of h seconds with the path acceleration τ̈(t) = a + j·t (t from the interval's start: a held
+    when the jerk j is 0, linear when the timing is smooth): state x = (q, q̇, τ, τ̇), `substeps` RK4 steps (τ is
+    a cubic in t, which RK4 integrates exactly). Returns the end state, the inputs at the start of each substep
+    (n_inputs x substeps; with a spare input, at its value 0) and their change per unit of the spare input
+    (n_inputs x substeps, 0 without one), and the same two at the interval's end with its τ̈ (n_inputs x 1 each)."""
     n = dynamics.layout.n
     x = ca.MX.sym("x", 2 * n + 2)
     a = ca.MX.sym("tau_dd")
+    jerk = ca.MX.sym("tau_ddd")
     h = ca.MX.sym("h")
 
-    def rate(state):
+    def rate(state, acc):
         q, qd, tau, tau_d = state[:n], state[n : 2 * n], state[2 * n], state[2 * n + 1]
         g, d1, d2 = geometry.function(tau)
-        qdd, u, direction = dynamics.function(q, qd, g, d1 * tau_d, d2 * tau_d**2 + d1 * a)
-        return ca.vertcat(qd, qdd, tau_d, a), u, direction
+        qdd, u, direction = dynamics.function(q, qd, g, d1 * tau_d, d2 * tau_d**2 + d1 * acc)
+        return ca.vertcat(qd, qdd, tau_d, acc), u, direction
 
     dt = h / substeps
     state, inputs, directions = x, [], []
-    for _ in range(substeps):
-        k1, u, direction = rate(state)
+    for i in range(substeps):
+        start = a + jerk * (i * dt)
+        k1, u, direction = rate(state, start)
         inputs.append(u)
         directions.append(direction if dynamics.spares else ca.MX.zeros(u.shape))
-        k2 = rate(state + dt / 2 * k1)[0]
-        k3 = rate(state + dt / 2 * k2)[0]
-        k4 = rate(state + dt * k3)[0]
+        k2 = rate(state + dt / 2 * k1, start + jerk * (dt / 2))[0]
+        k3 = rate(state + dt / 2 * k2, start + jerk * (dt / 2))[0]
+        k4 = rate(state + dt * k3, start + jerk * dt)[0]
         state = state + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    # the inputs at the interval's end with its own τ̈ (the left limit at the next node, where τ̈ jumps): a
+    # the inputs at the interval's end with its own τ̈ (the left limit at the next node, where a held τ̈ jumps): a
     # bang-bang timing's input peaks there, and the next interval's start sees it only after the jump
-    _, u_end, direction_end = rate(state)
-    return ca.Function("interval", [x, a, h], [state, ca.horzcat(*inputs), ca.horzcat(*directions), u_end,
-                                               direction_end if dynamics.spares else ca.MX.zeros(u_end.shape)],
-                       ["x", "tau_dd", "h"], ["x_end", "u", "direction", "u_end", "direction_end"])
+    _, u_end, direction_end = rate(state, a + jerk * h)
+    return ca.Function("interval", [x, a, jerk, h], [state, ca.horzcat(*inputs), ca.horzcat(*directions), u_end,
+                                                     direction_end if dynamics.spares else ca.MX.zeros(u_end.shape)],
+                       ["x", "tau_dd", "tau_ddd", "h"], ["x_end", "u", "direction", "u_end", "direction_end"])
 
 
 def inputs_at(dynamics: IdealDynamics, geometry, x, a):

@@ -113,18 +113,23 @@ class Plan:
     certificate: Certificate | None = None
     warnings: list[str] = field(default_factory=list)
     failures: list[str] = field(default_factory=list)  # why this is not the plan asked for (empty: it is)
-    max_speed: float | None = None  # the bounds asked for (m/s, m/s²)
+    max_speed: float | None = None  # the bounds asked for (m/s, m/s², m/s³)
     max_accel: float | None = None
+    max_jerk: float | None = None
+    peak_jerk: float | None = None  # the tracked point's, on the samples; None when σ̈ jumps (no jerk bound)
     bounds_moved_in: dict = field(default_factory=dict)  # input -> how far the optimiser's bounds were moved in
+    tolerance: dict | None = None  # a plan to a flown tolerance: how it was found (acroboter.planning.tolerance)
 
     @property
     def status(self) -> str:
-        """"planned", or what failed: "solve failed", "bounds not held", "certificate failed" (joined by "; ")."""
+        """"planned", or what failed: "solve failed", "bounds not held", "certificate failed", "tolerance not met"
+        (joined by "; ")."""
         if not self.failures:
             return "planned"
         kinds = []
         for text in self.failures:
             kind = ("certificate failed" if text.startswith("the certificate") else
+                    "tolerance not met" if text.startswith("the tolerance") else
                     "bounds not held" if text.startswith(("max_", "the planned inputs")) else "solve failed")
             if kind not in kinds:
                 kinds.append(kind)
@@ -180,6 +185,8 @@ class Plan:
             "bounds_moved_in": self.bounds_moved_in,
             "max_speed_m_s": self.max_speed, "peak_speed_m_s": speed,
             "max_accel_m_s2": self.max_accel, "peak_accel_m_s2": accel,
+            "max_jerk_m_s3": self.max_jerk, "peak_jerk_m_s3": self.peak_jerk,
+            "timing": "σ̈ held per interval (bang-bang)" if self.peak_jerk is None else "smooth (σ̈ continuous)",
             "intervals": self.intervals,
             "corners": self.corners,
             "window": self.window,
@@ -189,6 +196,8 @@ class Plan:
             "solve_s": self.solve_s,
             "warnings": self.warnings,
         }
+        if self.tolerance is not None:
+            out["tolerance"] = self.tolerance
         if self.certificate is not None:
             c = self.certificate
             out["certificate"] = {"method": f"{', '.join(c.flights) or 'mlm'}, own plant, limits applied",
@@ -201,11 +210,14 @@ class Plan:
 
 def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_speed: float | None = None,
          max_accel: float | None = None, intervals: int = DEFAULT_INTERVALS, certify_plan: bool | tuple = True,
-         verbose: bool = False, window: int | None = None, corners: str = "rest") -> Plan:
+         verbose: bool = False, window: int | None = None, corners: str = "rest", max_jerk: float | None = None,
+         lag: tuple | None = None) -> Plan:
     """`corners` (a waypoint path): "rest", every edge from rest to rest, the swing included (acroboter.planning.
     edges); "swing", the swing carried over the corners, the edges optimised together: `window` phases per
     receding window (acroboter.planning.windows), 0 the whole path in one solve, None DEFAULT_WINDOW (a path of at
-    most DEFAULT_WINDOW phases is then one solve anyway)."""
+    most DEFAULT_WINDOW phases is then one solve anyway). `max_jerk` (m/s³): the timing smooth (σ̈ continuous, 0 at
+    every corner) with the tracked point's jerk at most that; `lag` (bound m, kp, kd, period s): smooth, with the
+    sampled controller's lag within the bound (acroboter.planning.servo_lag; acroboter.planning.tolerance sets it)."""
     if corners not in CORNERS:
         raise PlanningError(f"corners: expected one of {', '.join(CORNERS)}, found {corners!r}")
     spec, lay = model.spec, model.layout
@@ -220,22 +232,22 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
     window = DEFAULT_WINDOW if window is None else int(window)
     if window >= len(geometry.phases):
         window = 0  # the window would be the whole path
+    kinematic = {"max_speed": max_speed, "max_accel": max_accel, "max_jerk": max_jerk, "lag": lag}
     if corners == "rest" and geometry.edges:
         window = 0
-        problem = EdgeRetiming(dynamics, geometry, q0, low, high, max_speed=max_speed, max_accel=max_accel)
+        problem = EdgeRetiming(dynamics, geometry, q0, low, high, **kinematic)
     elif window:
-        problem = WindowedRetiming(dynamics, geometry, q0, low, high, max_speed=max_speed, max_accel=max_accel,
-                                   window=window)
+        problem = WindowedRetiming(dynamics, geometry, q0, low, high, window=window, **kinematic)
     else:
-        problem = Retiming(dynamics, geometry, q0, low, high, max_speed=max_speed, max_accel=max_accel)
+        problem = Retiming(dynamics, geometry, q0, low, high, **kinematic)
     solution, _, grid_inputs, tightened_by, leak = solve_within_bounds(problem, intervals, low, high, list(lay.inputs),
                                                                        list(lay.input_units), verbose)
-    trajectory = sample(geometry, solution, problem.n)
+    trajectory, jerk = sample(geometry, solution, problem.n)
     achieved, where = margin_achieved(np.vstack([solution.inputs, grid_inputs]), lower, upper)
     result = Plan(
         duration=solution.duration, path_duration=geometry.path_duration, times=solution.times,
         s=solution.states[:, -2] / geometry.end, sd=solution.states[:, -1] / geometry.end,
-        sdd=np.append(solution.tau_dd, solution.tau_dd[-1]) / geometry.end, trajectory=trajectory,
+        sdd=node_accelerations(solution) / geometry.end, trajectory=trajectory,
         input_names=list(lay.inputs), input_units=list(lay.input_units), input_times=solution.input_times,
         inputs=solution.inputs, limits=(lower, upper), bounds=(low, high), margin=float(margin),
         margin_achieved=achieved, margin_input=None if where is None else lay.inputs[where],
@@ -245,7 +257,8 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
         corners=corners if geometry.edges else "swing", window=window,
         phase_duration=None if problem.phase_slowdown is None else problem.phase_slowdown[1],
         solves=solution.windows, end_state=solution.states[-1].copy())
-    result.max_speed, result.max_accel = max_speed, max_accel
+    result.max_speed, result.max_accel, result.max_jerk = max_speed, max_accel, max_jerk
+    result.peak_jerk = jerk if problem.smooth else None
     result.bounds_moved_in = {lay.inputs[i]: float(v) for i, v in enumerate(tightened_by) if v > 0}
     result.failures = unmet(solution, result)
     if leak is not None:
@@ -272,6 +285,12 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
     return result
 
 
+def node_accelerations(solution: Solution) -> np.ndarray:
+    """σ̈ at the nodes (each interval's start; the last interval's end last)."""
+    last = solution.tau_dd[-1] + solution.tau_ddd[-1] * (solution.times[-1] - solution.times[-2])
+    return np.append(solution.tau_dd, last)
+
+
 def unmet(solution: Solution, plan: Plan) -> list[str]:
     """What keeps the plan from being the one asked for, before its certificate: a solve that did not reach
     IPOPT's optimum (its timing a fallback), a max_speed or max_accel the written samples exceed."""
@@ -287,7 +306,8 @@ def unmet(solution: Solution, plan: Plan) -> list[str]:
                        "s); try more --intervals or a larger margin")
     speed, accel = plan.kinematic_peaks()
     for name, bound, peak, unit in (("max_speed", plan.max_speed, speed, "m/s"),
-                                    ("max_accel", plan.max_accel, accel, "m/s²")):
+                                    ("max_accel", plan.max_accel, accel, "m/s²"),
+                                    ("max_jerk", plan.max_jerk, plan.peak_jerk, "m/s³")):
         if bound is not None and peak > bound * (1.0 + KINEMATIC_TOLERANCE):
             out.append(f"{name} not held: the written trajectory reaches {peak:.6g} {unit} against {bound:.6g} "
                        f"{unit} (the bound is kept at the optimiser's nodes; give more --intervals)")
@@ -332,11 +352,12 @@ def between_nodes(times: np.ndarray, inputs: np.ndarray, low, high, names: list[
             f"{1e3 * CHECK_STEP_S:g} ms grid; give more --intervals")
 
 
-def sample(geometry: PathGeometry, solution: Solution, n: int) -> SampledTrajectory:
-    """The tracked point's motion along the solution: σ(t) is exact between nodes (σ̈ held), so every sample is
-    the path's geometry at the retimed σ. Samples at SAMPLE_RATE_HZ inside each interval and at both sides of
+def sample(geometry: PathGeometry, solution: Solution, n: int) -> tuple[SampledTrajectory, float]:
+    """The tracked point's motion along the solution: σ(t) is exact between nodes (σ̈ held, or linear), so every
+    sample is the path's geometry at the retimed σ. Samples at SAMPLE_RATE_HZ inside each interval and at both sides of
     every node (NODE_GAP_S apart, each with its own interval's acceleration): the interpolant between samples
-    then never smears a jump of σ̈ over a whole sample period."""
+    then never smears a jump of σ̈ over a whole sample period. Also the tracked point's peak jerk over the samples
+    (g'''σ̇³ + 3g''σ̇σ̈ + g'σ⃛; between the jumps of a held σ̈)."""
     nodes, N = solution.times, solution.tau_dd.size
     pieces, owner = [], []
     for k in range(N):
@@ -351,13 +372,19 @@ def sample(geometry: PathGeometry, solution: Solution, n: int) -> SampledTraject
     times, k = times[keep], k[keep]
     dt = times - nodes[k]
     tau0, rate0, a = solution.states[k, 2 * n], solution.states[k, 2 * n + 1], solution.tau_dd[k]
-    tau = np.clip(tau0 + rate0 * dt + 0.5 * a * dt**2, 0.0, geometry.end)
-    rate = np.maximum(rate0 + a * dt, 0.0)
-    rows = geometry.signals(tau, rate, a)
+    jerk = solution.tau_ddd[k]  # τ̈ linear over the interval (0: held)
+    tau = np.clip(tau0 + rate0 * dt + 0.5 * a * dt**2 + jerk * dt**3 / 6.0, 0.0, geometry.end)
+    rate = np.maximum(rate0 + a * dt + 0.5 * jerk * dt**2, 0.0)
+    rows = geometry.signals(tau, rate, a + jerk * dt)
     ns, p = geometry.n_signals, geometry.layout.path_signal
     pick = [slice(p, p + 4), slice(ns + p, ns + p + 4), slice(2 * ns + p, 2 * ns + p + 4)]
     position, velocity, acceleration = (rows[:, s] for s in pick)
-    return SampledTrajectory(times, position, velocity, acceleration)
+    _, d1, d2 = geometry.evaluate(tau)
+    d3 = np.asarray(geometry.third.map(tau.size)(tau[None, :])).T
+    point = geometry.point_rows
+    jerk = d3[:, point] * rate[:, None] ** 3 + 3 * d2[:, point] * (rate * (a + jerk * dt))[:, None] + \
+        d1[:, point] * jerk[:, None]
+    return SampledTrajectory(times, position, velocity, acceleration), float(np.linalg.norm(jerk, axis=1).max())
 
 
 def check_plannable(path, rate_hz: float) -> None:

@@ -33,6 +33,7 @@ from ..process.interrupts import interrupt_pending
 from .geometry import PathGeometry
 from .ideal_motion import IdealDynamics, PlanningError, inputs_at, rk4_step
 from .limits import best_spare, beyond_bounds, spare_constraints
+from .servo_lag import lag_step, lag_substeps, point_jerk
 
 # The uniform slowdown's check: interval of the integration (s) and RK4 steps per interval.
 CHECK_INTERVAL_S = 0.1
@@ -59,6 +60,11 @@ REST_TOL = 1e-2
 # max_speed and max_accel are kept at the nodes this fraction inside: IPOPT meets a constraint to its tolerance
 # (sumsqr ≤ bound² to 1e-8, 5e-5 of a 0.01 m/s² bound), and the written samples between nodes must hold it too.
 KINEMATIC_SLACK = 1e-3
+# The lag model's error is bounded this long after a phase ends too, at this many places (s, count).
+LAG_SETTLE_S = 1.0
+LAG_SETTLE_STEPS = 5
+# The lag model's RK4 steps per interval (at least; its error is bounded at the end of each).
+LAG_SUBSTEPS = 4
 # The fewest intervals a phase (an edge of a waypoint path) gets.
 MIN_PHASE_INTERVALS = 6
 
@@ -88,6 +94,11 @@ class Solution:
     uniform_slowdown: float  # the best uniform slowdown factor of the path's own timing (feasible)
     uniform_duration: float
     windows: list[dict] = field(default_factory=list)  # per solve: phases, intervals, RK4 steps, iterations, s
+    tau_ddd: np.ndarray | None = None  # the jerk of τ per interval (τ̈ linear over it; zeros: τ̈ held)
+
+    def __post_init__(self):
+        if self.tau_ddd is None:
+            self.tau_ddd = np.zeros_like(self.tau_dd)
 
 
 @dataclass
@@ -103,6 +114,11 @@ class Part:
     iterations: int
     windows: list[dict]
     substeps: list[int]  # RK4 steps per interval, per phase
+    tau_ddd: np.ndarray | None = None  # the jerk of τ per interval (zeros: τ̈ held)
+
+    def __post_init__(self):
+        if self.tau_ddd is None:
+            self.tau_ddd = np.zeros_like(self.tau_dd)
 
 
 class Retiming:
@@ -110,13 +126,19 @@ class Retiming:
 
     def __init__(self, dynamics: IdealDynamics, geometry: PathGeometry, q0: np.ndarray, lower: np.ndarray,
                  upper: np.ndarray, substeps: int = 2, max_speed: float | None = None,
-                 max_accel: float | None = None):
+                 max_accel: float | None = None, max_jerk: float | None = None, lag: tuple | None = None):
         self.dyn, self.geo = dynamics, geometry
         self.n = dynamics.layout.n
         self.x0 = np.concatenate([q0, np.zeros(self.n)])
         self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
         self.substeps = substeps
-        self.max_speed, self.max_accel = max_speed, max_accel
+        self.max_speed, self.max_accel, self.max_jerk = max_speed, max_accel, max_jerk
+        # (bound m, kp, kd, period): the sampled controller's lag kept within the bound (acroboter.planning.servo_lag)
+        self.lag = lag
+        # with a jerk bound or a lag bound the timing is smooth: τ̈ continuous, linear over each interval, 0 where a
+        # phase starts and ends (a sampled controller holds its input between samples: a jump of τ̈ is what it
+        # follows worst)
+        self.smooth = max_jerk is not None or lag is not None
         self.step = rk4_step(dynamics, geometry, substeps)
         _, d_start, _ = geometry.evaluate([0.0])
         _, d_end, _ = geometry.evaluate([geometry.end])
@@ -143,19 +165,20 @@ class Retiming:
         return states, inputs, times
 
     def run_grid(self, x0: np.ndarray, acc: np.ndarray, h: float, substeps: int,
-                 final: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """The ideal motion from x0 with σ̈ = acc[i] held over interval i of h seconds, `substeps` RK4 steps each:
-        (the node states, (count + 1) x (2n + 2); the inputs at every RK4 step start, and at the end if `final`,
-        steps x l, with the spare input chosen inside the bounds: fit_spare)."""
+                 final: bool = False, jerk: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The ideal motion from x0 with σ̈ = acc[i] (+ jerk[i]·t) over interval i of h seconds, `substeps` RK4 steps
+        each: (the node states, (count + 1) x (2n + 2); the inputs at every RK4 step start, and at the end if
+        `final`, steps x l, with the spare input chosen inside the bounds: fit_spare)."""
         acc = np.asarray(acc, float)
+        jerk = np.zeros_like(acc) if jerk is None else np.asarray(jerk, float)
         key = (acc.size, substeps)
         if key not in self._check_cache:
             self._check_cache[key] = self.stepper(substeps).mapaccum(acc.size)
-        xs, us, ds, _, _ = self._check_cache[key](x0, acc[None, :], h)
+        xs, us, ds, _, _ = self._check_cache[key](x0, acc[None, :], jerk[None, :], h)
         states = np.vstack([np.asarray(x0, float)[None, :], np.asarray(xs).T])
         base, directions = np.asarray(us).T, np.asarray(ds).T
         if final:
-            u_end, d_end = inputs_at(self.dyn, self.geo, states[-1], acc[-1])
+            u_end, d_end = inputs_at(self.dyn, self.geo, states[-1], acc[-1] + jerk[-1] * h)
             base, directions = np.vstack([base, np.asarray(u_end).T]), np.vstack([directions, np.asarray(d_end).T])
         return states, self.fit_spare(base, directions)
 
@@ -171,14 +194,16 @@ class Retiming:
 
     def kinematic_factor(self, phase: int | None = None) -> float:
         """The smallest slowdown of the path's own timing (or of one phase's) that keeps the tracked point within
-        max_speed and max_accel (1 without them): the own timing's peaks divided by f and f²."""
+        max_speed, max_accel and max_jerk (0 without them): the own timing's peaks divided by f, f² and f³."""
         factor = 0.0
-        if self.max_speed is not None or self.max_accel is not None:
-            speed, accel = self.geo.own_peaks(phase)
+        if self.max_speed is not None or self.max_accel is not None or self.max_jerk is not None:
+            speed, accel, jerk = self.geo.own_peaks(phase)
             if self.max_speed is not None:
                 factor = max(factor, speed / self.max_speed)
             if self.max_accel is not None:
                 factor = max(factor, math.sqrt(accel / self.max_accel))
+            if self.max_jerk is not None:
+                factor = max(factor, (jerk / self.max_jerk) ** (1.0 / 3.0))
         return factor * (1.0 + BISECTION_RELATIVE)
 
     def best_uniform(self) -> float:
@@ -199,7 +224,7 @@ class Retiming:
             while self.excess(self.uniform(low)[1]) <= 0:
                 high, low = low, low / 2.0
                 if low < 1e-3:
-                    if self.max_speed is not None or self.max_accel is not None:
+                    if self.max_speed is not None or self.max_accel is not None or self.max_jerk is not None:
                         return low  # the kinematic bounds bound it (best_uniform)
                     raise PlanningError("the path is feasible at a thousandth of its own timing: the limits do not "
                                         "bound this motion; give max_speed / max_accel (--max-speed, --max-accel)")
@@ -243,7 +268,8 @@ class Retiming:
         starts = [t0 + np.arange(m) * (dt / m) for t0, dt, m in zip(times[:-1], h, per, strict=True)]
         input_times = np.concatenate([*starts, [times[-1]]])
         return Solution(duration, times, part.states, part.tau_dd, input_times, part.inputs, part.status,
-                        part.iterations, time.perf_counter() - started, factor, uniform_duration, part.windows)
+                        part.iterations, time.perf_counter() - started, factor, uniform_duration, part.windows,
+                        part.tau_ddd)
 
     def solve_all(self, x0: np.ndarray, counts: list[int], factor: float, uniform_duration: float,
                   max_iter: int = 400, verbose: bool = False) -> Part:
@@ -268,17 +294,17 @@ class Retiming:
         sub = [counts[j] for j in which]
         N = sum(sub)
         opti = ca.Opti()
-        A = opti.variable(1, N)
         durations = opti.variable(len(which))
         steps = ca.horzcat(*[ca.repmat(durations[i] / c, 1, c) for i, c in enumerate(sub)])
+        boundaries = np.concatenate([[0], np.cumsum(sub)])
+        A, J, nodes_a = self._accelerations(opti, N, steps, boundaries, guess_a)
         # single shooting: the states are the integration of the dynamics from x_start (the internal dynamics
         # are stable and damped; without the states as variables IPOPT sees a problem in the timing alone, which
         # it solves reliably, where multiple shooting's many redundant states of the natural coordinates made it
         # wander)
         x0 = ca.DM(x_start)
-        x_end, inputs, directions, ends, d_ends = step.mapaccum(N)(x0, A, steps)
+        x_end, inputs, directions, ends, d_ends = step.mapaccum(N)(x0, A, J, steps)
         X = ca.horzcat(x0, x_end)
-        boundaries = np.concatenate([[0], np.cumsum(sub)])
         for i, j in enumerate(which):  # each phase from its start to its end
             start, stop, _ = phases[j]
             if i > 0:
@@ -290,13 +316,13 @@ class Retiming:
         final = which[-1] == len(phases) - 1
         if final and self.rest_end:
             opti.subject_to(X[2 * n + 1, N] == 0)
-        last, last_direction = inputs_at(self.dyn, self.geo, X[:, N], A[N - 1])
+        last, last_direction = inputs_at(self.dyn, self.geo, X[:, N], nodes_a[N])
         u_all, d_all = ca.horzcat(inputs, last), ca.horzcat(directions, last_direction)
         bounded, d_bounded = ca.horzcat(u_all, ends), ca.horzcat(d_all, d_ends)  # each interval's end too
         if tail_s > 0:
             count = max(1, int(math.ceil(tail_s / (substeps * MAX_STEP_S))))
-            _, held, d_held, _, _ = step.mapaccum(count)(X[:, N], ca.DM.zeros(1, count),
-                                                   ca.DM.ones(1, count) * (tail_s / count))
+            _, held, d_held, _, _ = step.mapaccum(count)(X[:, N], ca.DM.zeros(1, count), ca.DM.zeros(1, count),
+                                                         ca.DM.ones(1, count) * (tail_s / count))
             bounded, d_bounded = ca.horzcat(bounded, held), ca.horzcat(d_bounded, d_held)
         if self.dyn.spares:  # some internal force keeps the inputs within the bounds (limits.spare_constraints)
             for expr, low in spare_constraints(bounded, d_bounded, self.lower, self.upper, self.dyn.spare_signs,
@@ -313,11 +339,13 @@ class Retiming:
             # IPOPT then crawls
             opti.subject_to(opti.bounded(-REST_TOL, X[:n, N] - rest_at, REST_TOL))
             opti.subject_to(opti.bounded(-REST_TOL, X[n : 2 * n, N], REST_TOL))
-        self._path_bounds(opti, X, A, N)
+        self._path_bounds(opti, X, nodes_a, J, N)
+        if self.lag is not None:
+            longest = 2.0 * max(T / c for T, c in zip(guess_T, sub, strict=True))  # room for the solve to slow down
+            self._lag_bounds(opti, X, nodes_a, J, steps, N, lag_substeps(longest, *self.lag[1:3], LAG_SUBSTEPS))
         opti.subject_to(durations >= 1e-3 * uniform_duration / len(phases))
         total = ca.sum1(durations)
         opti.minimize(total)
-        opti.set_initial(A, np.asarray(guess_a, float)[None, :])
         opti.set_initial(durations, list(guess_T))
         started = time.perf_counter()
         value = self._solved(opti, max_iter, verbose, uniform_duration)
@@ -326,9 +354,29 @@ class Retiming:
                   "iterations": int(stats["iter_count"]), "solve_s": time.perf_counter() - started,
                   "status": stats.get("return_status", "")}
         chosen = self.fit_spare(np.asarray(value(u_all)).T, np.asarray(value(d_all)).T)
+        jerk = np.asarray(value(J)).ravel() if self.smooth else np.zeros(N)
         return Part(np.asarray(value(durations)).ravel(), np.asarray(value(A)).ravel(), np.asarray(value(X)).T,
                     chosen, record["status"], record["iterations"], [record],
-                    [substeps] * len(which))
+                    [substeps] * len(which), jerk)
+
+    def _accelerations(self, opti: ca.Opti, N: int, steps, boundaries: np.ndarray, guess_a) -> tuple:
+        """The timing's variables: σ̈ at each interval's start (A), its jerk over the interval (J) and σ̈ at each node
+        (the last: the end's). Held per interval (J = 0), or with a smooth timing σ̈ at the nodes, linear in between,
+        0 where each phase starts and ends. `guess_a`: σ̈ per interval (at a node, a smooth timing starts from the
+        mean of its two intervals'), or at the nodes."""
+        guess_a = np.asarray(guess_a, float)
+        if not self.smooth:
+            A = opti.variable(1, N)
+            opti.set_initial(A, guess_a[None, :])
+            return A, ca.DM.zeros(1, N), [A[min(k, N - 1)] for k in range(N + 1)]
+        B = opti.variable(1, N + 1)
+        for b in boundaries:
+            opti.subject_to(B[int(b)] == 0)
+        if guess_a.size == N:
+            guess_a = np.concatenate([[0.0], 0.5 * (guess_a[:-1] + guess_a[1:]), [0.0]])
+            guess_a[boundaries] = 0.0
+        opti.set_initial(B, guess_a[None, :])
+        return B[:, :N], (B[:, 1:] - B[:, :N]) / steps, [B[k] for k in range(N + 1)]
 
     def _solved(self, opti: ca.Opti, max_iter: int, verbose: bool, uniform_duration: float):
         """IPOPT on the problem, with its stopping rule (ACCEPTABLE) and the Ctrl-C poll: `value` of the answer.
@@ -361,7 +409,8 @@ class Retiming:
         key = ("map", h.size, m)
         if key not in self._check_cache:
             self._check_cache[key] = self.stepper(m).map(h.size)
-        _, us, ds, _, _ = self._check_cache[key](solution.states[:-1].T, solution.tau_dd[None, :], h[None, :])
+        _, us, ds, _, _ = self._check_cache[key](solution.states[:-1].T, solution.tau_dd[None, :],
+                                                  solution.tau_ddd[None, :], h[None, :])
         base, directions = np.asarray(us).T, np.asarray(ds).T  # interval by interval, m steps each
         times = (solution.times[:-1, None] + np.arange(m)[None, :] * (h[:, None] / m)).ravel()
         inputs = self.fit_spare(base, directions)
@@ -383,17 +432,37 @@ class Retiming:
         x = np.concatenate([self.x0, [0.0, rate0[0] / factor]])
         rows = [x]
         for a, h in zip(acc, own_steps * factor, strict=True):
-            x = np.asarray(self.step(x, a, h)[0]).ravel()
+            x = np.asarray(self.step(x, a, 0.0, h)[0]).ravel()
             rows.append(x)
         return np.array(rows), acc
 
-    def _path_bounds(self, opti, X, A, N):
-        if self.max_speed is None and self.max_accel is None:
+    def _lag_bounds(self, opti, X, nodes_a, J, steps, N: int, substeps: int) -> None:
+        """The servo lag model (acroboter.planning.servo_lag) driven by the tracked point's jerk (each interval's
+        mean of its two ends), from no lag at the phases' start: its error within the bound at the end of each of
+        its `substeps` RK4 steps per interval (servo_lag.lag_substeps) and for LAG_SETTLE_S after the end (an
+        underdamped servo law overshoots after the jerk stops)."""
+        bound, kp, kd, period = self.lag
+        n, jerks = self.n, []
+        for i in range(N):
+            ends = [point_jerk(self.geo, X[2 * n, k], X[2 * n + 1, k], nodes_a[k], J[i]) for k in (i, i + 1)]
+            jerks.append(0.5 * (ends[0] + ends[1]))
+        step = lag_step(kp, kd, period, substeps)
+        Z, errors = step.mapaccum(N)(ca.DM.zeros(6), ca.horzcat(*jerks), steps)
+        h_settle = LAG_SETTLE_S / LAG_SETTLE_STEPS
+        settling = lag_step(kp, kd, period, lag_substeps(h_settle, kp, kd, LAG_SUBSTEPS))
+        _, settle = settling.mapaccum(LAG_SETTLE_STEPS)(Z[:, N - 1], ca.DM.zeros(3, LAG_SETTLE_STEPS), h_settle)
+        every = ca.horzcat(errors, settle)
+        for k in range(every.shape[1]):  # scaled: bound² (1e-8 m²) is IPOPT's tolerance
+            opti.subject_to(ca.sumsqr(every[:, k] / bound) <= 1.0)
+
+    def _path_bounds(self, opti, X, nodes_a, J, N):
+        """max_speed, max_accel at every node (σ̈ there: `nodes_a`), max_jerk at both ends of every interval (its
+        jerk J[i]): the tracked point's j = g'''σ̇³ + 3g''σ̇σ̈ + g'σ⃛, constant over an interval on a straight edge."""
+        if self.max_speed is None and self.max_accel is None and self.max_jerk is None:
             return
         n, rows = self.n, self.geo.point_rows
         for k in range(N + 1):
-            tau, tau_d = X[2 * n, k], X[2 * n + 1, k]
-            a = A[min(k, N - 1)]
+            tau, tau_d, a = X[2 * n, k], X[2 * n + 1, k], nodes_a[k]
             _, d1, d2 = self.geo.function(tau)
             if self.max_speed is not None and k > 0:  # the start's speed is given (x_start), no variable of the problem
                 v = d1[rows] * tau_d
@@ -401,3 +470,8 @@ class Retiming:
             if self.max_accel is not None:
                 acc = d2[rows] * tau_d**2 + d1[rows] * a
                 opti.subject_to(ca.sumsqr(acc) <= (self.max_accel * (1.0 - KINEMATIC_SLACK)) ** 2)
+            if self.max_jerk is not None:
+                d3 = self.geo.third(tau)[rows]
+                for i in {max(k - 1, 0), min(k, N - 1)}:  # the intervals that meet at node k
+                    jerk = d3 * tau_d**3 + 3 * d2[rows] * tau_d * a + d1[rows] * J[i]
+                    opti.subject_to(ca.sumsqr(jerk) <= (self.max_jerk * (1.0 - KINEMATIC_SLACK)) ** 2)

@@ -156,7 +156,7 @@ def receding(problem, x0: np.ndarray, counts: list[int], factor: float, uniform_
     warm_a, warm_T = {}, {}
     for p in range(K):
         warm_a[p], warm_T[p] = _warm(problem, p, counts[p], factors[p])
-    durations, tau_dd, states, inputs, records, substeps = [], [], [x0[None, :]], [], [], []
+    durations, timing, states, inputs, records, substeps = [], [], [x0[None, :]], [], [], []
     status, iterations, x, j = "", 0, np.asarray(x0, float), 0
     while j < K:
         which = list(range(j, min(j + window, K)))
@@ -187,7 +187,7 @@ def receding(problem, x0: np.ndarray, counts: list[int], factor: float, uniform_
             if not status or status == "Solve_Succeeded":
                 status = part.status
             durations.append(part.durations)
-            tau_dd.append(part.tau_dd)
+            timing.append((part.tau_dd, part.tau_ddd))
             states.append(part.states[1:])
             substeps += part.substeps
             inputs.append(part.inputs)
@@ -203,7 +203,7 @@ def receding(problem, x0: np.ndarray, counts: list[int], factor: float, uniform_
                 warm_a[p], warm_T[p] = part.tau_dd[local[i]:local[i + 1]], float(part.durations[i])
         stop = local[len(commit)]
         durations.append(part.durations[:len(commit)])
-        tau_dd.append(part.tau_dd[:stop])
+        timing.append((part.tau_dd[:stop], part.tau_ddd[:stop]))
         states.append(part.states[1:stop + 1])
         substeps += [m] * len(commit)
         last = commit[-1] == K - 1
@@ -217,5 +217,5 @@ def receding(problem, x0: np.ndarray, counts: list[int], factor: float, uniform_
                 warm_a[entering], warm_T[entering] = _warm(problem, entering, counts[entering], factor_e)
             except PlanningError:  # no slowdown is feasible from there: IPOPT starts from the phase-wise one
                 pass
-    return Part(np.concatenate(durations), np.concatenate(tau_dd), np.vstack(states), np.vstack(inputs), status,
-                iterations, records, substeps)
+    return Part(np.concatenate(durations), np.concatenate([a for a, _ in timing]), np.vstack(states),
+                np.vstack(inputs), status, iterations, records, substeps, np.concatenate([j for _, j in timing]))

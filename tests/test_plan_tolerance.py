@@ -1,0 +1,128 @@
+"""Plans the crane flies within a tolerance (issue 34 items 1-2): smooth timings, `--max-jerk`, `--tolerance`
+(acroboter.planning.servo_lag, acroboter.planning.tolerance, docs/planning.md "A tolerance").
+
+Oracles: the servo lag model's closed form (a constant jerk from rest through ë + 2kd ė + kp² e = −(T/2) j), the
+flights of the own plant under the spec's controllers (the model is a prediction of them, tested against them on
+timings it never saw), the lift's input law (tests/test_planning.py) and the written trajectory's own samples
+(its jerk and acceleration by finite differences, not by the planner's formulas).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from test_planning import lift_coefficients, lift_spec
+
+import acroboter
+from acroboter.control.path import SampledTrajectory
+from acroboter.planning.servo_lag import lag_step, lag_substeps, predicted_error
+
+PERIOD = 0.02  # the default crane's controller: 50 Hz, kp = kd = 5 1/s
+
+
+def closed_form_lag(t: np.ndarray, jerk: float, kp: float, kd: float, period: float) -> np.ndarray:
+    """e(t) of ë + 2kd ė + kp² e = c, c = −(T/2)·jerk, from rest: c/kp² (1 + (r2 e^{r1 t} − r1 e^{r2 t})/(r1 − r2)),
+    r1, r2 the roots of s² + 2kd s + kp² (complex when underdamped); kd = kp: c/kp² (1 − (1 + kp t) e^{−kp t})."""
+    c = -0.5 * period * jerk
+    if abs(kd - kp) < 1e-12:
+        return c / kp**2 * (1.0 - (1.0 + kp * t) * np.exp(-kp * t))
+    root = np.sqrt(complex(kd * kd - kp * kp))
+    r1, r2 = -kd + root, -kd - root
+    return np.real(c / kp**2 * (1.0 + (r2 * np.exp(r1 * t) - r1 * np.exp(r2 * t)) / (r1 - r2)))
+
+
+@settings(max_examples=25, deadline=None, derandomize=True)
+@given(kp=st.floats(1.0, 20.0), ratio=st.floats(0.3, 3.0), jerk=st.floats(-50.0, 50.0), duration=st.floats(0.05, 2.0))
+def test_both_forms_of_the_lag_model_follow_its_closed_form(kp, ratio, jerk, duration):
+    """The optimiser's form (CasADi RK4, lag_step) and the reporting form (scipy's lsim, predicted_error) against the
+    closed form: a constant jerk for `duration`, then none (superposition: the step minus the step delayed)."""
+    kd = kp * ratio
+    h = duration / 4
+    substeps = lag_substeps(h, kp, kd)  # the optimiser's rule: RK4 steps of at most LAG_STEP_RATE / fastest pole
+    _, errors = lag_step(kp, kd, PERIOD, substeps).mapaccum(4)(np.zeros(6), np.tile([[jerk], [0.0], [0.0]], 4), h)
+    t = h / substeps * np.arange(1, 4 * substeps + 1)
+    expected = closed_form_lag(t, jerk, kp, kd, PERIOD)
+    scale = abs(0.5 * PERIOD * jerk) / kp**2 + 1e-15  # the steady lag
+    assert np.allclose(np.asarray(errors)[0], expected, atol=1e-4 * scale)
+    grid = np.arange(0.0, duration + 3.0, 1e-4)
+    response = closed_form_lag(grid, jerk, kp, kd, PERIOD) - np.where(
+        grid > duration, closed_form_lag(np.maximum(grid - duration, 0.0), jerk, kp, kd, PERIOD), 0.0)
+    samples = np.linspace(0.0, duration, 200)
+    drive = np.column_stack([np.full(200, jerk), np.zeros(200), np.zeros(200)])
+    # lsim's input is linear between samples and ends at `duration`: the last millisecond ramps down
+    assert predicted_error(samples, drive, kp, kd, PERIOD, settle_s=3.0) == pytest.approx(
+        np.abs(response).max(), rel=2e-2, abs=1e-3 * scale)
+
+
+def quintic_lift(duration: float) -> SampledTrajectory:
+    t = np.linspace(0.0, 1.0, 2001)
+    s, sd, sdd = 10 * t**3 - 15 * t**4 + 6 * t**5, 30 * t**2 - 60 * t**3 + 30 * t**4, 60 * t - 180 * t**2 + 120 * t**3
+    columns = [np.zeros((t.size, 4)) for _ in range(3)]
+    for column, values in zip(columns, (s, sd / duration, sdd / duration**2), strict=True):
+        column[:, 2] = 0.1 * values
+    return SampledTrajectory(t * duration, *columns)
+
+
+@pytest.fixture(scope="module")
+def lift_crane(tmp_path_factory):
+    return acroboter.Crane.from_toml(lift_spec(tmp_path_factory.mktemp("lift"), 24.0, 29.0))
+
+
+@settings(max_examples=6, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(duration=st.floats(0.9, 4.0))
+def test_the_lag_model_predicts_the_flights_of_smooth_lifts(lift_crane, duration):
+    """The model behind --tolerance, against the own plant flown by each method on quintic lifts it was not fitted
+    to: measured 3-9 % above the flights on 0.9-3 s (2026-12-06; servo_lag's docstring). A model that predicted
+    less than the flight (the plan would then miss its tolerance in its first round) or over 20 % more (it would
+    plan needlessly slowly) fails here; so would a lag with the wrong sign of kd, or without T/2."""
+    trajectory = quintic_lift(duration)
+    t = trajectory.times
+    jerk = np.zeros((t.size, 3))
+    x = t / duration
+    jerk[:, 2] = 0.1 * (60 - 360 * x + 360 * x * x) / duration**3
+    c = lift_crane.spec.controller
+    model = predicted_error(t, jerk, c.kp, c.kd, 1.0 / c.rate_hz)
+    for method in ("mlm", "penalty"):
+        flown = 1e-3 * lift_crane.simulate(method, trajectory=trajectory).position_error_mm.max()
+        assert 0.8 * model <= flown <= model, (method, duration, flown, model)
+
+
+@settings(max_examples=2, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(max_jerk=st.floats(0.5, 20.0))
+def test_a_jerk_bound_holds_on_the_written_samples_and_the_acceleration_never_jumps(lift_crane, max_jerk):
+    """--max-jerk: the tracked point's jerk by finite differences of the written accelerations stays within the
+    bound, the acceleration is continuous (0 at both ends), and the lift's input law holds the bounds every ms."""
+    plan = lift_crane.plan(margin=0.2, intervals=8, certify=False, max_jerk=max_jerk)
+    t = np.arange(0.0, plan.duration, 2e-4)
+    position, velocity, acceleration = plan.trajectory(t)
+    jerk = np.abs(np.diff(acceleration[:, 2])) / 2e-4
+    assert jerk.max() <= max_jerk * (1 + 1e-3)
+    assert abs(acceleration[0, 2]) < 1e-9 and abs(plan.accelerations[-1, 2]) < 1e-6
+    assert plan.summary()["timing"].startswith("smooth") and plan.peak_jerk <= max_jerk * (1 + 1e-9)
+    a, b = lift_coefficients(position[:, 2] - position[0, 2], velocity[:, 2])
+    u = a * acceleration[:, 2] + b
+    assert u.max() <= 28.0 + 1e-3 and u.min() >= 25.0 - 1e-3
+
+
+def test_a_plan_to_a_tolerance_flies_within_it_at_any_clock_phase_and_beats_the_uniform_slowdown(lift_crane):
+    """--tolerance 0.1 mm on the lift (limits [24, 29] N, 20 %, 8 intervals), MLM and penalty. Measured 2026-12-06:
+    1.990 s in two rounds, flown within 0.0977 mm; the time-optimal timing 0.866 s flies at 1.50 mm, and its best
+    uniform slowdown that meets 0.1 mm at every clock phase takes 2.81 s. Flown again here by the library's own
+    simulate (not the planner's certificate), started at a third of a period after a sample, a phase the planner
+    did not fly: within 0.1 mm, never saturated."""
+    plan = lift_crane.plan(margin=0.2, intervals=8, certify=["mlm", "penalty"], tolerance=1e-4)
+    record = plan.tolerance
+    assert record["met"] and record["flown_mm"] <= 0.1
+    assert record["time_optimal_duration_s"] < plan.duration < record["uniform_slowdown_duration_s"]
+    assert record["faster_than_uniform_slowdown"] and record["time_optimal_flown_mm"] > 0.1
+    late = 1.0 / 3.0 * PERIOD
+    tr = plan.trajectory
+    rest = np.zeros((2, 4))
+    shifted = SampledTrajectory(np.concatenate([[0.0, late - 1e-6], tr.times + late]),
+                                np.vstack([tr.position[:1], tr.position[:1], tr.position]),
+                                np.vstack([rest, tr.velocity]), np.vstack([rest, tr.acceleration]))
+    for method in ("mlm", "penalty"):
+        result = lift_crane.simulate(method, trajectory=shifted)
+        assert result.position_error_mm.max() <= 0.1 and not result.saturated.any()
