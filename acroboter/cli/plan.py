@@ -207,15 +207,20 @@ def _plan(args: argparse.Namespace, folder) -> int:
     for w in plan.warnings:
         print(f"warning: {w}")
     if plan.tolerance is not None:
-        t = plan.tolerance
-        uniform = t.get("uniform_slowdown_duration_s")
-        print(f"tolerance {t['asked_mm']:.3g} mm: flown within {t['flown_mm']:.3g} mm by {', '.join(t['methods'])} at "
-              f"every clock phase; the time-optimal timing {t.get('time_optimal_duration_s', float('nan')):.4g} s "
-              f"flies at {t.get('time_optimal_flown_mm', float('nan')):.3g} mm, its best uniform slowdown that meets "
-              f"the tolerance " + (f"{uniform:.4g} s" if uniform is not None else "was not found"))
+        print(tolerance_line(plan.tolerance))
     if not args.quiet:
         print(f"results in {args.out}/ (acroboter run --trajectory {args.out}/trajectory.csv flies it)")
     return 0
+
+
+def tolerance_line(t: dict) -> str:
+    """What a plan to a tolerance says on stdout: flown within what, and against the timings it is compared with."""
+    solves = sum(r["solve_s"] for r in t["rounds"])
+    uniform = t.get("uniform_slowdown_duration_s")
+    return (f"tolerance {t['asked_mm']:.3g} mm: flown within {t['flown_mm']:.3g} mm by {', '.join(t['methods'])} at "
+            f"every clock phase ({len(t['rounds'])} round(s), {solves:.3g} s of solves); the time-optimal timing "
+            f"{t['time_optimal_duration_s']:.4g} s flies at {t['time_optimal_flown_mm']:.3g} mm, its best uniform "
+            "slowdown that meets the tolerance " + (f"{uniform:.4g} s" if uniform is not None else "was not found"))
 
 
 if __name__ == "__main__":

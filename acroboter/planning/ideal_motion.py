@@ -26,10 +26,12 @@ import numpy as np
 from ..codegen.solver_terms import (
     constant_inverse_mass,
     independent_rows,
+    mlm_bounded_terms,
     servo_and_constraint_rates,
 )
 from ..codegen.symbolic import build_symbolic_model
-from ..model.spec import Spec
+from ..model.controller_parameters import runtime_size
+from ..model.spec import PositionTask, Spec
 
 
 class PlanningError(ValueError):
@@ -99,6 +101,16 @@ class IdealDynamics:
             self.spare_signs = np.where(np.abs(d0) > 1e-9 * np.abs(d0).max(), np.sign(d0), 0.0)
             self.spare_at_rest = np.abs(d0)
         self.servo = ca.Function("servo", [q, s], [model.sigma])
+        # E = σ_q P H: the servo-constraint accelerations per unit of input on the constraint manifold (a run-time
+        # parameter vector is its builder's argument; E does not depend on it). A sampled controller holds u over a
+        # period while the ideal u moves on: E u̇ drives its lag (acroboter.planning.servo_lag).
+        e_map = mlm_bounded_terms(model, ca.SX.sym("p", runtime_size(lay.k)))["servo_map"]
+        self.servo_map = ca.Function("servo_map", [q, s], [e_map])
+        row = 0
+        for task in spec.task:  # the position task's rows among the servo-constraints
+            if isinstance(task, PositionTask):
+                self.position_rows = list(range(row, row + 3))
+            row += {"position": 3, "yaw": 1, "level": 2}[task.kind]
         self.constraints = ca.Function("constraints", [q, s], [model.phi])
 
 
@@ -127,7 +139,8 @@ def rk4_step(dynamics: IdealDynamics, geometry, substeps: int) -> ca.Function:
     when the jerk j is 0, linear when the timing is smooth): state x = (q, q̇, τ, τ̇), `substeps` RK4 steps (τ is
     a cubic in t, which RK4 integrates exactly). Returns the end state, the inputs at the start of each substep
     (n_inputs x substeps; with a spare input, at its value 0) and their change per unit of the spare input
-    (n_inputs x substeps, 0 without one), and the same two at the interval's end with its τ̈ (n_inputs x 1 each)."""
+    (n_inputs x substeps, 0 without one), the same two at the interval's end with its τ̈ (n_inputs x 1 each), and
+    the position rows of E u̇ over each substep (3 x substeps: the servo-constraint jerk a held input misses)."""
     n = dynamics.layout.n
     x = ca.MX.sym("x", 2 * n + 2)
     a = ca.MX.sym("tau_dd")
@@ -141,12 +154,13 @@ def rk4_step(dynamics: IdealDynamics, geometry, substeps: int) -> ca.Function:
         return ca.vertcat(qd, qdd, tau_d, acc), u, direction
 
     dt = h / substeps
-    state, inputs, directions = x, [], []
+    state, inputs, directions, maps = x, [], [], []
     for i in range(substeps):
         start = a + jerk * (i * dt)
         k1, u, direction = rate(state, start)
         inputs.append(u)
         directions.append(direction if dynamics.spares else ca.MX.zeros(u.shape))
+        maps.append(dynamics.servo_map(state[:n], geometry.function(state[2 * n])[0]))
         k2 = rate(state + dt / 2 * k1, start + jerk * (dt / 2))[0]
         k3 = rate(state + dt / 2 * k2, start + jerk * (dt / 2))[0]
         k4 = rate(state + dt * k3, start + jerk * dt)[0]
@@ -154,9 +168,17 @@ def rk4_step(dynamics: IdealDynamics, geometry, substeps: int) -> ca.Function:
     # the inputs at the interval's end with its own τ̈ (the left limit at the next node, where a held τ̈ jumps): a
     # bang-bang timing's input peaks there, and the next interval's start sees it only after the jump
     _, u_end, direction_end = rate(state, a + jerk * h)
+    # the position rows of E u̇ over each RK4 step (E at its start; the spare input's direction moves no servo-
+    # constraint, so its value 0 serves): what a controller holding u over a period falls behind by
+    ahead = [*inputs[1:], u_end]
+    rows = dynamics.position_rows
+    servo_rate = ca.horzcat(*[ca.mtimes(e[rows, :], (nxt - now) / dt) for e, now, nxt in zip(maps, inputs, ahead,
+                                                                                                strict=True)])
     return ca.Function("interval", [x, a, jerk, h], [state, ca.horzcat(*inputs), ca.horzcat(*directions), u_end,
-                                                     direction_end if dynamics.spares else ca.MX.zeros(u_end.shape)],
-                       ["x", "tau_dd", "tau_ddd", "h"], ["x_end", "u", "direction", "u_end", "direction_end"])
+                                                     direction_end if dynamics.spares else ca.MX.zeros(u_end.shape),
+                                                     servo_rate],
+                       ["x", "tau_dd", "tau_ddd", "h"],
+                       ["x_end", "u", "direction", "u_end", "direction_end", "servo_rate"])
 
 
 def inputs_at(dynamics: IdealDynamics, geometry, x, a):

@@ -33,7 +33,7 @@ from ..process.interrupts import interrupt_pending
 from .geometry import PathGeometry
 from .ideal_motion import IdealDynamics, PlanningError, inputs_at, rk4_step
 from .limits import best_spare, beyond_bounds, spare_constraints
-from .servo_lag import lag_step, lag_substeps, point_jerk
+from .servo_lag import lag_step, lag_substeps
 
 # The uniform slowdown's check: interval of the integration (s) and RK4 steps per interval.
 CHECK_INTERVAL_S = 0.1
@@ -174,7 +174,7 @@ class Retiming:
         key = (acc.size, substeps)
         if key not in self._check_cache:
             self._check_cache[key] = self.stepper(substeps).mapaccum(acc.size)
-        xs, us, ds, _, _ = self._check_cache[key](x0, acc[None, :], jerk[None, :], h)
+        xs, us, ds, _, _, _ = self._check_cache[key](x0, acc[None, :], jerk[None, :], h)
         states = np.vstack([np.asarray(x0, float)[None, :], np.asarray(xs).T])
         base, directions = np.asarray(us).T, np.asarray(ds).T
         if final:
@@ -303,7 +303,7 @@ class Retiming:
         # it solves reliably, where multiple shooting's many redundant states of the natural coordinates made it
         # wander)
         x0 = ca.DM(x_start)
-        x_end, inputs, directions, ends, d_ends = step.mapaccum(N)(x0, A, J, steps)
+        x_end, inputs, directions, ends, d_ends, servo_rate = step.mapaccum(N)(x0, A, J, steps)
         X = ca.horzcat(x0, x_end)
         for i, j in enumerate(which):  # each phase from its start to its end
             start, stop, _ = phases[j]
@@ -321,7 +321,7 @@ class Retiming:
         bounded, d_bounded = ca.horzcat(u_all, ends), ca.horzcat(d_all, d_ends)  # each interval's end too
         if tail_s > 0:
             count = max(1, int(math.ceil(tail_s / (substeps * MAX_STEP_S))))
-            _, held, d_held, _, _ = step.mapaccum(count)(X[:, N], ca.DM.zeros(1, count), ca.DM.zeros(1, count),
+            _, held, d_held, _, _, _ = step.mapaccum(count)(X[:, N], ca.DM.zeros(1, count), ca.DM.zeros(1, count),
                                                          ca.DM.ones(1, count) * (tail_s / count))
             bounded, d_bounded = ca.horzcat(bounded, held), ca.horzcat(d_bounded, d_held)
         if self.dyn.spares:  # some internal force keeps the inputs within the bounds (limits.spare_constraints)
@@ -341,8 +341,10 @@ class Retiming:
             opti.subject_to(opti.bounded(-REST_TOL, X[n : 2 * n, N], REST_TOL))
         self._path_bounds(opti, X, nodes_a, J, N)
         if self.lag is not None:
-            longest = 2.0 * max(T / c for T, c in zip(guess_T, sub, strict=True))  # room for the solve to slow down
-            self._lag_bounds(opti, X, nodes_a, J, steps, N, lag_substeps(longest, *self.lag[1:3], LAG_SUBSTEPS))
+            # each RK4 step of the ideal motion in lag steps short enough for the servo law's poles (twice the guess's
+            # length: room for the solve to slow down)
+            longest = 2.0 * max(T / (c * substeps) for T, c in zip(guess_T, sub, strict=True))
+            self._lag_bounds(opti, servo_rate, steps, substeps, lag_substeps(longest, *self.lag[1:3], 1))
         opti.subject_to(durations >= 1e-3 * uniform_duration / len(phases))
         total = ca.sum1(durations)
         opti.minimize(total)
@@ -409,7 +411,7 @@ class Retiming:
         key = ("map", h.size, m)
         if key not in self._check_cache:
             self._check_cache[key] = self.stepper(m).map(h.size)
-        _, us, ds, _, _ = self._check_cache[key](solution.states[:-1].T, solution.tau_dd[None, :],
+        _, us, ds, _, _, _ = self._check_cache[key](solution.states[:-1].T, solution.tau_dd[None, :],
                                                   solution.tau_ddd[None, :], h[None, :])
         base, directions = np.asarray(us).T, np.asarray(ds).T  # interval by interval, m steps each
         times = (solution.times[:-1, None] + np.arange(m)[None, :] * (h[:, None] / m)).ravel()
@@ -436,21 +438,19 @@ class Retiming:
             rows.append(x)
         return np.array(rows), acc
 
-    def _lag_bounds(self, opti, X, nodes_a, J, steps, N: int, substeps: int) -> None:
-        """The servo lag model (acroboter.planning.servo_lag) driven by the tracked point's jerk (each interval's
-        mean of its two ends), from no lag at the phases' start: its error within the bound at the end of each of
-        its `substeps` RK4 steps per interval (servo_lag.lag_substeps) and for LAG_SETTLE_S after the end (an
-        underdamped servo law overshoots after the jerk stops)."""
+    def _lag_bounds(self, opti, servo_rate, steps, substeps: int, lag_substeps_each: int) -> None:
+        """The servo lag model (acroboter.planning.servo_lag) driven by E u̇, the servo-constraint jerk a held input
+        misses (rk4_step's `servo_rate`, one value per RK4 step of the ideal motion), from no lag at the phases'
+        start: its error within the bound at the end of each of its own `lag_substeps_each` RK4 steps per step
+        (servo_lag.lag_substeps) and for LAG_SETTLE_S after the end (an underdamped servo law overshoots after the
+        drive stops)."""
         bound, kp, kd, period = self.lag
-        n, jerks = self.n, []
-        for i in range(N):
-            ends = [point_jerk(self.geo, X[2 * n, k], X[2 * n + 1, k], nodes_a[k], J[i]) for k in (i, i + 1)]
-            jerks.append(0.5 * (ends[0] + ends[1]))
-        step = lag_step(kp, kd, period, substeps)
-        Z, errors = step.mapaccum(N)(ca.DM.zeros(6), ca.horzcat(*jerks), steps)
+        dts = ca.horzcat(*[ca.repmat(steps[i] / substeps, 1, substeps) for i in range(steps.shape[1])])
+        step = lag_step(kp, kd, period, lag_substeps_each)
+        Z, errors = step.mapaccum(servo_rate.shape[1])(ca.DM.zeros(6), servo_rate, dts)
         h_settle = LAG_SETTLE_S / LAG_SETTLE_STEPS
         settling = lag_step(kp, kd, period, lag_substeps(h_settle, kp, kd, LAG_SUBSTEPS))
-        _, settle = settling.mapaccum(LAG_SETTLE_STEPS)(Z[:, N - 1], ca.DM.zeros(3, LAG_SETTLE_STEPS), h_settle)
+        _, settle = settling.mapaccum(LAG_SETTLE_STEPS)(Z[:, -1], ca.DM.zeros(3, LAG_SETTLE_STEPS), h_settle)
         every = ca.horzcat(errors, settle)
         for k in range(every.shape[1]):  # scaled: bound² (1e-8 m²) is IPOPT's tolerance
             opti.subject_to(ca.sumsqr(every[:, k] / bound) <= 1.0)

@@ -1,20 +1,23 @@
 """How far a sampled controller lags behind a smooth timing: the model behind `plan --tolerance`.
 
-Every method's servo law drives the tracked point's error e as ë + 2kd ė + kp² e = 0 (docs/controller.md), but
-it is sampled: at t_k it commands the acceleration the path asks for at t_k and holds it for T = 1/rate_hz,
-while the path's acceleration moves on at its jerk j. Over a period the commanded acceleration then falls
-short by j·(t − t_k), on average j·T/2, and the error obeys
+Every method's servo law drives the servo-constraint error σ as σ̈ + 2kd σ̇ + kp² σ = 0 (docs/controller.md), with
+σ̈ = E u − e, E = σ_q P H (the servo-constraint accelerations per unit of input, the constraint reactions taken
+out). But it is sampled: at t_k it commands the input the path asks for at t_k and holds it for T = 1/rate_hz,
+while the ideal input moves on. Over a period the servo accelerations then fall short by E u̇ (t − t_k), on
+average E u̇ T/2, and the tracked point's error e (the position rows of σ) obeys
 
-    ë + 2kd ė + kp² e = −(T/2)·j(t)        (per axis of the tracked point)
+    ë + 2kd ė + kp² e = −(T/2)·E u̇        (per axis of the tracked point)
 
-(held at a constant jerk: e = −j·T/(2kp²), 0.4 mm at 1 m/s³ on the default crane, kp = kd = 5 1/s, 50 Hz).
-Measured against flights of the default crane's 0.1 m lift on quintic timings of 0.9-3 s (MLM, penalty,
-iterative-3 alike), the model gave 0.7245, 0.4427, 0.3351, 0.2063, 0.1182, 0.0398 mm where the flights gave
-0.7056, 0.4253, 0.3191, 0.1932, 0.1081, 0.0364 mm: 3-9 % above (2026-12-06). A timing whose acceleration jumps
-(σ̈ held, bang-bang) has impulses of jerk, which this model does not take: the tolerance asks for a smooth
-timing (σ̈ continuous, acroboter.planning.retiming). What the model leaves out (the yaw, the swing, the plant's
-own motion between samples) the certificate measures: acroboter.planning.tolerance narrows the model's bound
-by what the flights show.
+(on a vertical lift, where nothing swings, E u̇ is the tracked point's jerk j: held at a constant jerk,
+e = −j·T/(2kp²), 0.4 mm at 1 m/s³ on the default crane, kp = kd = 5 1/s, 50 Hz). Where the connector swings, the
+ideal inputs move with the swing too, and E u̇ carries it: on a two-edge path of the default crane the tracked
+point's jerk alone predicted a third of the flown error. Measured against flights of the default crane's 0.1 m
+lift on quintic timings of 0.9-3 s (MLM, penalty, iterative-3 alike), the model gave 0.7245, 0.4427, 0.3351,
+0.2063, 0.1182, 0.0398 mm where the flights gave 0.7056, 0.4253, 0.3191, 0.1932, 0.1081, 0.0364 mm: 3-9 % above
+(2026-12-06). A timing whose acceleration jumps (σ̈ held, bang-bang) has impulses of E u̇, which this model does
+not take: the tolerance asks for a smooth timing (σ̈ continuous, acroboter.planning.retiming). What the model
+leaves out (the plant's motion between samples, the sampled feedback) the certificate measures:
+acroboter.planning.tolerance narrows the model's bound by what the flights show.
 """
 
 from __future__ import annotations
@@ -29,9 +32,9 @@ LAG_STEP_RATE = 0.25
 
 
 def lag_step(kp: float, kd: float, period: float, substeps: int) -> ca.Function:
-    """One interval of the lag model: z = (e, ė) (6: x, y, z), the tracked point's jerk j (3, held over the
-    interval), h seconds in `substeps` RK4 steps -> z at the interval's end, and the error e at the end of every
-    RK4 step (3 x substeps: its peak may fall between the nodes)."""
+    """One interval of the lag model: z = (e, ė) (6: x, y, z), its drive E u̇ (3, held over the interval; on a
+    lift the tracked point's jerk), h seconds in `substeps` RK4 steps -> z at the interval's end, and the error e
+    at the end of every RK4 step (3 x substeps: its peak may fall between the nodes)."""
     z = ca.MX.sym("z", 6)
     jerk = ca.MX.sym("jerk", 3)
     h = ca.MX.sym("h")
@@ -60,18 +63,11 @@ def lag_substeps(h: float, kp: float, kd: float, at_least: int = 1) -> int:
     return max(at_least, int(math.ceil(h * fastest / LAG_STEP_RATE)))
 
 
-def point_jerk(geometry, tau, tau_d, tau_dd, tau_ddd):
-    """The tracked point's jerk g'''σ̇³ + 3g''σ̇σ̈ + g'σ⃛ (3 values; symbolic or numeric)."""
-    rows = geometry.point_rows
-    _, d1, d2 = geometry.function(tau)
-    d3 = geometry.third(tau)
-    return d3[rows] * tau_d**3 + 3 * d2[rows] * tau_d * tau_dd + d1[rows] * tau_ddd
-
-
 def predicted_error(times: np.ndarray, jerk: np.ndarray, kp: float, kd: float, period: float,
                     settle_s: float = 2.0) -> float:
-    """The model's largest error (m) along a timing whose tracked point has the jerk `jerk` (samples x 3) at
-    `times` (linear in between: scipy's lsim), and `settle_s` of rest after it (the lag dies out then)."""
+    """The model's largest error (m) along a timing whose drive E u̇ (on a lift: the tracked point's jerk) is
+    `jerk` (samples x 3) at `times` (linear in between: scipy's lsim), and `settle_s` of rest after it (the lag
+    dies out then)."""
     from scipy import signal
 
     times, jerk = np.asarray(times, float), np.asarray(jerk, float)

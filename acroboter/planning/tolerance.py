@@ -3,12 +3,13 @@ error the user sets, every method asked for (docs/planning.md, "A tolerance").
 
 How it is found. A time-optimal timing is bang-bang in σ̈, and a controller that holds its input between samples
 follows a jump of the acceleration worst; even a smooth timing is followed with a lag, the sampled servo law's
-(acroboter.planning.servo_lag: ë + 2kd ė + kp² e = −(T/2)·jerk). So the timing is made smooth (σ̈ continuous,
-linear per interval, 0 at every corner) and that lag model's error is a constraint of the time-optimal problem,
-bounded by the tolerance: one solve. The certificate then flies the plan with each method, the limits applied.
-The model leaves things out (the yaw, the swing, the plant between samples), so where a flight's error exceeds
-the tolerance the model's bound is narrowed by the ratio (and MODEL_NARROWING more) and the problem solved again,
-at most TOLERANCE_ROUNDS times; what is left is "tolerance not met", exit 3, with the gains that would meet it.
+(acroboter.planning.servo_lag: ë + 2kd ė + kp² e = −(T/2)·E u̇, E u̇ the servo-constraint jerk the ideal inputs'
+change causes). So the timing is made smooth (σ̈ continuous, linear per interval, 0 at every corner) and that
+lag model's error is a constraint of the time-optimal problem, bounded by the tolerance: one solve. The
+certificate then flies the plan with each method, the limits applied. The model leaves things out (the plant
+between samples, the sampled feedback), so where a flight's error exceeds the tolerance the model's bound is
+narrowed by the ratio (and MODEL_NARROWING more) and the problem solved again, at most TOLERANCE_ROUNDS times;
+what is left is "tolerance not met", exit 3, with the gains that would meet it.
 
 The controller's clock is not the plan's. A timing whose acceleration jumps is flown almost exactly when its jumps
 fall on the controller's samples and worst when they fall just after one: the default crane's 0.1 m lift planned
@@ -131,7 +132,7 @@ def plan_to_tolerance(model, path, q0, tolerance: float, methods: tuple[str, ...
         bound *= MODEL_NARROWING * tolerance / flown
     record = {"asked_mm": 1e3 * tolerance, "flown_mm": 1e3 * flown, "met": flown <= tolerance and failure is None,
               "methods": list(methods), "clock_offsets_periods": list(CLOCK_OFFSETS),
-              "how": "σ̈ continuous, the sampled servo law's lag (T/2)·jerk through ë + 2kd ė + kp² e bounded",
+              "how": "σ̈ continuous; the sampled servo law's lag, ë + 2kd ė + kp² e = −(T/2)·E u̇, bounded",
               "rounds": rounds}
     result.tolerance = record
     if compare:
