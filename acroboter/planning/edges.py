@@ -70,6 +70,7 @@ class EdgeRetiming(Retiming):
         from tqdm import tqdm
 
         bar = tqdm(total=K, unit="edge", desc="planning", file=sys.stderr, disable=progress_disabled(), leave=False)
+        lag = np.zeros(6)  # a plan to a tolerance: the lag model's state carried from edge to edge
         for j in range(K):
             start = self.at_rest(j)
             warm_a, warm_T = _warm(self, j, counts[j], factors[j])
@@ -78,7 +79,8 @@ class EdgeRetiming(Retiming):
             try:
                 while True:
                     part = self.solve_phases(start, [j], counts, guess_a, [guess_T], uniform_duration, max_iter,
-                                             verbose, m, rest_at=self.corner(j + 1, MIN_PHASE_INTERVALS))
+                                             verbose, m, rest_at=self.corner(j + 1, MIN_PHASE_INTERVALS),
+                                             lag_start=lag)
                     records += part.windows
                     iterations += part.iterations
                     needed = _substeps(part.durations, [counts[j]])
@@ -86,6 +88,7 @@ class EdgeRetiming(Retiming):
                         break
                     m, guess_a, guess_T = needed, part.tau_dd, float(part.durations[0])
                 edge_T, edge_a, edge_j, edge_status = part.durations, part.tau_dd, part.tau_ddd, part.status
+                lag = part.lag_end if part.lag_end is not None else lag
             except PlanningError as unsolved:
                 # IPOPT gave no answer: the edge keeps its warm start, its own timing slowed from rest (feasible and
                 # ending at rest by rest_factor's bisection), and the summary says so

@@ -115,6 +115,7 @@ class Part:
     windows: list[dict]
     substeps: list[int]  # RK4 steps per interval, per phase
     tau_ddd: np.ndarray | None = None  # the jerk of τ per interval (zeros: τ̈ held)
+    lag_end: np.ndarray | None = None  # the lag model's state (e, ė) at the end (a plan to a tolerance)
 
     def __post_init__(self):
         if self.tau_ddd is None:
@@ -280,14 +281,16 @@ class Retiming:
 
     def solve_phases(self, x_start: np.ndarray, which: list[int], counts: list[int], guess_a: np.ndarray,
                      guess_T, uniform_duration: float, max_iter: int = 400, verbose: bool = False,
-                     substeps: int | None = None, tail_s: float = 0.0, rest_at: np.ndarray | None = None) -> Part:
+                     substeps: int | None = None, tail_s: float = 0.0, rest_at: np.ndarray | None = None,
+                     lag_start: np.ndarray | None = None) -> Part:
         """The time-optimal problem over the consecutive phases `which` (indices into the path's phases), from the
         state x_start at the first one's start (σ there, σ̇ = 0 unless the path starts there). The inputs are kept
         at the start of every RK4 step, and at the end of the last phase. `tail_s` > 0: the path then held at rest
         at its corner for tail_s seconds with the inputs within the bounds too (the swing the phases leave must
         not take an input beyond them while the next phase starts: acroboter.planning.windows). `rest_at` (a
         configuration q): the last phase ends there at rest, |q − rest_at|∞ ≤ REST_TOL and |q̇|∞ ≤ REST_TOL / s
-        (acroboter.planning.edges)."""
+        (acroboter.planning.edges). `lag_start`: the lag model's state at the start (a plan to a tolerance; default
+        none: no lag)."""
         n, phases = self.n, self.geo.phases
         substeps = self.substeps if substeps is None else substeps
         step = self.stepper(substeps)
@@ -344,7 +347,8 @@ class Retiming:
             # each RK4 step of the ideal motion in lag steps short enough for the servo law's poles (twice the guess's
             # length: room for the solve to slow down)
             longest = 2.0 * max(T / (c * substeps) for T, c in zip(guess_T, sub, strict=True))
-            self._lag_bounds(opti, servo_rate, steps, substeps, lag_substeps(longest, *self.lag[1:3], 1))
+            lag_end = self._lag_bounds(opti, servo_rate, steps, substeps, lag_substeps(longest, *self.lag[1:3], 1),
+                                       np.zeros(6) if lag_start is None else lag_start)
         opti.subject_to(durations >= 1e-3 * uniform_duration / len(phases))
         total = ca.sum1(durations)
         opti.minimize(total)
@@ -359,7 +363,8 @@ class Retiming:
         jerk = np.asarray(value(J)).ravel() if self.smooth else np.zeros(N)
         return Part(np.asarray(value(durations)).ravel(), np.asarray(value(A)).ravel(), np.asarray(value(X)).T,
                     chosen, record["status"], record["iterations"], [record],
-                    [substeps] * len(which), jerk)
+                    [substeps] * len(which), jerk,
+                    np.asarray(value(lag_end)).ravel() if self.lag is not None else None)
 
     def _accelerations(self, opti: ca.Opti, N: int, steps, boundaries: np.ndarray, guess_a) -> tuple:
         """The timing's variables: σ̈ at each interval's start (A), its jerk over the interval (J) and σ̈ at each node
@@ -438,22 +443,24 @@ class Retiming:
             rows.append(x)
         return np.array(rows), acc
 
-    def _lag_bounds(self, opti, servo_rate, steps, substeps: int, lag_substeps_each: int) -> None:
+    def _lag_bounds(self, opti, servo_rate, steps, substeps: int, lag_substeps_each: int, z0: np.ndarray):
         """The servo lag model (acroboter.planning.servo_lag) driven by E u̇, the servo-constraint jerk a held input
-        misses (rk4_step's `servo_rate`, one value per RK4 step of the ideal motion), from no lag at the phases'
-        start: its error within the bound at the end of each of its own `lag_substeps_each` RK4 steps per step
+        misses (rk4_step's `servo_rate`, one value per RK4 step of the ideal motion), from the lag state z0 (the
+        phase before's, on a rest-to-rest path: the lags of a braking and an accelerating edge add up at a corner):
+        its error within the bound at the end of each of its own `lag_substeps_each` RK4 steps per step
         (servo_lag.lag_substeps) and for LAG_SETTLE_S after the end (an underdamped servo law overshoots after the
         drive stops)."""
         bound, kp, kd, period = self.lag
         dts = ca.horzcat(*[ca.repmat(steps[i] / substeps, 1, substeps) for i in range(steps.shape[1])])
         step = lag_step(kp, kd, period, lag_substeps_each)
-        Z, errors = step.mapaccum(servo_rate.shape[1])(ca.DM.zeros(6), servo_rate, dts)
+        Z, errors = step.mapaccum(servo_rate.shape[1])(ca.DM(z0), servo_rate, dts)
         h_settle = LAG_SETTLE_S / LAG_SETTLE_STEPS
         settling = lag_step(kp, kd, period, lag_substeps(h_settle, kp, kd, LAG_SUBSTEPS))
         _, settle = settling.mapaccum(LAG_SETTLE_STEPS)(Z[:, -1], ca.DM.zeros(3, LAG_SETTLE_STEPS), h_settle)
         every = ca.horzcat(errors, settle)
         for k in range(every.shape[1]):  # scaled: bound² (1e-8 m²) is IPOPT's tolerance
             opti.subject_to(ca.sumsqr(every[:, k] / bound) <= 1.0)
+        return Z[:, -1]  # the lag state at the end (the next edge's start)
 
     def _path_bounds(self, opti, X, nodes_a, J, N):
         """max_speed, max_accel at every node (σ̈ there: `nodes_a`), max_jerk at both ends of every interval (its

@@ -8,14 +8,15 @@ average E u̇ T/2, and the tracked point's error e (the position rows of σ) obe
 
     ë + 2kd ė + kp² e = −(T/2)·E u̇        (per axis of the tracked point)
 
-(on a vertical lift, where nothing swings, E u̇ is the tracked point's jerk j: held at a constant jerk,
-e = −j·T/(2kp²), 0.4 mm at 1 m/s³ on the default crane, kp = kd = 5 1/s, 50 Hz). Where the connector swings, the
-ideal inputs move with the swing too, and E u̇ carries it: on a two-edge path of the default crane the tracked
-point's jerk alone predicted a third of the flown error. Measured against flights of the default crane's 0.1 m
-lift on quintic timings of 0.9-3 s (MLM, penalty, iterative-3 alike), the model gave 0.7245, 0.4427, 0.3351,
+(on a vertical lift, where nothing swings, E u̇ is the tracked point's jerk j: held at a constant jerk, e =
+−j·T/(2kp²), 0.4 mm at 1 m/s³ on the default crane, kp = kd = 5 1/s, 50 Hz). Where the connector swings, the ideal
+inputs move with the swing too, and E u̇ carries it (on a horizontal edge of the default crane, swinging and with a
+90° yaw turn, MLM flew the bound's 0.1 mm at 0.0977 and 0.0973 mm). Measured against flights of the default crane's
+0.1 m lift on quintic timings of 0.9-3 s (MLM, penalty, iterative-3 alike), the model gave 0.7245, 0.4427, 0.3351,
 0.2063, 0.1182, 0.0398 mm where the flights gave 0.7056, 0.4253, 0.3191, 0.1932, 0.1081, 0.0364 mm: 3-9 % above
-(2026-12-06). A timing whose acceleration jumps (σ̈ held, bang-bang) has impulses of E u̇, which this model does
-not take: the tolerance asks for a smooth timing (σ̈ continuous, acroboter.planning.retiming). What the model
+(2026-12-06). It is MLM's servo law; the penalty methods add an error of their own on swinging paths
+(docs/planning.md). A timing whose acceleration jumps (σ̈ held, bang-bang) has impulses of E u̇, which this model
+does not take: the tolerance asks for a smooth timing (σ̈ continuous, acroboter.planning.retiming). What the model
 leaves out (the plant's motion between samples, the sampled feedback) the certificate measures:
 acroboter.planning.tolerance narrows the model's bound by what the flights show.
 """
