@@ -74,7 +74,7 @@ class EdgeRetiming(Retiming):
         for j in range(K):
             start = self.at_rest(j)
             warm_a, warm_T = _warm(self, j, counts[j], factors[j])
-            guess_a, guess_T = warm_a, warm_T
+            guess_a, guess_T = (warm_a, warm_T) if self.warm is None else (self.warm[0][j], self.warm[1][j])
             m = _substeps([guess_T], [counts[j]])
             try:
                 while True:

@@ -211,13 +211,14 @@ class Plan:
 def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_speed: float | None = None,
          max_accel: float | None = None, intervals: int = DEFAULT_INTERVALS, certify_plan: bool | tuple = True,
          verbose: bool = False, window: int | None = None, corners: str = "rest", max_jerk: float | None = None,
-         lag: tuple | None = None) -> Plan:
+         lag: tuple | None = None, warm: Plan | None = None) -> Plan:
     """`corners` (a waypoint path): "rest", every edge from rest to rest, the swing included (acroboter.planning.
     edges); "swing", the swing carried over the corners, the edges optimised together: `window` phases per
     receding window (acroboter.planning.windows), 0 the whole path in one solve, None DEFAULT_WINDOW (a path of at
     most DEFAULT_WINDOW phases is then one solve anyway). `max_jerk` (m/s³): the timing smooth (σ̈ continuous, 0 at
     every corner) with the tracked point's jerk at most that; `lag` (bound m, kp, kd, period s): smooth, with the
-    sampled controller's lag within the bound (acroboter.planning.servo_lag; acroboter.planning.tolerance sets it)."""
+    sampled controller's lag within the bound (acroboter.planning.servo_lag; acroboter.planning.tolerance sets it);
+    `warm`: an earlier smooth plan of the same path on the same grid, each phase's solve started from it."""
     if corners not in CORNERS:
         raise PlanningError(f"corners: expected one of {', '.join(CORNERS)}, found {corners!r}")
     spec, lay = model.spec, model.layout
@@ -240,6 +241,8 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
         problem = WindowedRetiming(dynamics, geometry, q0, low, high, window=window, **kinematic)
     else:
         problem = Retiming(dynamics, geometry, q0, low, high, **kinematic)
+    if warm is not None and problem.smooth:
+        problem.warm = warm_start(warm, problem.grid(intervals), geometry.end)
     solution, _, grid_inputs, tightened_by, leak = solve_within_bounds(problem, intervals, low, high, list(lay.inputs),
                                                                        list(lay.input_units), verbose)
     trajectory, jerk = sample(geometry, solution, problem.n)
@@ -283,6 +286,17 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
         error = CertificateError if result.status == "certificate failed" else PlanFailure
         raise error("; ".join(result.failures), result)
     return result
+
+
+def warm_start(warm: Plan, counts: list[int], end: float) -> tuple[list[np.ndarray], list[float]] | None:
+    """Each phase's σ̈ at its nodes and its duration in an earlier plan on the grid `counts` (None if its grid is
+    another): a later round's starting guess (acroboter.planning.tolerance)."""
+    if warm.times.size != sum(counts) + 1:
+        return None
+    bounds = np.concatenate([[0], np.cumsum(counts)])
+    nodes = warm.sdd * end
+    return ([nodes[a : b + 1] for a, b in zip(bounds[:-1], bounds[1:], strict=True)],
+            [float(warm.times[b] - warm.times[a]) for a, b in zip(bounds[:-1], bounds[1:], strict=True)])
 
 
 def node_accelerations(solution: Solution) -> np.ndarray:

@@ -150,6 +150,9 @@ class Retiming:
         self._steps: dict[int, ca.Function] = {}
         self.phase_slowdown: tuple[list[float], float] | None = None  # set by a windowed solve
         self.ipopt: dict = {}  # extra IPOPT options (exact Hessian: L-BFGS stalls short of the bang-bang optimum)
+        # a smooth timing's starting guess from an earlier solve on the same grid (planner.warm_start): σ̈ at each
+        # phase's nodes and each phase's duration
+        self.warm: tuple[list[np.ndarray], list[float]] | None = None
 
     # --- the uniform slowdown: a lower-bound check and the starting guess ---------------------------
     def uniform(self, factor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -274,7 +277,11 @@ class Retiming:
 
     def solve_all(self, x0: np.ndarray, counts: list[int], factor: float, uniform_duration: float,
                   max_iter: int = 400, verbose: bool = False) -> Part:
-        """Every phase in one problem from the static start, from the best uniform slowdown."""
+        """Every phase in one problem from the static start, from the best uniform slowdown (or, one phase with a
+        warm start, from that)."""
+        if self.warm is not None and len(self.geo.phases) == 1:
+            return self.solve_phases(x0, [0], counts, self.warm[0][0], self.warm[1][:1], uniform_duration, max_iter,
+                                     verbose)
         _, guess_a = self._guess(factor, counts)
         return self.solve_phases(x0, list(range(len(self.geo.phases))), counts, guess_a,
                                  [factor * T for _, _, T in self.geo.phases], uniform_duration, max_iter, verbose)

@@ -117,7 +117,9 @@ def plan_to_tolerance(model, path, q0, tolerance: float, methods: tuple[str, ...
     bound, rounds, result, failure = float(tolerance), [], None, None
     for _ in range(TOLERANCE_ROUNDS):
         try:
-            result = plan(model, path, q0, certify_plan=methods, lag=(bound, c.kp, c.kd, period), **options)
+            # each round after the first starts from the last one's timing (its solve is a small step from there)
+            result = plan(model, path, q0, certify_plan=methods, lag=(bound, c.kp, c.kd, period), warm=result,
+                          **options)
             failure = None
         except CertificateError as err:  # saturated or diverged: a larger margin's matter, said as it is
             result, failure = err.plan, err
