@@ -198,3 +198,18 @@ def test_the_gains_a_missed_tolerance_asks_for_are_stable_or_said_not_to_be():
     assert "about kp = 10, kd = 10 1/s would" in text and not sampled_gain_problems(10.0, 10.0, 50.0)
     text = stiffer_gains(model, 1e-1, 1e-4)  # kp = kd = 158: kd T > 1, not stable
     assert "not stable" in text and sampled_gain_problems(158.0, 158.0, 50.0)
+
+
+def test_a_warm_start_is_each_phases_nodes_and_duration_or_nothing_on_another_grid():
+    """planner.warm_start: a later round's starting guess from an earlier plan, phase by phase (σ̈ at the phase's
+    nodes, both ends included, in the problem's σ units; the phase's duration), and nothing when the grids differ."""
+    from types import SimpleNamespace
+
+    from acroboter.planning.planner import warm_start
+
+    times = np.array([0.0, 0.5, 1.0, 2.0, 2.5, 3.0, 3.5])
+    sdd = np.array([0.0, 0.4, 0.0, 0.0, -0.2, 0.1, 0.0])  # per unit of the path (σ / end)
+    nodes, durations = warm_start(SimpleNamespace(times=times, sdd=sdd), [2, 4], end=2.0)
+    assert [list(n) for n in nodes] == [[0.0, 0.8, 0.0], [0.0, 0.0, -0.4, 0.2, 0.0]]
+    assert durations == [1.0, 2.5]
+    assert warm_start(SimpleNamespace(times=times, sdd=sdd), [3, 4], end=2.0) is None
