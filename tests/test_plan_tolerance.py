@@ -36,7 +36,7 @@ def closed_form_lag(t: np.ndarray, jerk: float, kp: float, kd: float, period: fl
 @settings(max_examples=25, deadline=None, derandomize=True)
 @given(kp=st.floats(1.0, 20.0), ratio=st.floats(0.3, 3.0), jerk=st.floats(-50.0, 50.0), duration=st.floats(0.05, 2.0))
 def test_both_forms_of_the_lag_model_follow_its_closed_form(kp, ratio, jerk, duration):
-    """The optimiser's form (CasADi RK4, lag_step) and the reporting form (scipy's lsim, predicted_error) against the
+    """The optimiser's form (CasADi RK4, lag_step) and the library's scipy form (lsim, predicted_error) against the
     closed form: a constant jerk for `duration`, then none (superposition: the step minus the step delayed)."""
     kd = kp * ratio
     h = duration / 4

@@ -24,6 +24,11 @@ from ..control.path import DesiredPath, TrajectoryPath, quintic_array
 SPLINE_RATE_HZ = 20.0
 
 
+def point_jerk(d1, d2, d3, tau_d, tau_dd, tau_ddd):
+    """The tracked point's jerk g‴σ̇³ + 3g″σ̇σ̈ + g′σ⃛ from the point rows of g′, g″, g‴ (CasADi or numpy, broadcast)."""
+    return d3 * tau_d**3 + 3 * d2 * tau_d * tau_dd + d1 * tau_ddd
+
+
 def _quintic(x):
     x = ca.fmin(ca.fmax(x, 0), 1)
     return x**3 * (10 - 15 * x + 6 * x**2)
@@ -67,6 +72,7 @@ class PathGeometry:
         # g''' for a jerk bound (0 on a straight edge; piecewise constant on a trajectory's cubic spline)
         self.third = ca.Function("geometry_third", [tau], [ca.jacobian(d2, tau)], ["tau"], ["dddg"])
         self._map: dict[int, ca.Function] = {}
+        self._third_map: dict[int, ca.Function] = {}
         p = self.layout.path_signal
         self.point_rows, self.yaw_row = slice(p, p + 3), p + 3
 
@@ -136,8 +142,15 @@ class PathGeometry:
         g, d1, d2 = self._map[taus.size](taus[None, :])
         return np.asarray(g).T, np.asarray(d1).T, np.asarray(d2).T
 
-    def signals(self, tau, tau_d, tau_dd):
-        """Flat [s, ṡ, s̈] rows for the retiming's τ, τ̇, τ̈ (arrays of one value per instant)."""
+    def signals(self, tau, tau_d, tau_dd, tau_ddd):
+        """Flat [s, ṡ, s̈] rows for the retiming's τ, τ̇, τ̈, and the tracked point's jerk (rows x 3) with its τ⃛
+        (arrays of one value per instant)."""
+        tau = np.atleast_1d(np.asarray(tau, dtype=float))
         g, d1, d2 = self.evaluate(tau)
-        tau_d, tau_dd = np.asarray(tau_d, dtype=float)[:, None], np.asarray(tau_dd, dtype=float)[:, None]
-        return np.hstack([g, d1 * tau_d, d2 * tau_d**2 + d1 * tau_dd])
+        if tau.size not in self._third_map:
+            self._third_map[tau.size] = self.third.map(tau.size)
+        d3 = np.asarray(self._third_map[tau.size](tau[None, :])).T
+        tau_d, tau_dd, tau_ddd = (np.asarray(v, dtype=float)[:, None] for v in (tau_d, tau_dd, tau_ddd))
+        p = self.point_rows
+        return (np.hstack([g, d1 * tau_d, d2 * tau_d**2 + d1 * tau_dd]),
+                point_jerk(d1[:, p], d2[:, p], d3[:, p], tau_d, tau_dd, tau_ddd))

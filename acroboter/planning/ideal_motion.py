@@ -31,7 +31,8 @@ from ..codegen.solver_terms import (
 )
 from ..codegen.symbolic import build_symbolic_model
 from ..model.controller_parameters import runtime_size
-from ..model.spec import PositionTask, Spec
+from ..model.spec import Spec
+from ..model.spec_checks import task_components
 
 
 class PlanningError(ValueError):
@@ -106,11 +107,8 @@ class IdealDynamics:
         # period while the ideal u moves on: E u̇ drives its lag (acroboter.planning.servo_lag).
         e_map = mlm_bounded_terms(model, ca.SX.sym("p", runtime_size(lay.k)))["servo_map"]
         self.servo_map = ca.Function("servo_map", [q, s], [e_map])
-        row = 0
-        for task in spec.task:  # the position task's rows among the servo-constraints
-            if isinstance(task, PositionTask):
-                self.position_rows = list(range(row, row + 3))
-            row += {"position": 3, "yaw": 1, "level": 2}[task.kind]
+        rows = task_components(spec)  # the position task's x, y ("horizontal") and z ("height") rows
+        self.position_rows = rows["horizontal"] + rows["height"]
         self.constraints = ca.Function("constraints", [q, s], [model.phi])
 
 

@@ -386,18 +386,13 @@ def sample(geometry: PathGeometry, solution: Solution, n: int) -> tuple[SampledT
     times, k = times[keep], k[keep]
     dt = times - nodes[k]
     tau0, rate0, a = solution.states[k, 2 * n], solution.states[k, 2 * n + 1], solution.tau_dd[k]
-    jerk = solution.tau_ddd[k]  # τ̈ linear over the interval (0: held)
-    tau = np.clip(tau0 + rate0 * dt + 0.5 * a * dt**2 + jerk * dt**3 / 6.0, 0.0, geometry.end)
-    rate = np.maximum(rate0 + a * dt + 0.5 * jerk * dt**2, 0.0)
-    rows = geometry.signals(tau, rate, a + jerk * dt)
+    tau_ddd = solution.tau_ddd[k]  # τ̈ linear over the interval (0: held)
+    tau = np.clip(tau0 + rate0 * dt + 0.5 * a * dt**2 + tau_ddd * dt**3 / 6.0, 0.0, geometry.end)
+    rate = np.maximum(rate0 + a * dt + 0.5 * tau_ddd * dt**2, 0.0)
+    rows, jerk = geometry.signals(tau, rate, a + tau_ddd * dt, tau_ddd)
     ns, p = geometry.n_signals, geometry.layout.path_signal
     pick = [slice(p, p + 4), slice(ns + p, ns + p + 4), slice(2 * ns + p, 2 * ns + p + 4)]
     position, velocity, acceleration = (rows[:, s] for s in pick)
-    _, d1, d2 = geometry.evaluate(tau)
-    d3 = np.asarray(geometry.third.map(tau.size)(tau[None, :])).T
-    point = geometry.point_rows
-    jerk = d3[:, point] * rate[:, None] ** 3 + 3 * d2[:, point] * (rate * (a + jerk * dt))[:, None] + \
-        d1[:, point] * jerk[:, None]
     return SampledTrajectory(times, position, velocity, acceleration), float(np.linalg.norm(jerk, axis=1).max())
 
 

@@ -30,7 +30,7 @@ import casadi as ca
 import numpy as np
 
 from ..process.interrupts import interrupt_pending
-from .geometry import PathGeometry
+from .geometry import PathGeometry, point_jerk
 from .ideal_motion import IdealDynamics, PlanningError, inputs_at, rk4_step
 from .limits import best_spare, beyond_bounds, spare_constraints
 from .servo_lag import lag_step, lag_substeps
@@ -63,7 +63,7 @@ KINEMATIC_SLACK = 1e-3
 # The lag model's error is bounded this long after a phase ends too, at this many places (s, count).
 LAG_SETTLE_S = 1.0
 LAG_SETTLE_STEPS = 5
-# The lag model's RK4 steps per interval (at least; its error is bounded at the end of each).
+# The fewest RK4 steps of the lag model over each of its settling steps after the path.
 LAG_SUBSTEPS = 4
 # The fewest intervals a phase (an edge of a waypoint path) gets.
 MIN_PHASE_INTERVALS = 6
@@ -487,5 +487,5 @@ class Retiming:
             if self.max_jerk is not None:
                 d3 = self.geo.third(tau)[rows]
                 for i in {max(k - 1, 0), min(k, N - 1)}:  # the intervals that meet at node k
-                    jerk = d3 * tau_d**3 + 3 * d2[rows] * tau_d * a + d1[rows] * J[i]
+                    jerk = point_jerk(d1[rows], d2[rows], d3, tau_d, a, J[i])
                     opti.subject_to(ca.sumsqr(jerk) <= (self.max_jerk * (1.0 - KINEMATIC_SLACK)) ** 2)

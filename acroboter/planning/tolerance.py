@@ -35,6 +35,7 @@ from ..model.ranges import sampled_gain_problems
 from .checks import certify
 from .ideal_motion import PlanningError
 from .planner import CertificateError, Plan, PlanFailure, plan
+from .windows import bisect_factor
 
 TOLERANCE_ROUNDS = 4
 # A round whose flight missed narrows the model's bound by the flight's excess and this much more.
@@ -60,17 +61,23 @@ def delayed(trajectory: SampledTrajectory, delay: float) -> SampledTrajectory:
                              np.vstack([rest, trajectory.acceleration]))
 
 
-def clock_flights(model, path, trajectory: SampledTrajectory, q0, methods, bounds) -> tuple[float, str | None, dict]:
+def clock_flights(model, path, trajectory: SampledTrajectory, q0, methods, bounds,
+                  certificate=None) -> tuple[float, str | None, dict]:
     """The trajectory flown by each method at each of CLOCK_OFFSETS (the limits applied, as the certificate flies):
-    the worst position error (m), the first failure (None: none), and each offset's worst error (mm)."""
+    the worst position error (m), the first failure (None: none), and each offset's worst error (mm).
+    `certificate`: the plan's own (planner.certify's flights of the same trajectory with the same methods), which
+    is the flight at offset 0 and is not flown again."""
     spec = model.spec
     lower, upper, _ = spec.input_limits()
     period = 1.0 / spec.controller.rate_hz
     worst, failure, by_offset = 0.0, None, {}
     for fraction in CLOCK_OFFSETS:
-        shifted = delayed(trajectory, fraction * period)
-        flown = TrajectoryPath(spec, model.layout, shifted, shifted.duration, float(path.start_yaw))
-        c = certify(model, flown, q0, shifted.duration, lower, upper, *bounds, tuple(methods))
+        if fraction == 0.0 and certificate is not None:
+            c = certificate
+        else:
+            shifted = delayed(trajectory, fraction * period)
+            flown = TrajectoryPath(spec, model.layout, shifted, shifted.duration, float(path.start_yaw))
+            c = certify(model, flown, q0, shifted.duration, lower, upper, *bounds, tuple(methods))
         error = max(v["max_position_error_mm"] for v in c.flights.values())
         by_offset[f"{fraction:g}"] = error
         worst, failure = max(worst, 1e-3 * error), failure or c.failure
@@ -124,7 +131,8 @@ def plan_to_tolerance(model, path, q0, tolerance: float, methods: tuple[str, ...
         except CertificateError as err:  # saturated or diverged: a larger margin's matter, said as it is
             result, failure = err.plan, err
         if failure is None:
-            flown, failure, by_offset = clock_flights(model, path, result.trajectory, q0, methods, result.bounds)
+            flown, failure, by_offset = clock_flights(model, path, result.trajectory, q0, methods, result.bounds,
+                                                      result.certificate)
         else:
             flown, by_offset = 1e-3 * max(f["max_position_error_mm"] for f in result.certificate.flights.values()), {}
         rounds.append({"model_bound_mm": 1e3 * bound, "duration_s": result.duration, "flown_mm": 1e3 * flown,
@@ -158,7 +166,7 @@ def compared(model, path, q0, tolerance: float, methods, duration: float, option
         optimal = plan(model, path, q0, certify_plan=methods, **options)
     except PlanFailure as err:  # its certificate may fail (saturated): its duration is still the reference
         optimal = err.plan
-    flown, _, _ = clock_flights(model, path, optimal.trajectory, q0, methods, optimal.bounds)
+    flown, _, _ = clock_flights(model, path, optimal.trajectory, q0, methods, optimal.bounds, optimal.certificate)
     out = {"time_optimal_duration_s": optimal.duration, "time_optimal_flown_mm": 1e3 * flown}
     factor = uniform_factor(model, path, optimal, q0, tolerance, methods)
     out["uniform_slowdown_factor"] = factor
@@ -180,12 +188,7 @@ def uniform_factor(model, path, optimal: Plan, q0, tolerance: float, methods) ->
         bad, good = good, good * UNIFORM_LADDER
         if good > UNIFORM_MAX:
             return None
-    if bad is None:
-        return 1.0
-    while good - bad > UNIFORM_RESOLUTION * good:
-        mid = 0.5 * (bad + good)
-        bad, good = (bad, mid) if meets(mid) else (mid, good)
-    return good
+    return 1.0 if bad is None else bisect_factor(meets, bad, good, UNIFORM_RESOLUTION)
 
 
 def stiffer_gains(model, flown: float, tolerance: float) -> str:
