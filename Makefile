@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed
 # .venv/bin/acroboter finds it by itself, the export only makes it explicit for the tools run here.
 export ACROBOTER_CACHE_DIR := $(CURDIR)/build/cache
 
-.PHONY: run test setup build generate check-generated mutation bench retiming-study study sweep robustness plant-fuzz docs clean
+.PHONY: run test setup build generate check-generated mutation bench retiming-study study sweep robustness plant-fuzz plant-fuzz-cranes docs clean
 
 $(RUN_STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
@@ -80,6 +80,13 @@ robustness: build
 # the last one in docs/plant-fuzz.md.
 plant-fuzz: build
 	$(PY) -m acroboter.plant_fuzz
+
+# The same on 200 generated cranes (acroboter.model.crane_generator), each generated, compiled, checked for a pulling
+# start, 10 open-loop experiments and every method closed loop on both plants: results/plant_fuzz_cranes/report.md,
+# docs/plant-fuzz-cranes.md. Hours on the 2-core VM; CRANES=20 for a shorter one.
+CRANES ?= 200
+plant-fuzz-cranes: build
+	$(PY) -m acroboter.plant_fuzz --cranes $(CRANES) --out results/plant_fuzz_cranes
 
 # The documentation site (docs/, mkdocs.yml) into build/site/; --strict: a broken link, a missing API reference or a
 # docstring the reference cannot read fails the build.

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import ctypes
-import filecmp
 import json
 import re
 import shutil
@@ -21,6 +20,7 @@ from ..codegen.emit_c import generate
 from ..model.spec import Spec, SpecError, load_spec
 from ..process.interrupts import exit_status, remembered_interrupt
 from ..process.locations import checkout_root, example_spec, shipped_generated_folder, spec_folder
+from ..runtime.integrity import compare_trees
 from .entry import add_parameter_options, as_option_text, check_out_folder, guarded, spec_file
 from .outputs import OutputFolderError, folder_lock, no_empty_folder_left, out_path, results_folder
 
@@ -173,21 +173,6 @@ def cmd_generate(spec_paths: list[Path], out_root: Path, check_compiles: bool = 
             out_dir = generate(spec, out_root, verify=verify)
             print(f"generated {_shown(out_dir)} from {path.name}")
     return 0
-
-
-def compare_trees(fresh: Path, committed: Path, prefix: str = "") -> list[str]:
-    """Differences between two generated trees: missing, extra and changed files."""
-    problems = []
-    fresh_files = {p.relative_to(fresh) for p in fresh.rglob("*") if p.is_file()}
-    committed_files = {p.relative_to(committed) for p in committed.rglob("*") if p.is_file()}
-    for rel in sorted(fresh_files - committed_files):
-        problems.append(f"missing from generated/: {prefix}{rel}")
-    for rel in sorted(committed_files - fresh_files):
-        problems.append(f"in generated/ but not produced by any spec: {prefix}{rel}")
-    for rel in sorted(fresh_files & committed_files):
-        if not filecmp.cmp(fresh / rel, committed / rel, shallow=False):
-            problems.append(f"differs from what its spec produces: {prefix}{rel}")
-    return problems
 
 
 def cmd_check(spec_paths: list[Path], committed: Path, whole_tree: bool) -> int:

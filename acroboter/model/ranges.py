@@ -303,7 +303,9 @@ CASADI_STATES = Range("casadi_states", 1, 100_000, "", whole=True, why="states t
 MC_SAMPLES = Range("mc_samples", 0, 200, "", whole=True,
                    why="plants of the default robustness study whose runs the benchmark times (0: none)")
 FUZZ_CASES = Range("cases", 1, 100_000, "", whole=True, why="open-loop experiments")
+FUZZ_CRANES = Range("cranes", 1, 10_000, "", whole=True, why="generated cranes, each generated and compiled (~7 s)")
 FUZZ_SEED = Range("seed", 0, 2**31, "", whole=True, why="seed of the first case (case i: seed + i)")
+FUZZ_CRANE_SEED = Range("crane_seed", 0, 2**31, "", whole=True, why="the first generated crane's seed")
 FPS = Range("fps", 0.01, 240.0, "frames/s", "the MP4's frame rate: from a frame per 100 s (a slide show)")
 GIF_FPS = Range("gif_fps", 0.01, 50.0, "frames/s",
                 "the GIF's frame rate: a GIF's delay is whole centiseconds, 2 (50 fps) to 65535 (a frame per 100 s "

@@ -27,6 +27,7 @@ regenerates and compares the bytes).
 from __future__ import annotations
 
 import ctypes
+import filecmp
 import hashlib
 import json
 from pathlib import Path
@@ -176,3 +177,18 @@ def check_library(lib: ctypes.CDLL, spec_name: str, expected: dict[str, str], li
             raise DamagedLibraryError(
                 f"library {lib_path} does not hold the code of {source_dir} (its embedded {what} differs, although "
                 f"its name and checksum say it does: replaced or damaged): {remedy}")
+
+
+def compare_trees(fresh: Path, committed: Path, prefix: str = "") -> list[str]:
+    """Differences between two generated trees: missing, extra and changed files."""
+    problems = []
+    fresh_files = {p.relative_to(fresh) for p in fresh.rglob("*") if p.is_file()}
+    committed_files = {p.relative_to(committed) for p in committed.rglob("*") if p.is_file()}
+    for rel in sorted(fresh_files - committed_files):
+        problems.append(f"missing from generated/: {prefix}{rel}")
+    for rel in sorted(committed_files - fresh_files):
+        problems.append(f"in generated/ but not produced by any spec: {prefix}{rel}")
+    for rel in sorted(fresh_files & committed_files):
+        if not filecmp.cmp(fresh / rel, committed / rel, shallow=False):
+            problems.append(f"differs from what its spec produces: {prefix}{rel}")
+    return problems

@@ -102,6 +102,8 @@ def solve_equilibrium(model: CompiledModel, path: DesiredPath, tol: float = 1e-1
             ) from None
         z0 = sol.x
         deadline[0] = math.inf
+    if lay.l > lay.k:  # more inputs than servo-constraints: the internal forces as the distribution sets them
+        z0 = _nearest_preferred(residual, z0, n + m, np.asarray(model.spec.input_limits()[2], dtype=float))
     r = np.abs(residual(z0)).max()
     if not np.isfinite(r) or r > 1e-8:
         raise EquilibriumError(
@@ -109,6 +111,52 @@ def solve_equilibrium(model: CompiledModel, path: DesiredPath, tol: float = 1e-1
             f"(largest residual {r:.3g}): check the initial positions, cable lengths and the task"
         )
     return Equilibrium(q=z0[:n].copy(), multipliers=z0[n : n + m].copy(), inputs=z0[n + m :].copy(), residual=r)
+
+
+# Redundant inputs: steps of the constrained Gauss–Newton method towards the preferred inputs, and the finite-difference
+# step of its Jacobian (relative to each unknown's size).
+PREFERRED_ITERATIONS = 30
+_FD_STEP = 1e-7
+
+
+def _nearest_preferred(residual, z: np.ndarray, first_input: int, preferred: np.ndarray) -> np.ndarray:
+    """Among the equilibria, the one whose inputs are nearest the spec's preferred values.
+
+    Why: with more inputs than servo-constraints (four winches for the three a position and a level need) the
+    equilibria are a family: the cables can pull against each other with any internal force. The least-squares
+    solve stops at whichever it reaches first, which on an asymmetric crane can be a winch pushing (a generated
+    four-winch crane: −20 N). The controllers' distribution (acroboter.control.distribution) puts the internal
+    forces at the preferred values; the start does the same: minimise ½|u − u_pref|² subject to the equilibrium
+    equations F(z) = 0, by Gauss–Newton steps on the equality-constrained problem (each the minimum-norm solution
+    of its KKT system, the Jacobian by finite differences), from the equilibrium found."""
+    size = z.size
+    select = np.zeros((size - first_input, size))
+    select[:, first_input:] = np.eye(size - first_input)
+    for _ in range(PREFERRED_ITERATIONS):
+        f, jac = residual(z), _jacobian(residual, z)
+        kkt = np.block([[select.T @ select + 1e-12 * np.eye(size), jac.T], [jac, np.zeros((f.size, f.size))]])
+        rhs = np.concatenate([-select.T @ (z[first_input:] - preferred), -f])
+        delta = np.linalg.lstsq(kkt, rhs, rcond=None)[0][:size]
+        z = z + delta
+        for _ in range(PREFERRED_ITERATIONS):  # back onto F(z) = 0: minimum-norm Newton steps (the step is linear)
+            f = residual(z)
+            if np.abs(f).max() <= 1e-12 * max(1.0, np.abs(z).max()):
+                break
+            z = z - np.linalg.lstsq(_jacobian(residual, z), f, rcond=None)[0]
+        if np.abs(delta).max() <= 1e-10 * max(1.0, np.abs(z).max()):
+            break
+    return z
+
+
+def _jacobian(residual, z: np.ndarray) -> np.ndarray:
+    """∂F/∂z by central differences."""
+    columns = []
+    for j in range(z.size):
+        step = _FD_STEP * max(1.0, abs(z[j]))
+        dz = np.zeros(z.size)
+        dz[j] = step
+        columns.append((residual(z + dz) - residual(z - dz)) / (2 * step))
+    return np.column_stack(columns)
 
 
 def inputs_outside_limits(spec, layout, inputs: np.ndarray) -> list[str]:

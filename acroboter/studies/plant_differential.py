@@ -106,7 +106,10 @@ class Experiment:
     def replay_command(self, mujoco_timestep: float = MUJOCO_TIMESTEP) -> str:
         if self.seed is not None:
             step = f" --mujoco-timestep {mujoco_timestep:g}" if mujoco_timestep != MUJOCO_TIMESTEP else ""
-            return (f"python -m acroboter.plant_fuzz --spec {self.spec} --seed {self.seed} --cases 1 --workers 1 "
+            crane = generated_seed(self.spec)
+            which = (f"--cranes 1 --crane-seed {crane} --no-closed-loop" if crane is not None
+                     else f"--spec {self.spec}")
+            return (f"python -m acroboter.plant_fuzz {which} --seed {self.seed} --cases 1 --workers 1 "
                     f"--out results/plant_fuzz/replay-{self.spec}-{self.seed}{step}")
         return ("python -c 'from acroboter.studies.plant_differential import Experiment, run_experiment; "
                 f"print(run_experiment(Experiment(**{asdict(self)!r})))'")
@@ -439,11 +442,30 @@ _CRANES: dict[str, object] = {}  # per worker process: a crane is loaded (not bu
 
 
 def crane_of(name: str):
+    """An example's crane, or a generated one's (acroboter.model.crane_generator: "crane_<seed>")."""
     from ..api.crane import Crane
+    from ..model.crane_generator import crane_spec
 
     if name not in _CRANES:
-        _CRANES[name] = Crane.from_example(name)
+        seed = generated_seed(name)
+        _CRANES[name] = Crane.from_example(name) if seed is None else Crane.from_spec(crane_spec(seed))
     return _CRANES[name]
+
+
+def remember_crane(crane) -> None:
+    """Keep `crane` for crane_of (a generated crane built by its task)."""
+    _CRANES[crane.name] = crane
+
+
+def generated_seed(name: str) -> int | None:
+    """The generator's seed of a generated crane's name ("crane_<seed>"), None for an example's."""
+    from ..model.crane_generator import crane_name
+    from ..process.locations import example_names
+
+    head, _, tail = name.rpartition("_")
+    if tail.isdigit() and crane_name(int(tail)) == name and name not in example_names():
+        return int(tail)
+    return None
 
 
 def experiment_of(name: str, seed: int) -> Experiment:
@@ -455,7 +477,9 @@ def experiment_of(name: str, seed: int) -> Experiment:
     static = {k: float(v) for k, v in zip(lay.inputs, crane.equilibrium().inputs, strict=True)}
     winches = [input_name for input_name, act in zip(lay.inputs, crane.spec.actuators, strict=True)
                if isinstance(act, WinchTension)]
-    return random_experiment(crane.spec.name, static, winches, random.Random(seed), seed)
+    # a generated crane's experiments are drawn for it (the same seed on two cranes: two experiments)
+    rng = random.Random(seed if generated_seed(name) is None else f"{name}/{seed}")
+    return random_experiment(crane.spec.name, static, winches, rng, seed)
 
 
 def run_case(case: tuple[str, int], mujoco_timestep: float = MUJOCO_TIMESTEP) -> dict:
