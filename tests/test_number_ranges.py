@@ -101,6 +101,7 @@ def full_spec() -> dict:
     data["actuators"][0].update(limits=[0.0, 100.0], preferred=10.0, gain=1.0)
     data["actuators"][4]["point"] = [0.0, 0.0, 0.0]
     data["task"][0]["point"] = [0.0, 0.0, 0.0]
+    data["cables"][1]["winch"]["capacity"] = 5.0
     data["controller"]["ki"] = 0.0
     data["controller"]["underactuation"] = {"dwell": 0.1, "margin": 0.001}
     data["sensing"] = {"groups": [{"name": "positions", "coordinates": ["SU.r"], "noise": 0.0, "quantization": 1e-4}],

@@ -37,6 +37,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from .layout import build_layout, nominal_coordinates
+from .physical import DRUM_END_M, drum_capacities
 from .ranges import MUJOCO_TIMESTEP, mujoco_work_problem
 from .spec import BodyThrust, BodyTorque, Spec, SpecError, WinchTension
 
@@ -51,9 +52,6 @@ SOLVER_ITERATIONS = 100
 # to two steps anyway.
 CABLE_DAMPRATIO = 1.0
 CABLE_SOLIMP = (0.9999, 0.9999, 0.001, 0.5, 2.0)
-# Cable that a drum holds beyond the start length (m): the routing tendon is exact while the paid-out
-# length stays below start + reserve (the plant checks that).
-DRUM_RESERVE = 10.0
 # A moving anchor's slide joints: inertia so large that the cables' pull changes its motion by less
 # than round-off within one step (the plant resets it to the prescribed motion at every step).
 ANCHOR_ARMATURE = 1e9
@@ -112,6 +110,11 @@ def check_representable(spec: Spec, source: str = "") -> None:
             problems.append((f"cables[{i}] ({cable.name}).ends", f"expected ends apart in the initial configuration "
                              f"(MuJoCo's tendon needs a direction), found '{a}' and '{b}' {span:.3g} m apart: move "
                              "a body point or an initial position"))
+        capacity = cable.winch.capacity if cable.winch is not None else None
+        if capacity is not None and span >= capacity - DRUM_END_M:
+            problems.append((f"cables[{i}] ({cable.name}).winch.capacity",
+                             f"expected more than the cable's length in the initial configuration, {span:.6g} m (the "
+                             f"drum holds the cable it starts with), found {capacity:g} m"))
     if problems:
         raise MjcfError(source or spec.name, problems)
 
@@ -252,7 +255,7 @@ def _tendons(w, spec: Spec, layout, q0: np.ndarray, solref: str, solimp: str) ->
             w(f'      <site site="{a}"/><site site="{b}"/>')
             w("    </spatial>")
             continue
-        capacity = _drum_capacity(cable, layout, q0)
+        capacity = drum_capacities(spec)[cable.name]
         w(f"    <spatial{_attrs(name=routing_tendon(cable.name), limited='true', range=_vec([0.0, capacity]))}"
           f"{_attrs(solreflimit=solref, solimplimit=solimp, width='0.002', rgba='0 0 0 0')}>")
         w(f'      <site site="{cable.name}.drum"/><site site="{a}"/><site site="{b}"/>')
@@ -282,11 +285,6 @@ def _actuators(w, spec: Spec) -> None:
     w("  </actuator>")
 
 
-def _drum_capacity(cable, layout, q0) -> float:
-    """The routing tendon's limit: drum-to-first-end distance at zero paid-out length."""
-    return float(q0[layout.winch_index[cable.name]]) + DRUM_RESERVE
-
-
 def _drums(w, spec, layout, q0, parent: str, first_end_at, indent: str) -> None:
     """The drum bodies of the winch cables whose first end is on `parent` (a body, or an anchor at
     `first_end_at` in the parent's frame): a slide joint (the cable length, with the drum's reflected
@@ -299,7 +297,7 @@ def _drums(w, spec, layout, q0, parent: str, first_end_at, indent: str) -> None:
             np.asarray(first_end_at, dtype=float))
         length0 = float(q0[layout.winch_index[cable.name]])
         up = np.array([0.0, 0.0, 1.0])
-        pos = local + (_drum_capacity(cable, layout, q0) - length0) * up
+        pos = local + (drum_capacities(spec)[cable.name] - length0) * up
         w(f"{indent}<body{_attrs(name=f'{cable.name}.drum', pos=_vec(pos))}>")
         w(f"{indent}  <joint{_attrs(name=drum_joint(cable.name), type='slide', axis=_vec(-up))}"
           f"{_attrs(ref=_num(length0), armature=_num(cable.winch.reflected_inertia), limited='false')}/>")

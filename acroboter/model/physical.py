@@ -33,6 +33,10 @@ import numpy as np
 from .spec import Spec, SpecError, parse_spec
 
 COMPONENTS = ("x", "y", "z")
+# Cable a drum holds beyond the nominal length (m) when the spec gives no `winch.capacity`.
+DRUM_RESERVE_M = 10.0
+# A run stops when a cable is paid out to within this of its drum's capacity (m): both plants, the same event.
+DRUM_END_M = 1e-3
 INERTIA_ENTRIES = {"xx": (0, 0), "yy": (1, 1), "zz": (2, 2), "xy": (0, 1), "xz": (0, 2), "yz": (1, 2)}
 
 
@@ -137,3 +141,14 @@ def resolve(spec: Spec, overrides: Mapping[str, float] | None = None) -> np.ndar
     """The plant's parameter vector: the spec's values with `overrides` (name -> value) applied."""
     return parameter_values(with_parameters(spec, overrides or {}))
 
+
+def drum_capacities(spec: Spec) -> dict[str, float]:
+    """m, per winch cable: the longest it can be paid out to (`winch.capacity`, else its nominal length +
+    DRUM_RESERVE_M). One property of the crane: the own plant, MuJoCo's and the MJCF all take it from here."""
+    from .layout import build_layout, nominal_coordinates
+
+    layout = build_layout(spec)
+    q0 = nominal_coordinates(spec, layout)
+    return {c.name: (c.winch.capacity if c.winch.capacity is not None
+                     else float(q0[layout.winch_index[c.name]]) + DRUM_RESERVE_M)
+            for c in spec.cables if c.winch is not None}

@@ -198,6 +198,10 @@ class Anchor(_Strict):
 
 class Winch(_Strict):
     reflected_inertia: REFLECTED_INERTIA.field()  # kg, drum inertia seen by the cable length coordinate
+    # m, the longest the cable can be paid out to: what its drum holds. Both plants stop a run that reaches it (a
+    # DrumCapacityError) and the MJCF's drum ends there. Absent: the nominal length + DRUM_RESERVE_M
+    # (acroboter.model.physical.drum_capacities).
+    capacity: Length | None = None
 
 
 class Cable(_Strict):

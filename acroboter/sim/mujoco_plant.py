@@ -20,7 +20,8 @@ import numpy as np
 
 from ..control.path import DesiredPath
 from ..model.mjcf_model import DEFAULT_TIMESTEP, drum_joint, joint_layout, mjcf_xml, routing_tendon
-from ..model.physical import with_parameters
+from ..model.physical import DRUM_END_M, with_parameters
+from .cable_events import DrumCapacityError, drum_ran_out  # noqa: F401 (DrumCapacityError: its old home)
 from .plant import SimulationError, StageTable, stage_rows, stage_table
 
 # A cable is taut where its limit pulls (force above SLACK_FORCE_N, N) or where it is stretched to its
@@ -28,10 +29,6 @@ from .plant import SimulationError, StageTable, stage_rows, stage_table
 # an exactly taut start the row appears only within the first step.
 SLACK_FORCE_N = 1e-9
 TAUT_GAP_M = 1e-9
-
-
-class DrumCapacityError(SimulationError):
-    """A winch paid out more cable than the MJCF drum holds: the crane has left any sensible motion."""
 
 
 def _mujoco():
@@ -94,6 +91,7 @@ class MujocoPlant:
                                           m.jnt_qposadr[jb], m.jnt_dofadr[jb], m.body_pos[bid].copy(),
                                           _matrix(mujoco, m.body_quat[bid])))
         self._winches = []  # (coordinate index, qpos address, dof address, capacity)
+        self._winch_cables = [c.name for c in self.physical_spec.cables if c.winch is not None]
         for cable in self.physical_spec.cables:
             if cable.winch is not None:
                 j = name2id(m, obj.mjOBJ_JOINT, drum_joint(cable.name))
@@ -307,11 +305,9 @@ class MujocoPlant:
         self._update_gap()
         if not (np.isfinite(d.qpos).all() and np.isfinite(d.qvel).all()):
             raise SimulationError(f"MuJoCo's state became non-finite at t = {t:.3f} s")
-        for index, qpos, _, capacity in self._winches:
-            if d.qpos[qpos] >= capacity - 1e-3:
-                name = self.layout.coordinates[index]
-                raise DrumCapacityError(f"at t = {t:.3f} s {name} paid out {d.qpos[qpos]:.3f} m, more than the MJCF "
-                                      f"drum holds ({capacity:.3f} m): the crane has left any sensible motion")
+        for (_, qpos, _, capacity), cable in zip(self._winches, self._winch_cables, strict=True):
+            if d.qpos[qpos] >= capacity - DRUM_END_M:
+                raise drum_ran_out(cable, float(d.qpos[qpos]), capacity, t)
 
 
 def _matrix(mujoco, quat: np.ndarray) -> np.ndarray:

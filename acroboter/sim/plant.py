@@ -34,7 +34,7 @@ import logging
 import numpy as np
 
 from ..control.path import DesiredPath
-from ..model.physical import PlantParameterError, parameter_names, resolve, with_parameters
+from ..model.physical import DRUM_END_M, PlantParameterError, drum_capacities, parameter_names, resolve, with_parameters
 from ..runtime.compiled import StaleModelError
 from .cable_events import (  # noqa: F401 - the plant's errors, events and tolerances are imported from here
     GAP_TOL,
@@ -44,8 +44,10 @@ from .cable_events import (  # noqa: F401 - the plant's errors, events and toler
     TENSION_TOL_REL,
     CableEvent,
     CableEvents,
+    DrumCapacityError,
     InvariantError,
     SimulationError,
+    drum_ran_out,
 )
 
 log = logging.getLogger(__name__)
@@ -111,6 +113,9 @@ class Plant(CableEvents):
         self._x_next, self._tension, self._gap, self._events = (
             out["x_next"], out["cable_tension"], out["cable_gap"], out["cable_events"])
         self._cable_layout(model)
+        # (coordinate index, capacity, cable) of each winch: a run stops where a cable reaches its drum's end
+        capacity = drum_capacities(self.physical_spec)
+        self._drums = [(lay.winch_index[name], capacity[name], name) for name in capacity]
         self._stage_scratch = np.zeros(9 * self.ns)
         self._minv: np.ndarray | None = None
         self.max_events_per_step = 50 * nc + 50
@@ -237,6 +242,10 @@ class Plant(CableEvents):
         x[: self.n] = q0
         if qd0 is not None:
             x[self.n : 2 * self.n] = qd0
+        for index, capacity, cable in self._drums:
+            if q0[index] >= capacity - DRUM_END_M:
+                raise DrumCapacityError(f"cable {cable} starts {q0[index]:.4g} m long, at or beyond the end of what "
+                                        f"its drum holds (winch.capacity = {capacity:.4g} m)")
         self._active[:] = 1.0
         self.start_tension[:] = 0.0
         self.impact_energy = 0.0
@@ -301,6 +310,9 @@ class Plant(CableEvents):
         self._step.point_input(self._stage_input, self._stage_at)  # never leave a pointer into `table`
         x[:] = self._x
         self.cable_gap[:] = self._gap
+        for index, capacity, cable in self._drums:
+            if x[index] >= capacity - DRUM_END_M:
+                raise drum_ran_out(cable, float(x[index]), capacity, t0 + (first_step + steps) * h)
         self._check_energy(x, t0 + (first_step + steps) * h)
 
     def _advance_compiled(self, t0: float, h: float, base: int, row_bytes: int, first_step: int, steps: int) -> None:

@@ -39,7 +39,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..sim.plant import InvariantError, SimulationError
+from ..sim.plant import DrumCapacityError, InvariantError, SimulationError
 
 # Agreement bounds (the issue's): positions (m), and the window around a re-tension left out of it (s).
 POSITION_BOUND_M = 20e-6
@@ -259,8 +259,6 @@ class _Comparison:
         """Both plants through the experiment's inputs, plant step by plant step: the steps compared (fewer where the
         crane left sensible motion or a drum ran out: compared up to there). InvariantError: the own plant broke
         one; SimulationError: MuJoCo failed."""
-        from ..sim.mujoco_plant import DrumCapacityError
-
         own, lay, experiment = self.own, self.crane.layout, self.experiment
         static = dict(zip(lay.inputs, self.start.inputs, strict=True))
         qd0 = consistent_velocity(own, self.start.q, experiment)
@@ -285,7 +283,7 @@ class _Comparison:
         self.own_states[i] = x[: 2 * own.n]
         try:
             own.advance(x, u, h, table, j, 1)
-        except InvariantError:
+        except (InvariantError, DrumCapacityError):
             raise
         except SimulationError as err:  # no consistent cable state: the own plant's failure
             raise InvariantError(str(err)) from None
