@@ -378,8 +378,8 @@ class Crane:
         duration = _duration(path, duration)
         self.check_delay(chosen, duration)
         data = self.model.data()  # this run's own buffers: nothing it writes is another run's
-        engine = setup_default(data, path, plant_params, plant, mujoco_timestep)
         start = self.equilibrium(trajectory, duration)
+        engine = setup_default(data, path, plant_params, plant, mujoco_timestep, self.equilibrium())
         controller = make_controller(name, data, path, gains, fast=fast)
         rest = np.zeros(self.layout.n)
         for _ in range(warm_up):  # steady-state step times: the first calls page code in
@@ -425,8 +425,8 @@ class Crane:
             if qd0 is None or qd0.shape != (self.layout.n,) or not np.isfinite(qd0).all():
                 raise ValueError(f"qd0: expected {self.layout.n} finite velocities (crane.coordinates' order)")
         data = self.model.data()  # this run's own buffers
-        engine = setup_default(data, path, plant_params, plant, mujoco_timestep)
         start = self.equilibrium(trajectory, duration)
+        engine = setup_default(data, path, plant_params, plant, mujoco_timestep, self.equilibrium())
         if qd0 is not None:  # the own plant's projection, whichever plant runs (same parameters)
             own = engine if plant == "own" else setup_default(data.data(), path, plant_params)
             qd0 = own.consistent_velocity(start.q, qd0)

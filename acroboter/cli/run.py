@@ -239,7 +239,8 @@ def _written(args: argparse.Namespace, folder: ResultsFolder, setup: _Setup, res
     write_summary(out / "summary.json", spec.name, summaries, setup.duration, setup.warnings,
                   extra={"input_limits": input_limits_summary(spec, lay),
                          "path_feasibility": setup.feasibility.to_dict(),
-                         "provenance": provenance(args, spec, setup.gains, setup.methods, setup.duration)})
+                         "provenance": provenance(args, spec, setup.gains, setup.methods, setup.duration,
+                                                                   setup.crane)})
     if not args.no_plots:
         input_labels = [f"{name} [{unit}]" for name, unit in zip(lay.inputs, lay.input_units, strict=True)]
         write_figures(out, {m: r.run for m, r in results.items()}, setup.crane.scenario,
@@ -261,9 +262,11 @@ def _reported(args: argparse.Namespace, setup: _Setup, results: dict, summaries:
     from ..report.report import format_table
 
     spec, sensing = setup.crane.spec, setup.sensing
-    engine = plant_provenance(args, spec)
+    engine = plant_provenance(args, spec, setup.crane)
     plant_text = (f"plant RK4 h = {spec.simulation.step * 1e3:g} ms" if engine["engine"] == "own" else
-                  f"plant MuJoCo {engine['mujoco_version']} RK4 h = {engine['step_s'] * 1e3:g} ms")
+                  f"plant MuJoCo {engine['mujoco_version']} RK4 h = {engine['step_s'] * 1e3:g} ms "
+                  f"({engine['step_chosen_by']}; expected within {engine['expected_error_m'] * 1e6:.3g} µm of the "
+                  "own plant)")
     print(f"spec {spec.name}: {setup.duration:g} s at {spec.controller.rate_hz:g} Hz, {plant_text}; "
           f"start tensions {np.array2string(setup.start.inputs, precision=4)}")
     if args.plant_params:
@@ -309,7 +312,7 @@ def _say_feasibility(feasibility, saturated: list[str]) -> None:
     print(f"the path was not feasible with these limits: {reason}{held}")
 
 
-def provenance(args: argparse.Namespace, spec, gains, methods: list[str], duration: float) -> dict:
+def provenance(args: argparse.Namespace, spec, gains, methods: list[str], duration: float, crane=None) -> dict:
     """What made this run: enough to repeat it (spec content, every setting, versions, command line)."""
     import datetime
     import hashlib
@@ -332,7 +335,7 @@ def provenance(args: argparse.Namespace, spec, gains, methods: list[str], durati
         # changed; `animate` checks it against spec_sha256
         "spec_toml": spec_bytes.decode("utf-8"),
         "gains": asdict(gains),
-        "plant": plant_provenance(args, spec),
+        "plant": plant_provenance(args, spec, crane),
         # the plant's physical parameters other than the spec's (acroboter.model.physical), {} for none
         "plant_params": dict(getattr(args, "plant_params", {})),
         # what the controller measured instead of the plant's state (docs/sensing.md), None for the state
@@ -353,16 +356,23 @@ def provenance(args: argparse.Namespace, spec, gains, methods: list[str], durati
     }
 
 
-def plant_provenance(args: argparse.Namespace, spec) -> dict:
-    """Which engine simulated the crane, and at what step."""
+def plant_provenance(args: argparse.Namespace, spec, crane=None) -> dict:
+    """Which engine simulated the crane, and at what step: with MuJoCo, the crane's own step (the rule of
+    acroboter.sim.mujoco_step) or the one forced by --mujoco-timestep, and how far off it is expected to be."""
     if getattr(args, "plant", "own") != "mujoco":
         return {"engine": "own", "integrator": "RK4 with Baumgarte stabilisation", "step_s": spec.simulation.step}
     from importlib import metadata
 
-    from ..model.mjcf_model import DEFAULT_TIMESTEP
+    from ..sim.mujoco_step import STEP_ERROR_BOUND_M, crane_step, expected_error
 
+    rule, acceleration = crane_step(crane.model, crane.equilibrium())
+    step = args.mujoco_timestep or rule
     return {"engine": "mujoco", "mujoco_version": metadata.version("mujoco"), "integrator": "RK4",
-            "step_s": args.mujoco_timestep or DEFAULT_TIMESTEP, "model": "acroboter.model.mjcf_model (docs/mujoco.md)"}
+            "step_s": step, "step_chosen_by": "--mujoco-timestep" if args.mujoco_timestep else "the crane's rule",
+            "rule_step_s": rule, "largest_cable_acceleration_m_s2": acceleration,
+            # the bodies' excess over the own plant at this step: the envelope of the cranes measured (docs/mujoco.md)
+            "expected_error_m": expected_error(acceleration, step), "rule_error_bound_m": STEP_ERROR_BOUND_M,
+            "model": "acroboter.model.mjcf_model (docs/mujoco.md)"}
 
 
 def is_paper_crane(spec) -> bool:

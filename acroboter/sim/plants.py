@@ -35,11 +35,11 @@ def check_mujoco_timestep(plant_step: float, dt, control_period: float | None = 
 
 
 def setup_default(model: CompiledModel, path: DesiredPath, plant_params=None, plant: str = "own",
-                  mujoco_timestep: float | None = None):
+                  mujoco_timestep: float | None = None, start=None):
     """Plant for a spec's simulation section; `plant_params` (name -> value, acroboter.model.physical)
     make its crane differ from the controller's model. plant="mujoco": MuJoCo on the spec's MJCF
-    model (acroboter.sim.mujoco_plant) at `mujoco_timestep` (default: the MJCF's), which must divide the
-    spec's plant step."""
+    model (acroboter.sim.mujoco_plant) at `mujoco_timestep`, which must divide the spec's plant step (default: the
+    crane's own, acroboter.sim.mujoco_step, from its static equilibrium `start`; without one the MJCF's)."""
     sim = model.spec.simulation
     if plant == "own":
         if mujoco_timestep is not None:
@@ -53,6 +53,10 @@ def setup_default(model: CompiledModel, path: DesiredPath, plant_params=None, pl
     from ..model.mjcf_model import DEFAULT_TIMESTEP
     from .mujoco_plant import MujocoPlant
 
+    if mujoco_timestep is None and start is not None:
+        from .mujoco_step import crane_step
+
+        mujoco_timestep = crane_step(model, start)[0]
     dt = check_mujoco_timestep(sim.step, DEFAULT_TIMESTEP if mujoco_timestep is None else mujoco_timestep,
                                1.0 / model.spec.controller.rate_hz)
     return MujocoPlant(model, path, plant_params, timestep=float(dt))

@@ -14,8 +14,9 @@ per crane (`run_crane`, a Dask task: module level, so that it pickles):
 4. **Closed loop**, every method (MLM, penalty, iterative with each of the spec's counts):
    - the whole path (the paper's, scaled to the crane's connector) on the own plant, its tracking error within
      TRACKING_BOUND_M, no input on a limit, never diverged;
-   - the first CLOSED_LOOP_MUJOCO_S of it on the MuJoCo plant at its default step: the two plants' tracked points
-     within CLOSED_LOOP_BOUND_M of each other (the same controller closes the loop around each).
+   - the first CLOSED_LOOP_MUJOCO_S of it on the MuJoCo plant at its default step (the crane's own,
+     acroboter.sim.mujoco_step): the bodies' centres within CLOSED_LOOP_BOUND_M of the own plant's (the same
+     controller closes the loop around each).
 
 A crane's rows: one in cranes.csv (what was drawn, the checks, the times), one per experiment in plant_fuzz.csv, one
 per method in closed_loop.csv.
@@ -142,6 +143,8 @@ def run_crane(seed: int, cases: int, case_seed: int, closed_loop: bool = True,
 
 def closed_loop_rows(crane, mujoco_timestep: float | None) -> list[dict]:
     """Every method on the whole path (own plant), and on its first CLOSED_LOOP_MUJOCO_S on both plants."""
+    from ..sim.mujoco_step import crane_step
+
     spec = crane.spec
     methods = ["mlm", "penalty"] + [f"iterative-{n}" for n in spec.controller.penalty.iterations]
     rows = []
@@ -157,7 +160,7 @@ def closed_loop_rows(crane, mujoco_timestep: float | None) -> list[dict]:
         own = crane.simulate(name, duration=span, **kwargs)
         engine = crane.simulate(name, duration=span, plant="mujoco", mujoco_timestep=mujoco_timestep, **kwargs)
         row["mujoco_s"] = span
-        row["mujoco_timestep"] = mujoco_timestep or default_mujoco_timestep(crane)
+        row["mujoco_timestep"] = mujoco_timestep or crane_step(crane.model, crane.equilibrium())[0]
         row["mujoco_max_error_mm"] = float(np.max(engine.position_error_mm))
         steps = min(len(own.time), len(engine.time))
         row["plants_max_diff_m"] = max(
@@ -177,12 +180,6 @@ def closed_loop_rows(crane, mujoco_timestep: float | None) -> list[dict]:
         row["status"] = "agrees" if not problems else "fails: " + "; ".join(problems)
         rows.append(row)
     return rows
-
-
-def default_mujoco_timestep(crane) -> float:
-    from ..model.mjcf_model import DEFAULT_TIMESTEP
-
-    return DEFAULT_TIMESTEP
 
 
 def crane_seed(name: str) -> int:
