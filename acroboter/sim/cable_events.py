@@ -76,16 +76,6 @@ class SimulationError(RuntimeError):
     non-finite. A run reports it as a divergence (its time, exit 3 from the command line)."""
 
 
-class DrumCapacityError(SimulationError):
-    """A winch paid out its drum's whole cable (`winch.capacity`, acroboter.model.physical.drum_capacities): both
-    plants stop there, with the same words (`drum_ran_out`)."""
-
-
-def drum_ran_out(cable: str, length: float, capacity: float, t: float) -> DrumCapacityError:
-    return DrumCapacityError(f"at t = {t:.3f} s cable {cable} is paid out to {length:.3f} m, the end of what its drum "
-                             f"holds (winch.capacity = {capacity:.3f} m): the run stops there")
-
-
 class InvariantError(SimulationError):
     """A physical invariant of the plant broke (a slack cable stretched, a taut one pushing, energy
     created or lost without a cause): the message names the time, the cable and the figures."""

@@ -21,8 +21,7 @@ import numpy as np
 from ..control.path import DesiredPath
 from ..model.mjcf_model import DEFAULT_TIMESTEP, drum_joint, joint_layout, mjcf_xml, routing_tendon
 from ..model.physical import DRUM_END_M, with_parameters
-from .cable_events import DrumCapacityError, drum_ran_out  # noqa: F401 (DrumCapacityError: its old home)
-from .plant import SimulationError, StageTable, stage_rows, stage_table
+from .plant import SimulationError, StageTable, drum_ran_out, stage_rows, stage_table
 
 # A cable is taut where its limit pulls (force above SLACK_FORCE_N, N) or where it is stretched to its
 # length within TAUT_GAP_M (m): MuJoCo adds a limit's row only once the cable is past its length, so at

@@ -44,13 +44,23 @@ from .cable_events import (  # noqa: F401 - the plant's errors, events and toler
     TENSION_TOL_REL,
     CableEvent,
     CableEvents,
-    DrumCapacityError,
     InvariantError,
     SimulationError,
-    drum_ran_out,
 )
 
 log = logging.getLogger(__name__)
+
+
+class DrumCapacityError(SimulationError):
+    """A winch paid out its drum's whole cable (`winch.capacity`, acroboter.model.physical.drum_capacities): both
+    plants stop there, with the same words (`drum_ran_out`)."""
+
+
+def drum_ran_out(cable: str, length: float, capacity: float, t: float) -> DrumCapacityError:
+    return DrumCapacityError(f"at t = {t:.3f} s cable {cable} is paid out to {length:.3f} m, the end of what its drum "
+                             f"holds (winch.capacity = {capacity:.3f} m): the run stops there")
+
+
 _LOOP_REFUSED: set = set()  # cache roots where the C substep loop could not be built (warned once)
 
 # |energy balance residual| allowed: ENERGY_TOL_REL × (weight × longest cable + peak kinetic energy), see
