@@ -154,7 +154,8 @@ def closed_loop_rows(crane, mujoco_timestep: float | None) -> list[dict]:
         row = {"crane": spec.name, "method": method, "replay": replay_command(crane_seed(spec.name))}
         whole = crane.simulate(name, **kwargs)
         row["max_error_mm"] = float(np.max(whole.position_error_mm))
-        row["saturated_steps"] = int(np.asarray(whole.saturated).any(axis=-1).sum()) if np.ndim(whole.saturated) else 0
+        saturated = np.asarray(whole.saturated)  # per instant (a row per instant and input, where it is 2-D)
+        row["saturated_steps"] = int(np.count_nonzero(saturated.any(axis=-1) if saturated.ndim > 1 else saturated))
         row["diverged_at"] = whole.diverged_at
         span = min(CLOSED_LOOP_MUJOCO_S, float(whole.time[-1]))
         own = crane.simulate(name, duration=span, **kwargs)
