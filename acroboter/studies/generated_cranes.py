@@ -175,7 +175,7 @@ def closed_loop_rows(crane, mujoco_timestep: float | None) -> list[dict]:
         if row["saturated_steps"]:
             problems.append(f"an input on a limit in {row['saturated_steps']} control steps")
         if row["plants_max_diff_m"] > CLOSED_LOOP_BOUND_M:
-            problems.append(f"the plants' tracked points differ by {row['plants_max_diff_m'] * 1e6:.1f} µm "
+            problems.append(f"the plants' bodies' centres differ by {row['plants_max_diff_m'] * 1e6:.1f} µm "
                             f"(bound {CLOSED_LOOP_BOUND_M * 1e6:g})")
         row["passed"] = not problems
         row["status"] = "agrees" if not problems else "fails: " + "; ".join(problems)
