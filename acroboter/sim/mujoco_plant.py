@@ -89,14 +89,13 @@ class MujocoPlant:
                 self._bodies.append(_Body(lay.body_offset[body.name], bid, False, m.jnt_qposadr[jx], m.jnt_dofadr[jx],
                                           m.jnt_qposadr[jb], m.jnt_dofadr[jb], m.body_pos[bid].copy(),
                                           _matrix(mujoco, m.body_quat[bid])))
-        self._winches = []  # (coordinate index, qpos address, dof address, capacity)
-        self._winch_cables = [c.name for c in self.physical_spec.cables if c.winch is not None]
+        self._winches = []  # (coordinate index, qpos address, dof address, capacity, cable)
         for cable in self.physical_spec.cables:
             if cable.winch is not None:
                 j = name2id(m, obj.mjOBJ_JOINT, drum_joint(cable.name))
                 t = name2id(m, obj.mjOBJ_TENDON, routing_tendon(cable.name))
                 self._winches.append((lay.winch_index[cable.name], m.jnt_qposadr[j], m.jnt_dofadr[j],
-                                      float(m.tendon_range[t, 1])))
+                                      float(m.tendon_range[t, 1]), cable.name))
         self._anchors = []  # (signal index, qpos address, dof address, start coordinate)
         for anchor in self.physical_spec.anchors:
             if anchor.follows_path:
@@ -178,7 +177,7 @@ class MujocoPlant:
                 d.qpos[b.ball_qpos : b.ball_qpos + 4] = quat
                 d.qvel[b.dof : b.dof + 3] = qd[i : i + 3]
                 d.qvel[b.ball_dof : b.ball_dof + 3] = rot.T @ omega
-        for index, qpos, dof, _ in self._winches:
+        for index, qpos, dof, _, _ in self._winches:
             d.qpos[qpos], d.qvel[dof] = q[index], qd[index]
         if self._anchors:
             row = self.path.table(np.array([t]))[0]
@@ -199,7 +198,7 @@ class MujocoPlant:
             x[n + i : n + i + 3] = vel[3:]
             for k in range(3):
                 x[n + i + 3 + 3 * k : n + i + 6 + 3 * k] = np.cross(vel[:3], rot[:, k])
-        for index, qpos, dof, _ in self._winches:
+        for index, qpos, dof, _, _ in self._winches:
             x[index], x[n + index] = d.qpos[qpos], d.qvel[dof]
 
     # --- stepping -----------------------------------------------------------------------------
@@ -304,7 +303,7 @@ class MujocoPlant:
         self._update_gap()
         if not (np.isfinite(d.qpos).all() and np.isfinite(d.qvel).all()):
             raise SimulationError(f"MuJoCo's state became non-finite at t = {t:.3f} s")
-        for (_, qpos, _, capacity), cable in zip(self._winches, self._winch_cables, strict=True):
+        for _, qpos, _, capacity, cable in self._winches:
             if d.qpos[qpos] >= capacity - DRUM_END_M:
                 raise drum_ran_out(cable, float(d.qpos[qpos]), capacity, t)
 

@@ -144,6 +144,7 @@ def run_crane(seed: int, cases: int, case_seed: int, closed_loop: bool = True,
 def closed_loop_rows(crane, mujoco_timestep: float | None) -> list[dict]:
     """Every method on the whole path (own plant), and on its first CLOSED_LOOP_MUJOCO_S on both plants."""
     from ..sim.mujoco_step import crane_step
+    from .plant_differential import generated_seed
 
     spec = crane.spec
     methods = ["mlm", "penalty"] + [f"iterative-{n}" for n in spec.controller.penalty.iterations]
@@ -151,7 +152,7 @@ def closed_loop_rows(crane, mujoco_timestep: float | None) -> list[dict]:
     for method in methods:
         name, _, count = method.partition("-")
         kwargs = {"iterations": int(count)} if count else {}
-        row = {"crane": spec.name, "method": method, "replay": replay_command(crane_seed(spec.name))}
+        row = {"crane": spec.name, "method": method, "replay": replay_command(generated_seed(spec.name))}
         whole = crane.simulate(name, **kwargs)
         row["max_error_mm"] = float(np.max(whole.position_error_mm))
         saturated = np.asarray(whole.saturated)  # per instant (a row per instant and input, where it is 2-D)
@@ -181,10 +182,6 @@ def closed_loop_rows(crane, mujoco_timestep: float | None) -> list[dict]:
         row["status"] = "agrees" if not problems else "fails: " + "; ".join(problems)
         rows.append(row)
     return rows
-
-
-def crane_seed(name: str) -> int:
-    return int(name.removeprefix("crane_"))
 
 
 def replay_command(seed: int) -> str:
