@@ -297,7 +297,7 @@ class Crane:
     def plan(self, margin: float = 0.05, max_speed: float | None = None, max_accel: float | None = None,
              trajectory: Trajectory | None = None, duration: float | None = None, intervals: int = 120,
              certify: bool = True, verbose: bool = False, window: int | None = None, corners: str = "rest",
-             max_jerk: float | None = None, tolerance: float | None = None):
+             max_jerk: float | None = None, tolerance: float | None = None, shaper: str | None = None):
         """The fastest timing of the path's geometry (the spec's waypoints, or `trajectory`'s) whose ideal motion
         keeps every input within its limits less `margin` (a fraction of each limit span, docs/planning.md),
         optionally with the tracked point's speed ≤ `max_speed` (m/s), acceleration ≤ `max_accel` (m/s²) and jerk
@@ -311,12 +311,13 @@ class Crane:
         name or a list of them ("penalty", "iterative-3") flies it with each; False skips it.
         `corners` on a waypoint path: "rest" (default), every edge from rest to rest with the swing included, the
         edges solved one by one; "swing", the swing carried over the corners, `window` phases optimised together in
-        a receding window (default 2; 0: the whole path in one solve, slow on long paths; docs/planning.md)."""
+        a receding window (default 2; 0: the whole path in one solve, slow on long paths; docs/planning.md).
+        `shaper` ("zv", "zvd", "unshaped"): no optimiser, the path's own timing input-shaped edge by edge."""
         from ..planning.planner import check_plannable
         from ..planning.tolerance import check_plan_options, plan_path
 
         options = {"margin": margin, "max_speed": max_speed, "max_accel": max_accel, "max_jerk": max_jerk,
-                   "intervals": intervals, "verbose": verbose, "window": window, "corners": corners}
+                   "intervals": intervals, "verbose": verbose, "window": window, "corners": corners, "shaper": shaper}
         check_plan_options(options, tolerance, certify)
         if not isinstance(certify, bool):  # method names: each flies the plan in the certificate
             certify = self._certified(certify)

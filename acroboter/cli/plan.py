@@ -94,6 +94,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="a waypoint path's corners: rest, every edge from rest to rest with the connector's swing "
                         "(solved edge by edge); swing, the swing carried over the corners (edges optimised together, "
                         "see --window) (default: %(default)s)")
+    p.add_argument("--shaper", choices=("zv", "zvd", "unshaped"), default=None,
+                   help="no optimiser: each edge's own timing convolved with a zero-vibration shaper (zv, zvd) for "
+                        "the crane's swing modes, or not (unshaped), slowed edge by edge to the fastest that keeps the "
+                        "limits less the margin and ends at rest, the swing carried over (docs/planning.md) "
+                        "(default: none, the time-optimal timing)")
     p.add_argument("--window", type=ranged(PLAN_WINDOW), default=None,
                    help="with --corners swing: phases (edges) optimised together in a receding window, each window "
                         "from the state the phases before it leave; 0 solves the whole path at once (slow on long "
@@ -112,6 +117,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     args = p.parse_args(argv)
     if args.no_certificate and args.tolerance is not None:
         p.error("--tolerance is judged by flying the plan: it cannot go with --no-certificate")
+    if args.shaper is not None and (args.tolerance is not None or args.trajectory is not None):
+        p.error("--shaper shapes the spec's waypoint edges without an optimiser: it cannot go with "
+                + ("--tolerance" if args.tolerance is not None else "--trajectory"))
     from .run_args import expand_methods
 
     try:
@@ -167,7 +175,8 @@ def _plan(args: argparse.Namespace, folder) -> int:
         plan = crane.plan(margin=args.margin, max_speed=args.max_speed, max_accel=args.max_accel,
                           trajectory=trajectory, intervals=args.intervals,
                           certify=False if args.no_certificate else args.certify,
-                          window=args.window, corners=args.corners, max_jerk=args.max_jerk, tolerance=args.tolerance)
+                          window=args.window, corners=args.corners, max_jerk=args.max_jerk, tolerance=args.tolerance,
+                          shaper=args.shaper)
     except (StaticLimitError, TrajectoryError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
@@ -196,7 +205,8 @@ def _plan(args: argparse.Namespace, folder) -> int:
         return 3
     folder.publish()
     active = sorted({a["input"] for a in plan.active})
-    corners = {"rest": ", every edge rest to rest", "swing": ""}[plan.corners]
+    corners = {"rest": ", every edge rest to rest", "swing": "",
+               "shaped": f", input-shaped ({args.shaper}) edge by edge"}[plan.corners]
     print(f"spec {crane.name}: planned {plan.duration:.4g} s{corners} (the path's own timing {plan.path_duration:.4g} "
           f"s, its best uniform slowdown {plan.uniform_duration:.4g} s); margin {100 * plan.margin:.3g} %, achieved "
           f"{100 * plan.margin_achieved:.3g} % planned" + (

@@ -26,6 +26,7 @@ from .geometry import PathGeometry
 from .ideal_motion import IdealDynamics, PlanningError
 from .limits import active_intervals, beyond_bounds, margin_achieved, tightened
 from .retiming import Retiming, Solution
+from .shaping import SHAPED_STATUS, SHAPERS, ShapedRetiming, corner_swing
 from .windows import WindowedRetiming
 
 # The certificate: the closed loop samples the path at the control rate and holds its input in between, so
@@ -41,7 +42,7 @@ DEFAULT_INTERVALS = 120
 DEFAULT_WINDOW = 2
 # What a waypoint path's corners are: "rest" (every edge rest to rest, the swing included: acroboter.planning.edges)
 # or "swing" (the swing carried over, the edges optimised together).
-CORNERS = ("rest", "swing")
+CORNERS = ("rest", "swing")  # and "shaped", the corners of a shaper's plan (carried over, shaped edge by edge)
 # The two samples at a node of the grid, one on each side (s).
 NODE_GAP_S = 1e-6
 # The planned inputs are checked between the optimiser's nodes on a grid of this step (s), and may leave the bounds
@@ -105,7 +106,7 @@ class Plan:
     solve_s: float
     iterations: int
     intervals: int
-    corners: str = "rest"  # a waypoint path's corners: "rest" (edges rest to rest) or "swing" (docs/planning.md)
+    corners: str = "rest"  # a waypoint path's corners: "rest" (edges rest to rest), "swing" or "shaped" (carried over)
     window: int = 0  # phases per window (0: the whole path in one solve)
     phase_duration: float | None = None  # the phase-wise slowdown's duration (the window's warm start)
     solves: list[dict] = field(default_factory=list)  # per solve: phases, intervals, RK4 steps, iterations, s
@@ -119,6 +120,8 @@ class Plan:
     peak_jerk: float | None = None  # the tracked point's, on the samples; None when σ̈ jumps (no jerk bound)
     bounds_moved_in: dict = field(default_factory=dict)  # input -> how far the optimiser's bounds were moved in
     tolerance: dict | None = None  # a plan to a flown tolerance: how it was found (acroboter.planning.tolerance)
+    shaping: dict | None = None  # an input-shaped timing: the shaper, its modes, each edge's factor (planning.shaping)
+    corner_swing: list[dict] = field(default_factory=list)  # a waypoint path: the swing left at each corner
 
     @property
     def status(self) -> str:
@@ -198,6 +201,9 @@ class Plan:
         }
         if self.tolerance is not None:
             out["tolerance"] = self.tolerance
+        if self.shaping is not None:
+            out["shaping"] = self.shaping
+        out["corner_swing"] = self.corner_swing
         if self.certificate is not None:
             c = self.certificate
             out["certificate"] = {"method": f"{', '.join(c.flights) or 'mlm'}, own plant, limits applied",
@@ -211,36 +217,27 @@ class Plan:
 def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_speed: float | None = None,
          max_accel: float | None = None, intervals: int = DEFAULT_INTERVALS, certify_plan: bool | tuple = True,
          verbose: bool = False, window: int | None = None, corners: str = "rest", max_jerk: float | None = None,
-         lag: tuple | None = None, warm: Plan | None = None) -> Plan:
+         lag: tuple | None = None, warm: Plan | None = None, shaper: str | None = None) -> Plan:
     """`corners` (a waypoint path): "rest", every edge from rest to rest, the swing included (acroboter.planning.
     edges); "swing", the swing carried over the corners, the edges optimised together: `window` phases per
     receding window (acroboter.planning.windows), 0 the whole path in one solve, None DEFAULT_WINDOW (a path of at
     most DEFAULT_WINDOW phases is then one solve anyway). `max_jerk` (m/s³): the timing smooth (σ̈ continuous, 0 at
     every corner) with the tracked point's jerk at most that; `lag` (bound m, kp, kd, period s): smooth, with the
     sampled controller's lag within the bound (acroboter.planning.servo_lag; acroboter.planning.tolerance sets it);
-    `warm`: an earlier smooth plan of the same path on the same grid, each phase's solve started from it."""
-    if corners not in CORNERS:
-        raise PlanningError(f"corners: expected one of {', '.join(CORNERS)}, found {corners!r}")
+    `warm`: an earlier smooth plan of the same path on the same grid, each phase's solve started from it. `shaper`
+    (zv, zvd, unshaped): no optimiser; the path's own timing input-shaped edge by edge (acroboter.planning.shaping)."""
     spec, lay = model.spec, model.layout
     if not (isinstance(margin, (int, float)) and 0.0 <= margin < 0.5):
         raise PlanningError(f"margin: expected a fraction from 0 to below 0.5 (0 to 50 %), found {margin!r}")
+    check_timing_options(path, corners, shaper, lag)
     lower, upper, _ = spec.input_limits()
     low, high = tightened(lower, upper, margin)
     geometry = PathGeometry(path)
     needs = check_statics(model, geometry, lower, upper, low, high, margin)
     static_margin, _ = margin_achieved(needs, lower, upper)
     dynamics = IdealDynamics(spec, q0)
-    window = DEFAULT_WINDOW if window is None else int(window)
-    if window >= len(geometry.phases):
-        window = 0  # the window would be the whole path
     kinematic = {"max_speed": max_speed, "max_accel": max_accel, "max_jerk": max_jerk, "lag": lag}
-    if corners == "rest" and geometry.edges:
-        window = 0
-        problem = EdgeRetiming(dynamics, geometry, q0, low, high, **kinematic)
-    elif window:
-        problem = WindowedRetiming(dynamics, geometry, q0, low, high, window=window, **kinematic)
-    else:
-        problem = Retiming(dynamics, geometry, q0, low, high, **kinematic)
+    problem, corners, window = timing_problem(dynamics, geometry, q0, low, high, corners, window, shaper, kinematic)
     if warm is not None and problem.smooth:
         problem.warm = warm_start(warm, problem.grid(intervals), geometry.end)
     solution, _, grid_inputs, tightened_by, leak = solve_within_bounds(problem, intervals, low, high, list(lay.inputs),
@@ -256,13 +253,20 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
         margin_achieved=achieved, margin_input=None if where is None else lay.inputs[where],
         active=active_intervals(solution.input_times, solution.inputs, low, high, list(lay.inputs)),
         uniform_duration=solution.uniform_duration, uniform_slowdown=solution.uniform_slowdown,
-        static_margin=static_margin, solve_s=solution.solve_s, iterations=solution.iterations, intervals=intervals,
-        corners=corners if geometry.edges else "swing", window=window,
+        static_margin=static_margin, solve_s=solution.solve_s, iterations=solution.iterations,
+        intervals=solution.tau_dd.size if shaper else intervals, corners=corners if geometry.edges else "swing",
+        window=window,
         phase_duration=None if problem.phase_slowdown is None else problem.phase_slowdown[1],
         solves=solution.windows, end_state=solution.states[-1].copy())
     result.max_speed, result.max_accel, result.max_jerk = max_speed, max_accel, max_jerk
     result.peak_jerk = jerk if problem.smooth else None
     result.bounds_moved_in = {lay.inputs[i]: float(v) for i, v in enumerate(tightened_by) if v > 0}
+    if shaper is not None:
+        result.shaping = problem.description()
+    if geometry.edges:  # the swing left at each corner, against the crane at rest there
+        rests = problem if isinstance(problem, EdgeRetiming) else EdgeRetiming(dynamics, geometry, q0, low, high)
+        nodes = np.cumsum(problem.phase_counts(intervals)).tolist()  # each edge's last node
+        result.corner_swing = corner_swing(rests, solution.times, solution.states, nodes)
     result.failures = unmet(solution, result)
     if leak is not None:
         result.failures.append(leak)
@@ -288,6 +292,39 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
     return result
 
 
+def check_timing_options(path, corners: str, shaper: str | None, lag) -> None:
+    """PlanningError for corners or a shaper `plan` cannot take (a shaper shapes each straight edge of the spec's
+    waypoint path, with no optimiser to hold a tolerance)."""
+    if corners not in CORNERS:
+        raise PlanningError(f"corners: expected one of {', '.join(CORNERS)}, found {corners!r}")
+    if shaper is not None and (shaper not in SHAPERS or lag is not None or not path_has_edges(path)):
+        raise PlanningError(f"shaper: expected one of {', '.join(SHAPERS)} on the spec's waypoint path, without a "
+                            f"tolerance (a shaper shapes each straight edge's timing), found {shaper!r}"
+                            + (" with a tolerance" if lag is not None else "")
+                            + ("" if path_has_edges(path) else " on a trajectory file"))
+
+
+def timing_problem(dynamics, geometry, q0, low, high, corners: str, window: int | None, shaper: str | None,
+                   kinematic: dict):
+    """The problem that finds the timing, with the corners and the window it plans with: a shaped timing
+    (ShapedRetiming), rest-to-rest edges (EdgeRetiming), a receding window (WindowedRetiming) or one solve."""
+    window = DEFAULT_WINDOW if window is None else int(window)
+    if window >= len(geometry.phases):
+        window = 0  # the window would be the whole path
+    if shaper is not None:
+        return ShapedRetiming(dynamics, geometry, q0, low, high, shaper_kind=shaper, **kinematic), "shaped", 0
+    if corners == "rest" and geometry.edges:
+        return EdgeRetiming(dynamics, geometry, q0, low, high, **kinematic), corners, 0
+    if window:
+        return WindowedRetiming(dynamics, geometry, q0, low, high, window=window, **kinematic), corners, window
+    return Retiming(dynamics, geometry, q0, low, high, **kinematic), corners, window
+
+
+def path_has_edges(path) -> bool:
+    """A waypoint path (straight edges, each a phase), not a trajectory file's one phase."""
+    return not isinstance(path, TrajectoryPath)
+
+
 def warm_start(warm: Plan, counts: list[int], end: float) -> tuple[list[np.ndarray], list[float]] | None:
     """Each phase's σ̈ at its nodes and its duration in an earlier plan on the grid `counts` (None if its grid is
     another): a later round's starting guess (acroboter.planning.tolerance)."""
@@ -310,7 +347,7 @@ def unmet(solution: Solution, plan: Plan) -> list[str]:
     IPOPT's optimum (its timing a fallback), a max_speed or max_accel the written samples exceed."""
     out = []
     for record in solution.windows:
-        if record.get("status") not in OPTIMAL:
+        if record.get("status") not in (*OPTIMAL, SHAPED_STATUS):
             phases = ", ".join(str(j + 1) for j in record.get("phases", []))
             kept = ("its own timing slowed from rest was kept" if record.get("status") == "quintic_slowdown_kept"
                     else f"IPOPT stopped with {record.get('status')}")

@@ -246,6 +246,10 @@ class Retiming:
         own = np.array([T for _, _, T in self.geo.phases])
         return [max(MIN_PHASE_INTERVALS, int(round(intervals * T / own.sum()))) for T in own]
 
+    def phase_counts(self, intervals: int) -> list[int]:
+        """The intervals of each phase in a solve on `intervals` (`grid`)."""
+        return self.grid(intervals)
+
     def solve(self, intervals: int, guess_factor: float | None = None, max_iter: int = 400,
               verbose: bool = False) -> Solution:
         """The fastest timing on `intervals` intervals: the whole path in one problem (`solve_all`; a receding

@@ -35,6 +35,7 @@ from ..model.ranges import sampled_gain_problems
 from .checks import certify
 from .ideal_motion import PlanningError
 from .planner import CertificateError, Plan, PlanFailure, plan
+from .shaping import SHAPERS
 from .windows import bisect_factor
 
 TOLERANCE_ROUNDS = 4
@@ -95,8 +96,13 @@ def check_plan_options(options: dict, tolerance, certify) -> None:
                          ("max_jerk", PLAN_JERK)):
         if options[name] is not None:
             range_.check(options[name], name)
+    shaper = options.get("shaper")
+    if shaper is not None and shaper not in SHAPERS:
+        raise PlanningError(f"shaper: expected one of {', '.join(SHAPERS)} or None, found {shaper!r}")
     if tolerance is not None:
         PLAN_TOLERANCE.check(tolerance, "tolerance")
+        if shaper is not None:
+            raise PlanningError("shaper: a shaped timing has no optimiser to hold a tolerance; give one or the other")
         if certify is False:
             raise PlanningError("tolerance: it is judged by flying the plan; it cannot go with certify=False")
 
@@ -107,6 +113,7 @@ def plan_path(model, path, q0, certify, tolerance: float | None = None, **option
     if tolerance is None:
         return plan(model, path, q0, margin=margin, intervals=intervals, certify_plan=certify, **options)
     methods = ("mlm",) if certify is True else tuple(certify)
+    options.pop("shaper", None)  # None: check_plan_options refuses a shaper with a tolerance
     return plan_to_tolerance(model, path, q0, float(tolerance), methods, margin=margin, intervals=intervals,
                              **options)
 
