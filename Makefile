@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed
 # .venv/bin/acroboter finds it by itself, the export only makes it explicit for the tools run here.
 export ACROBOTER_CACHE_DIR := $(CURDIR)/build/cache
 
-.PHONY: run test setup build generate check-generated mutation bench retiming-study study sweep robustness plant-fuzz plant-fuzz-cranes docs clean
+.PHONY: run test setup build generate check-generated mutation bench retiming-study shaping-study study sweep robustness plant-fuzz plant-fuzz-cranes docs clean
 
 $(RUN_STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
@@ -64,6 +64,12 @@ bench: build
 retiming-study: build
 	$(PY) tools/retiming_study.py --cases 0,1,2 & $(PY) tools/retiming_study.py --cases 3,4,5; wait
 	$(PY) tools/retiming_study.py --assemble
+
+# The paper's path input-shaped (ZV, ZVD, unshaped) on the same cases, every method (docs/planning.md, "Input
+# shaping"; about 6 min on the shared 2-core VM).
+shaping-study: build
+	$(PY) tools/shaping_study.py --cases 0,1,2 & $(PY) tools/shaping_study.py --cases 3,4,5; wait
+	$(PY) tools/shaping_study.py --assemble
 
 study: build
 	$(PY) -m acroboter study

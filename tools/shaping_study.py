@@ -16,6 +16,7 @@ import datetime
 import json
 import platform
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -39,9 +40,10 @@ def main(argv=None) -> int:
     from acroboter.studies.planned_flights import CASES, limited_spec_text
 
     chosen = [] if args.assemble else ([CASES[int(i)] for i in args.cases.split(",") if i.strip()] or list(CASES))
-    (args.out / "specs").mkdir(parents=True, exist_ok=True)
+    args.out.mkdir(parents=True, exist_ok=True)
+    specs = Path(tempfile.mkdtemp(prefix="shaping-specs-"))
     for case in chosen:  # each case into its own file: cases can run in parallel processes (--cases)
-        spec_path = args.out / "specs" / f"{case.spec}_{case.lower:g}_{case.upper:g}.toml"
+        spec_path = specs / f"{case.spec}_{case.lower:g}_{case.upper:g}.toml"
         spec_path.write_text(limited_spec_text(example_spec(case.spec).read_text(), case.upper, case.lower))
         crane = Crane.from_toml(spec_path)
         rows = []
