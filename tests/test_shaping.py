@@ -170,14 +170,14 @@ def test_a_zv_plan_flies_its_convolution_and_stops_at_rest(tmp_path):
     plan = crane.plan(margin=0.05, shaper="zv", certify=["mlm", "penalty"])
     assert plan.status == "planned" and plan.corners == "shaped"
     assert plan.margin_achieved >= 0.05 - 1e-6
-    shaped = plan.shaping
-    times, amps = np.array(shaped["impulse_times_s"]), np.array(shaped["impulse_amplitudes"])
+    shaped = plan.shaping["edges"]
     own = crane.path.edge_duration
     traj = plan.trajectory
     start, t0 = np.asarray(traj.position[0, :3]), 0.0
     corners = [start, start + [0.25, 0, 0], start + [0.25, 0.25, 0]]
-    for j, factor in enumerate(shaped["edge_factors"]):
-        span = factor * own[j]
+    for j, edge in enumerate(shaped):
+        times, amps = np.array(edge["impulse_times_s"]), np.array(edge["impulse_amplitudes"])
+        span = edge["factor"] * own[j]
         duration = span + times[-1]
         inside = (traj.times >= t0) & (traj.times <= t0 + duration)
         x = np.clip((traj.times[inside, None] - t0 - times[None, :]) / span, 0.0, 1.0)
@@ -202,7 +202,7 @@ def test_a_zv_plan_flies_its_convolution_and_stops_at_rest(tmp_path):
     swings = {}
     for kind in ("zv", "unshaped"):
         problem = shaping.ShapedRetiming(dyn, geo, q0, low, high, shaper_kind=kind)
-        states, _, _, _ = problem.fly_edge(np.concatenate([problem.x0, [0.0, 0.0]]), 0, shaped["edge_factors"][0])
+        states, _, _, _ = problem.fly_edge(np.concatenate([problem.x0, [0.0, 0.0]]), 0, shaped[0]["factor"])
         swings[kind] = shaping.corner_swing(problem, np.zeros(1), states[-1:], [0])[0]
     assert swings["zv"]["speed_mm_s"] < 0.2 * swings["unshaped"]["speed_mm_s"]
 
@@ -217,7 +217,8 @@ def test_plan_shaper_cli(tmp_path):
     assert main(["--spec", str(spec), "--shaper", "zv", "--out", str(out), "--no-plots", "-q"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["corners"] == "shaped" and summary["shaping"]["kind"] == "zv"
-    assert len(summary["shaping"]["impulse_times_s"]) == 2 ** len(summary["shaping"]["modes"])
+    for edge in summary["shaping"]["edges"]:
+        assert len(edge["impulse_times_s"]) == 2 ** len(edge["modes"]) and edge["factor"] > 0
     assert [c["corner"] for c in summary["corner_swing"]] == [1, 2]
     for extra in (["--tolerance", "1mm"], ["--trajectory", str(tmp_path / "x.csv")]):
         with pytest.raises(SystemExit) as exit_:

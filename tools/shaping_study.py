@@ -73,7 +73,8 @@ def shaped_row(plan) -> dict:
            "status": plan.status, "margin_planned": plan.margin_achieved,
            "corner_swing_max_mm": max(c["displacement_mm"] for c in swing),
            "corner_speed_max_mm_s": max(c["speed_mm_s"] for c in swing),
-           "modes_s": [m["period_s"] for m in plan.shaping["modes"]], "edge_factors": plan.shaping["edge_factors"]}
+           "modes_s": [[m["period_s"] for m in e["modes"]] for e in plan.shaping["edges"]],
+           "edge_factors": [e["factor"] for e in plan.shaping["edges"]]}
     if plan.certificate is not None:
         for method, flight in plan.certificate.flights.items():
             row[f"{method}_error_mm"] = flight["max_position_error_mm"]

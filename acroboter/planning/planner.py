@@ -372,11 +372,22 @@ def solve_within_bounds(problem, intervals: int, low, high, names: list[str], un
     residual swing into the next edge, which the edge's own solve started at rest), the problem is solved again
     with those bounds moved in by the excess and a fifth, at most TIGHTEN_ROUNDS times."""
     base_low, base_high = problem.lower.copy(), problem.upper.copy()
+    kept = None  # the last solve's (solution, grid times, grid inputs, leak, its bounds)
     for attempt in range(TIGHTEN_ROUNDS + 1):
-        solution = problem.solve(intervals, verbose=verbose)
+        try:
+            solution = problem.solve(intervals, verbose=verbose)
+        except PlanningError as err:
+            if kept is None:
+                raise
+            # the bounds moved in left no timing (the statics too close to them): the last solve is the plan, its leak
+            # said, never a lost plan
+            solution, times, inputs, leak, problem.lower, problem.upper = kept
+            leak = f"{leak} (solved again with the bounds moved in by the excess and a fifth, it had no timing: {err})"
+            break
         # the inputs at every instant (a CHECK_STEP_S grid), not only where the optimiser looks
         times, inputs = problem.inputs_on_grid(solution, CHECK_STEP_S)
         leak = between_nodes(times, inputs, low, high, names, units)
+        kept = solution, times, inputs, leak, problem.lower.copy(), problem.upper.copy()
         if leak is None or attempt == TIGHTEN_ROUNDS:
             break
         with np.errstate(invalid="ignore"):

@@ -4,8 +4,9 @@ the corners; compared in docs/planning.md with the time-optimal rest-to-rest pla
 
 The crane's swing is the ideal motion's internal dynamics (acroboter.planning.ideal_motion): with the tracked
 point held at a place, the connector swings on its modes. `swing_modes` linearises the ideal motion at rest there
-and keeps the lightly damped ones (damping ratio below SWING_DAMPING). A shaper is a train of impulses (times t_i,
-amplitudes A_i > 0, ΣA_i = 1); convolved with a command it cancels the residual vibration of its mode:
+(each edge's first corner: the cables' lengths set the modes) and keeps the lightly damped ones (damping ratio below
+SWING_DAMPING). A shaper is a train of impulses (times t_i, amplitudes A_i > 0, ΣA_i = 1); convolved with a command
+it cancels the residual vibration of its mode:
 
     ZV:  A = [1, K] / (1 + K),              t = [0, T_d/2]
     ZVD: A = [1, 2K, K²] / (1 + K)²,        t = [0, T_d/2, T_d]        K = exp(−ζπ/√(1 − ζ²)), T_d = 2π/ω_d
@@ -35,7 +36,7 @@ from ..control.path import quintic_array
 from .edges import EdgeRetiming
 from .ideal_motion import PlanningError
 from .retiming import MAX_SLOWDOWN, MIN_PHASE_INTERVALS, REST_TOL, Solution
-from .windows import PHASE_BISECTION, _substeps, bisect_factor
+from .windows import PHASE_BISECTION, _substeps, first_serving
 
 SHAPERS = ("zv", "zvd", "unshaped")
 # A mode of the linearised ideal motion at rest is a swing when it oscillates with a damping ratio below this
@@ -156,13 +157,20 @@ class ShapedRetiming(EdgeRetiming):
         super().__init__(*args, **kwargs)
         self.kind = shaper_kind
         self.smooth = True  # σ̈ continuous
-        self.modes = swing_modes(self.dyn, self.geo, self.x0[: self.n], 0.0)
-        self.impulses = shaper(shaper_kind, self.modes)
+        self._shapers: dict[int, tuple[list[Mode], tuple[np.ndarray, np.ndarray]]] = {}
         self.factors: list[float] = []
         self.counts: list[int] = []  # the last solve's intervals per edge
 
+    def edge_shaper(self, j: int) -> tuple[list[Mode], tuple[np.ndarray, np.ndarray]]:
+        """Edge j's swing modes, at rest at its first corner (the cables' lengths there set them: on the paper's
+        path the upper square's), and its shaper's impulses."""
+        if j not in self._shapers:
+            modes = swing_modes(self.dyn, self.geo, self.corner(j, MIN_PHASE_INTERVALS), self.geo.phases[j][0])
+            self._shapers[j] = modes, shaper(self.kind, modes)
+        return self._shapers[j]
+
     def edge(self, j: int, factor: float) -> tuple[np.ndarray, float]:
-        return shaped_edge(self.geo.phases[j][2], factor, *self.impulses)
+        return shaped_edge(self.geo.phases[j][2], factor, *self.edge_shaper(j)[1])
 
     def fly_edge(self, x: np.ndarray, j: int, factor: float):
         """Edge j shaped at `factor` from the state x: (node states, inputs, σ̈ at the nodes, duration)."""
@@ -192,25 +200,11 @@ class ShapedRetiming(EdgeRetiming):
             return (self.excess(inputs) <= 0 and np.abs(end[:n] - rest).max() <= REST_TOL
                     and np.abs(end[n : 2 * n]).max() <= REST_TOL)
 
-        good = max(self.kinematic_factor(j), self.slowest_move(j), 1e-3)
-        if not within(good):
-            bad = good
-            while not within(good):
-                bad, good = good, 2.0 * good
-                if good > MAX_SLOWDOWN:
-                    raise PlanningError(f"edge {j + 1}: no slowdown of its own timing up to {MAX_SLOWDOWN:g}x, shaped "
-                                        f"({self.kind}), keeps the inputs within the limits with the margin from the "
-                                        "swing the edges before it leave")
-            good = bisect_factor(within, bad, good, PHASE_BISECTION)
-        bad = good
-        if serves(good):
-            return good
-        while not serves(good):
-            bad, good = good, 2.0 * good
-            if good > MAX_SLOWDOWN:
-                raise PlanningError(f"edge {j + 1}: no slowdown of its own timing up to {MAX_SLOWDOWN:g}x, shaped "
-                                    f"({self.kind}), ends within {REST_TOL:g} of rest")
-        return bisect_factor(serves, bad, good, PHASE_BISECTION)
+        low = max(self.kinematic_factor(j), self.slowest_move(j), 1e-3)
+        refusal = f"edge {j + 1}: no slowdown of its own timing up to {MAX_SLOWDOWN:g}x, shaped ({self.kind}), "
+        within_bounds = first_serving(within, low, PHASE_BISECTION, refusal + "keeps the inputs within the limits "
+                                      "with the margin from the swing the edges before it leave")
+        return first_serving(serves, within_bounds, PHASE_BISECTION, refusal + f"ends within {REST_TOL:g} of rest")
 
     def phase_counts(self, intervals: int) -> list[int]:
         """The intervals of each edge in the last solve (its own grid, not `intervals`)."""
@@ -221,7 +215,8 @@ class ShapedRetiming(EdgeRetiming):
         of the linearised crane; a faster move is a near-step, and the shaped timing a staircase of near-steps that
         drive the crane far from its linearisation and that a sampled controller follows poorly (measured on the
         paper's path: ZVD edges at 0.01-0.1 of their own timing failed their certificates, or flew 250 mm off)."""
-        return self.modes[0].period / self.geo.phases[j][2] if self.modes else 0.0
+        modes = self.edge_shaper(j)[0]
+        return modes[0].period / self.geo.phases[j][2] if modes else 0.0
 
     def solve(self, intervals: int, guess_factor: float | None = None, max_iter: int = 400,
               verbose: bool = False) -> Solution:
@@ -256,11 +251,14 @@ class ShapedRetiming(EdgeRetiming):
                         part.tau_ddd)
 
     def description(self) -> dict:
-        """What the summary says of the shaping: the kind, the modes, the impulses and each edge's factor."""
-        times, amps = self.impulses
-        return {"kind": self.kind, "modes": [m.as_dict() for m in self.modes],
-                "impulse_times_s": times.tolist(), "impulse_amplitudes": amps.tolist(),
-                "edge_factors": self.factors, "interval_s": SHAPED_INTERVAL_S}
+        """What the summary says of the shaping: the kind, the node spacing, and for each edge its factor, its swing
+        modes and its shaper's impulses."""
+        edges = []
+        for j, factor in enumerate(self.factors):
+            modes, (times, amps) = self.edge_shaper(j)
+            edges.append({"factor": factor, "modes": [m.as_dict() for m in modes], "impulse_times_s": times.tolist(),
+                          "impulse_amplitudes": amps.tolist()})
+        return {"kind": self.kind, "interval_s": SHAPED_INTERVAL_S, "edges": edges}
 
 
 def corner_swing(problem: EdgeRetiming, times: np.ndarray, states: np.ndarray, corner_nodes: list[int]) -> list[dict]:

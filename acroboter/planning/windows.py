@@ -88,6 +88,20 @@ def bisect_factor(serves, bad: float, good: float, relative: float) -> float:
     return good
 
 
+def first_serving(serves, low: float, relative: float, refusal: str) -> float:
+    """The smallest factor from `low` up that serves, where serving need not be monotonic in the factor (a residual
+    swing beats with its period): `low` if it serves, else doubling until one does (PlanningError(refusal) beyond
+    MAX_SLOWDOWN), then bisecting between the last factor found wanting and the first that serves."""
+    if serves(low):
+        return low
+    bad, good = low, 2.0 * low
+    while not serves(good):
+        bad, good = good, 2.0 * good
+        if good > MAX_SLOWDOWN:
+            raise PlanningError(refusal)
+    return bisect_factor(serves, bad, good, relative)
+
+
 def phase_slowdown(problem, high: float) -> tuple[list[float], float]:
     """The phase-wise slowdown (see the module's docstring): each phase's factor and the total duration."""
     phases = problem.geo.phases
