@@ -8,9 +8,8 @@ edge by edge with the swing carried over, the next edge can have no feasible tim
 timing slowed a thousand times (measured on the default crane with winch limits [5, 30] N: the first edge's
 optimum left a swing that takes a winch beyond its bounds at rest). A crane operator asks for the other thing
 anyway: at a waypoint the load is at rest. So each edge is planned from the static equilibrium at its first
-corner to within REST_TOL of the static equilibrium at its last corner, at rest: the edges are then small problems
-(one edge's RK4 steps), solved one after the other, each from the state the edge before leaves the crane in (within
-REST_TOL of rest: the small residual swing carried over, as the plant will carry it).
+corner to within REST_TOL of the static equilibrium at its last corner, at rest: the edges are then independent
+problems, small (one edge's RK4 steps) and solved one after the other.
 
 What it costs. The time-optimal timing with the swing free at the corners can only be faster; docs/planning.md
 reports the two on a path where both solve. The plan's inputs are not taken from the edges' solves: the whole
@@ -72,8 +71,11 @@ class EdgeRetiming(Retiming):
 
         bar = tqdm(total=K, unit="edge", desc="planning", file=sys.stderr, disable=progress_disabled(), leave=False)
         lag = np.zeros(6)  # a plan to a tolerance: the lag model's state carried from edge to edge
-        start = self.at_rest(0)
         for j in range(K):
+            # from rest, not from the state the edge before leaves: its residual swing (within REST_TOL) must then be
+            # stopped too, and on the paper's path at [5, 30] N that made the second edge 4.72 s where it takes 1.79 s
+            # from rest (the whole plan 38.5 s, measured 2026-12-06); the chain carries the swing instead
+            start = self.at_rest(j)
             warm_a, warm_T = _warm(self, j, counts[j], factors[j])
             guess_a, guess_T = (warm_a, warm_T) if self.warm is None else (self.warm[0][j], self.warm[1][j])
             m = _substeps([guess_T], [counts[j]])
@@ -102,11 +104,6 @@ class EdgeRetiming(Retiming):
             durations.append(edge_T)
             tau_dd.append(edge_a)
             jerks.append(edge_j)
-            # the next edge starts where this one leaves the crane (within REST_TOL of rest, not at rest: started at
-            # rest, its solve's inputs were not the chain's, and the 1 ms check then found them beyond the bounds)
-            start = self.run_grid(start, edge_a, float(edge_T[0]) / counts[j], _substeps(edge_T, [counts[j]]),
-                                  jerk=edge_j)[0][-1].copy()
-            start[-2:] = self.geo.phases[j][1], 0.0
             bar.set_postfix_str(f"edge {j + 1}: {float(edge_T[0]):.3g} s ({edge_status})")
             bar.update()
         bar.close()
