@@ -209,7 +209,7 @@ def test_a_zv_plan_flies_its_convolution_and_stops_at_rest(tmp_path):
 
 def test_plan_shaper_cli(tmp_path):
     """`acroboter plan --shaper zv` writes the shaping and the corners' swing into summary.json; a shaper with a
-    tolerance or a trajectory file is refused before any work (exit 2, the option named)."""
+    tolerance, a trajectory file, swing corners or a window is refused before any work (exit 2, the option named)."""
     from acroboter.cli.plan import main
 
     spec = _two_edges(tmp_path)
@@ -220,7 +220,40 @@ def test_plan_shaper_cli(tmp_path):
     for edge in summary["shaping"]["edges"]:
         assert len(edge["impulse_times_s"]) == 2 ** len(edge["modes"]) and edge["factor"] > 0
     assert [c["corner"] for c in summary["corner_swing"]] == [1, 2]
-    for extra in (["--tolerance", "1mm"], ["--trajectory", str(tmp_path / "x.csv")]):
+    for extra in (["--tolerance", "1mm"], ["--trajectory", str(tmp_path / "x.csv")], ["--corners", "swing"],
+                  ["--window", "2"]):
         with pytest.raises(SystemExit) as exit_:
             main(["--spec", str(spec), "--shaper", "zv", "--out", str(out), *extra])
         assert exit_.value.code == 2
+
+
+def test_a_failed_resolve_leaves_the_kept_plans_description(tmp_path):
+    """A shaped solve that fails part-way (a re-solve with the bounds moved in) leaves the factors and the grid of
+    the solve before it: the plan kept is the one its summary and its corners describe (a review found them
+    overwritten with the failed attempt's first edges)."""
+    import acroboter
+    from acroboter.planning.geometry import PathGeometry
+    from acroboter.planning.ideal_motion import IdealDynamics, PlanningError
+    from acroboter.planning.limits import tightened
+
+    crane = acroboter.Crane.from_toml(_two_edges(tmp_path))
+    lower, upper, _ = crane.spec.input_limits()
+    low, high = tightened(lower, upper, 0.05)
+    q0 = crane.equilibrium().q
+    problem = shaping.ShapedRetiming(IdealDynamics(crane.spec, q0), PathGeometry(crane.path), q0, low, high,
+                                     shaper_kind="zv")
+    solution = problem.solve(0, guess_factor=1.0)
+    factors, counts = list(problem.factors), list(problem.counts)
+    assert len(factors) == 2 and sum(counts) == solution.tau_dd.size
+    first = problem.edge_factor
+
+    def fails_on_the_second(x, j):
+        if j == 1:
+            raise PlanningError("no timing with the bounds moved in")
+        return 1.3 * first(x, j)
+
+    problem.edge_factor = fails_on_the_second
+    with pytest.raises(PlanningError):
+        problem.solve(0, guess_factor=1.0)
+    assert problem.factors == factors and problem.phase_counts(0) == counts
+    assert [e["factor"] for e in problem.description()["edges"]] == factors

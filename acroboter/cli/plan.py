@@ -117,9 +117,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     args = p.parse_args(argv)
     if args.no_certificate and args.tolerance is not None:
         p.error("--tolerance is judged by flying the plan: it cannot go with --no-certificate")
-    if args.shaper is not None and (args.tolerance is not None or args.trajectory is not None):
-        p.error("--shaper shapes the spec's waypoint edges without an optimiser: it cannot go with "
-                + ("--tolerance" if args.tolerance is not None else "--trajectory"))
+    if args.shaper is not None:
+        clash = [name for name, given in (("--tolerance", args.tolerance is not None), ("--trajectory",
+                 args.trajectory is not None), ("--corners swing", args.corners != "rest"),
+                 ("--window", args.window is not None)) if given]
+        if clash:
+            p.error("--shaper shapes the spec's waypoint edges without an optimiser, the swing carried over the "
+                    f"corners: it cannot go with {', '.join(clash)}")
     from .run_args import expand_methods
 
     try:

@@ -229,7 +229,7 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
     spec, lay = model.spec, model.layout
     if not (isinstance(margin, (int, float)) and 0.0 <= margin < 0.5):
         raise PlanningError(f"margin: expected a fraction from 0 to below 0.5 (0 to 50 %), found {margin!r}")
-    check_timing_options(path, corners, shaper, lag)
+    check_timing_options(path, corners, shaper, lag, window)
     lower, upper, _ = spec.input_limits()
     low, high = tightened(lower, upper, margin)
     geometry = PathGeometry(path)
@@ -292,11 +292,14 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
     return result
 
 
-def check_timing_options(path, corners: str, shaper: str | None, lag) -> None:
+def check_timing_options(path, corners: str, shaper: str | None, lag, window: int | None = None) -> None:
     """PlanningError for corners or a shaper `plan` cannot take (a shaper shapes each straight edge of the spec's
-    waypoint path, with no optimiser to hold a tolerance)."""
+    waypoint path, with no optimiser to hold a tolerance, and carries the swing over the corners itself)."""
     if corners not in CORNERS:
         raise PlanningError(f"corners: expected one of {', '.join(CORNERS)}, found {corners!r}")
+    if shaper is not None and (corners != "rest" or window is not None):
+        raise PlanningError(f"shaper: a shaped timing carries the swing over the corners edge by edge; it cannot go "
+                            f"with corners={corners!r} or a window (found window={window!r})")
     if shaper is not None and (shaper not in SHAPERS or lag is not None or not path_has_edges(path)):
         raise PlanningError(f"shaper: expected one of {', '.join(SHAPERS)} on the spec's waypoint path, without a "
                             f"tolerance (a shaper shapes each straight edge's timing), found {shaper!r}"

@@ -142,10 +142,10 @@ def _end_map(count: int, h: float) -> np.ndarray:
     rate[:-1] += h / 2
     rate[1:] += h / 2
     # interval k contributes σ̇_k h + h²(2a_k + a_{k+1})/6, and σ̇_k carries every interval before it
-    before = count - 1 - k  # intervals after interval k (each sees its full rate change)
+    after = count - 1 - k  # the intervals after interval k (each sees its full rate change)
     pos = np.zeros(count + 1)
-    pos[:-1] += h * h / 2 * before + h * h / 3
-    pos[1:] += h * h / 2 * before + h * h / 6
+    pos[:-1] += h * h / 2 * after + h * h / 3
+    pos[1:] += h * h / 2 * after + h * h / 6
     return np.vstack([rate, pos])
 
 
@@ -163,7 +163,7 @@ class ShapedRetiming(EdgeRetiming):
 
     def edge_shaper(self, j: int) -> tuple[list[Mode], tuple[np.ndarray, np.ndarray]]:
         """Edge j's swing modes, at rest at its first corner (the cables' lengths there set them: on the paper's
-        path the upper square's), and its shaper's impulses."""
+        path the upper square's edges have their own), and its shaper's impulses."""
         if j not in self._shapers:
             modes = swing_modes(self.dyn, self.geo, self.corner(j, MIN_PHASE_INTERVALS), self.geo.phases[j][0])
             self._shapers[j] = modes, shaper(self.kind, modes)
@@ -224,20 +224,21 @@ class ShapedRetiming(EdgeRetiming):
         started = time.perf_counter()
         factor = self.best_uniform() if guess_factor is None else guess_factor
         x0 = np.concatenate([self.x0, [0.0, 0.0]])
-        x, counts, durations, nodes, records = x0, [], [], [], []
-        self.factors, self.counts = [], counts
+        x, counts, durations, nodes, records, factors = x0, [], [], [], [], []
         for j in range(len(self.geo.phases)):
             begun = time.perf_counter()
             f = self.edge_factor(x, j)
             states, _, acc, duration = self.fly_edge(x, j, f)
             x = states[-1].copy()
             x[-2:] = self.geo.phases[j][1], 0.0
-            self.factors.append(f)
+            factors.append(f)
             counts.append(acc.size - 1)
             durations.append(duration)
             nodes.append(acc)
             records.append({"phases": [j], "intervals": acc.size - 1, "status": SHAPED_STATUS, "iterations": 0,
                             "factor": f, "solve_s": time.perf_counter() - begun})
+        # only a solve that reaches the end describes the plan (a re-solve that fails keeps the plan before it)
+        self.factors, self.counts = factors, counts
         tau_dd = np.concatenate([a[:-1] for a in nodes])
         tau_ddd = np.concatenate([np.diff(a) / (d / (a.size - 1)) for a, d in zip(nodes, durations, strict=True)])
         part = self.chain(x0, counts, np.asarray(durations), tau_dd, SHAPED_STATUS, 0, records, tau_ddd)
