@@ -229,10 +229,10 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
     spec, lay = model.spec, model.layout
     if not (isinstance(margin, (int, float)) and 0.0 <= margin < 0.5):
         raise PlanningError(f"margin: expected a fraction from 0 to below 0.5 (0 to 50 %), found {margin!r}")
-    check_timing_options(path, corners, shaper, lag, window)
     lower, upper, _ = spec.input_limits()
     low, high = tightened(lower, upper, margin)
     geometry = PathGeometry(path)
+    check_timing_options(geometry, corners, shaper, lag, window)
     needs = check_statics(model, geometry, lower, upper, low, high, margin)
     static_margin, _ = margin_achieved(needs, lower, upper)
     dynamics = IdealDynamics(spec, q0)
@@ -292,7 +292,8 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
     return result
 
 
-def check_timing_options(path, corners: str, shaper: str | None, lag, window: int | None = None) -> None:
+def check_timing_options(geometry: PathGeometry, corners: str, shaper: str | None, lag,
+                         window: int | None = None) -> None:
     """PlanningError for corners or a shaper `plan` cannot take (a shaper shapes each straight edge of the spec's
     waypoint path, with no optimiser to hold a tolerance, and carries the swing over the corners itself)."""
     if corners not in CORNERS:
@@ -300,11 +301,11 @@ def check_timing_options(path, corners: str, shaper: str | None, lag, window: in
     if shaper is not None and (corners != "rest" or window is not None):
         raise PlanningError(f"shaper: a shaped timing carries the swing over the corners edge by edge; it cannot go "
                             f"with corners={corners!r} or a window (found window={window!r})")
-    if shaper is not None and (shaper not in SHAPERS or lag is not None or not path_has_edges(path)):
+    if shaper is not None and (shaper not in SHAPERS or lag is not None or not geometry.edges):
         raise PlanningError(f"shaper: expected one of {', '.join(SHAPERS)} on the spec's waypoint path, without a "
                             f"tolerance (a shaper shapes each straight edge's timing), found {shaper!r}"
                             + (" with a tolerance" if lag is not None else "")
-                            + ("" if path_has_edges(path) else " on a trajectory file"))
+                            + ("" if geometry.edges else " on a trajectory file"))
 
 
 def timing_problem(dynamics, geometry, q0, low, high, corners: str, window: int | None, shaper: str | None,
@@ -321,11 +322,6 @@ def timing_problem(dynamics, geometry, q0, low, high, corners: str, window: int 
     if window:
         return WindowedRetiming(dynamics, geometry, q0, low, high, window=window, **kinematic), corners, window
     return Retiming(dynamics, geometry, q0, low, high, **kinematic), corners, window
-
-
-def path_has_edges(path) -> bool:
-    """A waypoint path (straight edges, each a phase), not a trajectory file's one phase."""
-    return not isinstance(path, TrajectoryPath)
 
 
 def warm_start(warm: Plan, counts: list[int], end: float) -> tuple[list[np.ndarray], list[float]] | None:

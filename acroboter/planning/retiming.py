@@ -122,6 +122,18 @@ class Part:
             self.tau_ddd = np.zeros_like(self.tau_dd)
 
 
+def solution_of(part: Part, counts: list[int], solve_s: float, factor: float, uniform_duration: float) -> Solution:
+    """The Solution of a whole path's Part (`counts` intervals per phase): its node times and the times of its inputs
+    (every RK4 step's start, and the end)."""
+    h = np.repeat(part.durations / np.asarray(counts), counts)
+    times = np.concatenate([[0.0], np.cumsum(h)])
+    per = np.repeat(part.substeps, counts)  # RK4 steps of each interval
+    starts = [t0 + np.arange(m) * (dt / m) for t0, dt, m in zip(times[:-1], h, per, strict=True)]
+    input_times = np.concatenate([*starts, [times[-1]]])
+    return Solution(float(np.sum(part.durations)), times, part.states, part.tau_dd, input_times, part.inputs,
+                    part.status, part.iterations, solve_s, factor, uniform_duration, part.windows, part.tau_ddd)
+
+
 class Retiming:
     """The problem for one crane, path and set of bounds; `solve(intervals)` returns a Solution."""
 
@@ -270,14 +282,7 @@ class Retiming:
         if duration <= 1.001e-3 * uniform_duration:
             raise PlanningError("the limits do not bound this motion (the fastest timing is as short as allowed): "
                                 "give max_speed / max_accel (--max-speed, --max-accel)")
-        h = np.repeat(part.durations / np.asarray(counts), counts)
-        times = np.concatenate([[0.0], np.cumsum(h)])
-        per = np.repeat(part.substeps, counts)  # RK4 steps of each interval
-        starts = [t0 + np.arange(m) * (dt / m) for t0, dt, m in zip(times[:-1], h, per, strict=True)]
-        input_times = np.concatenate([*starts, [times[-1]]])
-        return Solution(duration, times, part.states, part.tau_dd, input_times, part.inputs, part.status,
-                        part.iterations, time.perf_counter() - started, factor, uniform_duration, part.windows,
-                        part.tau_ddd)
+        return solution_of(part, counts, time.perf_counter() - started, factor, uniform_duration)
 
     def solve_all(self, x0: np.ndarray, counts: list[int], factor: float, uniform_duration: float,
                   max_iter: int = 400, verbose: bool = False) -> Part:

@@ -16,11 +16,13 @@ shapers convolved. On a straight edge the tracked point is linear in the path pa
 shaping the point's command: each edge's own quintic timing, slowed by a factor f_j, is convolved with the shaper;
 σ stays monotone and the geometry exact. The edge then lasts f_j·T_j plus the shaper's span.
 
-The factors are chosen edge by edge, in order, from the state the edges before leave (the swing carried over as
-the plant will): each the smallest (bisection to PHASE_BISECTION) whose ideal motion keeps every input within the
-limits less the margin. The timing is written as the planner writes a smooth one (σ̈ at nodes SHAPED_INTERVAL_S
-apart, linear in between, corrected so each edge ends exactly at its corner at rest), so the same sampling, checks
-and certificate apply. "unshaped" is the same search without a shaper: what the shaper buys.
+The factors are chosen edge by edge, in order, from the state the edges before leave (the swing carried over as the
+plant will): each the first (doubling, then bisection to PHASE_BISECTION: the residual swing is not monotonic in it)
+whose ideal motion keeps every input within the limits less the margin and ends within REST_TOL of rest, and no
+faster than the slowest mode (`ShapedRetiming.slowest_move`). The timing is written as the planner writes a smooth
+one (σ̈ at nodes SHAPED_INTERVAL_S apart, linear in between, corrected so each edge ends exactly at its corner at
+rest), so the same sampling, checks and certificate apply. "unshaped" is the same search without a shaper: what the
+shaper buys.
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ import numpy as np
 from ..control.path import quintic_array
 from .edges import EdgeRetiming
 from .ideal_motion import PlanningError
-from .retiming import MAX_SLOWDOWN, MIN_PHASE_INTERVALS, REST_TOL, Solution
+from .retiming import MAX_SLOWDOWN, MIN_PHASE_INTERVALS, REST_TOL, Solution, solution_of
 from .windows import PHASE_BISECTION, _substeps, first_serving
 
 SHAPERS = ("zv", "zvd", "unshaped")
@@ -242,14 +244,7 @@ class ShapedRetiming(EdgeRetiming):
         tau_dd = np.concatenate([a[:-1] for a in nodes])
         tau_ddd = np.concatenate([np.diff(a) / (d / (a.size - 1)) for a, d in zip(nodes, durations, strict=True)])
         part = self.chain(x0, counts, np.asarray(durations), tau_dd, SHAPED_STATUS, 0, records, tau_ddd)
-        h = np.repeat(np.asarray(durations) / np.asarray(counts), counts)
-        times = np.concatenate([[0.0], np.cumsum(h)])
-        per = np.repeat(part.substeps, counts)
-        starts = [t0 + np.arange(m) * (dt / m) for t0, dt, m in zip(times[:-1], h, per, strict=True)]
-        input_times = np.concatenate([*starts, [times[-1]]])
-        return Solution(float(times[-1]), times, part.states, part.tau_dd, input_times, part.inputs, SHAPED_STATUS,
-                        0, time.perf_counter() - started, factor, factor * self.geo.path_duration, records,
-                        part.tau_ddd)
+        return solution_of(part, counts, time.perf_counter() - started, factor, factor * self.geo.path_duration)
 
     def description(self) -> dict:
         """What the summary says of the shaping: the kind, the node spacing, and for each edge its factor, its swing
