@@ -8,8 +8,10 @@ import numpy as np
 
 
 def penalty_inputs_40_digits(model, desired, gains, method, states) -> np.ndarray:
-    """The penalty methods with the projected recovery, in 40-digit arithmetic (mpmath), from the model
-    terms at each state: a reference free of the round-off of either formulation. With more inputs than
+    """The penalty methods with the projected recovery (the fit of the servo accelerations, E u + σ_q P σ_qᵀλ̂ = 0;
+    with fewer inputs than servo-constraints the fit of the whole acceleration in the P metric), in 40-digit
+    arithmetic (mpmath), from the model terms at each state: a reference free of the round-off of either
+    formulation. With more inputs than
     servo-constraints, the distribution of the same fit, lexicographic in the servo accelerations
     (acroboter.control.distribution.BoundedInputs.solve_task), which must be within the limits at these states (the
     reference has no QP)."""
@@ -36,21 +38,19 @@ def penalty_inputs_40_digits(model, desired, gains, method, states) -> np.ndarra
                 qdd = mpmath.lu_solve(A, M * qdd + force)
                 total += qdd
             lam_hat = gains.alpha_servo * (sigma_q * total + iterations * rho_s)
-            B = mpmath.matrix(lay.n, lay.l + len(rows))
-            for r in range(lay.n):
-                for j in range(lay.l):
-                    B[r, j] = H[r, j]
-                for j, row in enumerate(rows):
-                    B[r, lay.l + j] = -phi_q[row, r]
+            # P = M⁻¹ − M⁻¹φ_qᵀ(φ_q M⁻¹φ_qᵀ)⁻¹φ_q M⁻¹ over the kept rows: the acceleration a force causes
             minv = M**-1
-            if lay.l > lay.k:  # G = HᵀPH, g = HᵀPσ_qᵀλ̂, P = M⁻¹ − M⁻¹φ_qᵀ(φ_q M⁻¹φ_qᵀ)⁻¹φ_q M⁻¹ (kept rows)
-                phi = mpmath.matrix([[phi_q[row, c] for c in range(lay.n)] for row in rows])
-                P = minv - minv * phi.T * mpmath.inverse(phi * minv * phi.T) * phi * minv
+            phi = mpmath.matrix([[phi_q[row, c] for c in range(lay.n)] for row in rows])
+            P = minv - minv * phi.T * mpmath.inverse(phi * minv * phi.T) * phi * minv
+            E = sigma_q * P * H
+            if lay.k > lay.l:  # fewer inputs than servo-constraints: |H u + σ_qᵀλ̂|² in the P metric
                 G, g = H.T * P * H, H.T * P * sigma_q.T * lam_hat
-                G = (G + G.T) / 2
-                # lexicographic in the servo accelerations (BoundedInputs.solve_task): E = σ_q P H,
+            else:  # the servo accelerations: |E u + σ_q P σ_qᵀ λ̂|²
+                G, g = E.T * E, E.T * (sigma_q * P * sigma_q.T) * lam_hat
+            G = (G + G.T) / 2
+            if lay.l > lay.k:
+                # lexicographic in the servo accelerations (BoundedInputs.solve_task):
                 # u_F = −Eᵀ(E G Eᵀ)⁻¹E g, then u = u_F + (I − Eᵀ(EEᵀ)⁻¹E)(u_pref − u_F)
-                E = sigma_q * P * H
                 u_task = -(E.T * mpmath.lu_solve(E * G * E.T, E * g))
                 shift = mpmath.matrix(preferred.tolist()) - u_task
                 x = u_task + shift - E.T * mpmath.lu_solve(E * E.T, E * shift)
@@ -58,6 +58,6 @@ def penalty_inputs_40_digits(model, desired, gains, method, states) -> np.ndarra
                 assert np.all(u >= lower) and np.all(u <= upper), "the reference needs u within the limits"
                 out.append(u)
                 continue
-            x = mpmath.lu_solve(B.T * minv * B, -(B.T * minv * sigma_q.T) * lam_hat)
+            x = mpmath.lu_solve(G, -g)
             out.append([float(x[j]) for j in range(lay.l)])
     return np.array(out)

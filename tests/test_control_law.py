@@ -338,10 +338,19 @@ def expected_input(kind: str, T: dict, mass: np.ndarray, qdd, lam, lam_hat, kapp
         return lam_hat.copy()
     if kind == "kappa":
         return -(kappa * pinv - (1 - kappa) * sigma_q) @ servo_force
-    # projected: min over (u, Δλ) of |H u − φ_qᵀΔλ + σ_qᵀλ̂| in the M⁻¹ metric
-    weight = np.linalg.cholesky(np.linalg.inv(mass)).T  # WᵀW = M⁻¹
-    stacked = np.hstack([H, -phi_q.T])
-    return np.linalg.lstsq(weight @ stacked, -(weight @ servo_force), rcond=None)[0][: H.shape[1]]
+    if kind == "kinetic" or sigma_q.shape[0] > H.shape[1]:  # projected with fewer inputs than servo-constraints:
+        # min over (u, Δλ) of |H u − φ_qᵀΔλ + σ_qᵀλ̂| in the M⁻¹ metric, WᵀW = M⁻¹
+        weight = np.linalg.cholesky(np.linalg.inv(mass)).T
+        stacked = np.hstack([H, -phi_q.T])
+        return np.linalg.lstsq(weight @ stacked, -(weight @ servo_force), rcond=None)[0][: H.shape[1]]
+    # projected: the inputs that accelerate the servo outputs as the ideal servo force does, each acceleration from
+    # the constrained dynamics [M φ_qᵀ; φ_q 0][a; λ] = [f; 0]
+    n, m = mass.shape[0], phi_q.shape[0]
+    kkt = np.block([[mass, phi_q.T], [phi_q, np.zeros((m, m))]])
+    forces = np.hstack([H, servo_force[:, None]])
+    accelerations = np.linalg.lstsq(kkt, np.vstack([forces, np.zeros((m, forces.shape[1]))]), rcond=None)[0][:n]
+    servo = sigma_q @ accelerations
+    return np.linalg.lstsq(servo[:, :-1], -servo[:, -1], rcond=None)[0]
 
 
 def test_the_toys_actuators_load_its_constraint_directions(toy):
@@ -356,7 +365,7 @@ def test_the_toys_actuators_load_its_constraint_directions(toy):
 
 
 @pytest.mark.parametrize("iterations", [1, 3])
-@pytest.mark.parametrize("kind", ["projected", "eq12", "eq13", "eq15", "kappa"])
+@pytest.mark.parametrize("kind", ["projected", "kinetic", "eq12", "eq13", "eq15", "kappa"])
 def test_each_recovery_meets_its_defining_equation(toy, kind, iterations):
     spec, model, path = toy
     # κ = 0.3, not the default 0.5: a κ lost on the way to the recovery would give the default's blend
@@ -377,11 +386,11 @@ def test_each_recovery_meets_its_defining_equation(toy, kind, iterations):
 @pytest.mark.parametrize("iterations", [1, 3])
 @pytest.mark.parametrize("system", ["toy", "turning_toy"])
 def test_the_projected_recoverys_fallback_meets_its_defining_equation(request, system, iterations, monkeypatch):
-    """Where the generated projected map comes out singular (non-finite: dependent actuators and reactions),
-    recover() solves the same fit by a pivoted QR of M^(-1/2) B (recovery.py). With the map made to fail, u is
-    still the fit in the M⁻¹ metric, solved with numpy from a numpy penalty solve: on the loaded toy, and on the
-    turning toy, whose body has products of inertia, so that its M is not diagonal (the loaded toy's and the
-    crane's are: a wrong M^(-1/2), an upper factor read as a lower one, goes unseen there)."""
+    """Where the generated projected map comes out singular (non-finite), recover() solves the same fit by a
+    pivoted QR of its normal equations (recovery.py). With the map made to fail, u is still the servo
+    accelerations' fit, solved with numpy from a numpy penalty solve and the constrained dynamics: on the loaded
+    toy, and on the turning toy, whose body has products of inertia, so that its M is not diagonal (the loaded
+    toy's and the crane's are: a term that reads M as diagonal goes unseen there)."""
     spec, model, path = request.getfixturevalue(system)
     gains = Gains.from_spec(spec, recovery="projected")
     controller = make_controller("penalty" if iterations == 1 else f"iterative-{iterations}", model, path, gains)

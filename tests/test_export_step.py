@@ -278,13 +278,13 @@ def redundant_crane(tmp_path_factory):
 
 @pytest.mark.parametrize("method", ["penalty", "iterative-3"])
 def test_redundant_constraints(method, redundant_crane, scenario, tmp_path):
-    """Redundant rows: the projected recovery leaves them out (as the Python side does); no Tikhonov needed."""
+    """Redundant rows: the projected recovery leaves them out (as the Python side does)."""
     spec, model, desired = redundant_crane
     states = scenario[-1]  # the default crane's: same coordinates, and on (or, noisy, near) w = u × v
     gains = Gains.from_spec(spec)
     export = build_step(spec, method, gains)
     assert export.system == "matrix"  # 'auto': the multiplier form's matrix is nearly singular here
-    assert any("6 redundant constraint rows left out" in note and "no Tikhonov" in note for note in export.notes)
+    assert any("6 redundant constraint rows left out" in note and "projected recovery" in note for note in export.notes)
     write_step(export, tmp_path)
     exe = compile_driver(tmp_path, export.name)
     write_states(tmp_path / "states.txt", model, desired, states)
@@ -298,26 +298,14 @@ def test_mlm_refuses_redundant_constraints(redundant_crane):
         build_step(spec, "mlm", Gains.from_spec(spec))
 
 
-def test_tikhonov_fallback_keeps_u(scenario, monkeypatch):
-    """If the projected recovery's matrix were still rank deficient after the redundant rows are left out,
-    the export adds 1e-12 * trace/size to the normal equations' diagonal: forced here, u stays put."""
-    spec, model, desired, gains, states = scenario
-    monkeypatch.setattr(step_methods, "RANK_TOL", 2.0)  # every matrix counts as rank deficient
-    export = build_step(spec, "penalty", gains)
-    assert any("Tikhonov term" in note and "rank deficient" in note for note in export.notes)
-    u_c = np.array([np.asarray(export.function(q, qd, *desired.signal_arrays(t))).ravel() for t, q, qd in states])
-    assert relative_error(u_c, python_inputs(model, desired, gains, "penalty", states)) <= RTOL
-
-
-
-
 @pytest.mark.parametrize("spec_path", SHIPPED_SPECS, ids=lambda p: p.stem)
 @pytest.mark.parametrize("method", ["penalty", "iterative-3"])
 def test_default_formulation_against_high_precision(method, spec_path):
     """The default formulation against the 40-digit reference, on every shipped spec. The multiplier form
     stays far below the Python comparison's tolerance, which the Python controller's own round-off
     limits (it solves the A form: ~1e-9 on the default crane, up to ~4e-8 on lab_crane's light bodies).
-    Specs with redundant constraints get the A form ('auto'), good to ~1e-9. With more inputs than
+    Specs with redundant constraints get the A form ('auto'), good to ~1e-9 in λ̂ and 1.3e-8 in u (the servo
+    accelerations' recovery, E u = −F λ̂, carries λ̂'s round-off further than the earlier fit did). With more inputs than
     servo-constraints (four-cable crane) the distribution, lexicographic in the servo accelerations
     (Cholesky of E G Eᵀ and E Eᵀ, 6x6), gives 5e-14 (it gave 4.0e-10 with the weighted distribution used
     before, whose G + μI had condition ≈ 4e5; the Python controller: 2.4e-9..7.4e-9, its A form), within
@@ -327,14 +315,16 @@ def test_default_formulation_against_high_precision(method, spec_path):
     desired = desired_path(model)
     q0 = solve_equilibrium(model, desired).q
     rng = np.random.default_rng(5)
-    states = [(t, q0 + 1e-4 * rng.standard_normal(q0.size), 1e-2 * rng.standard_normal(q0.size)) for t in (1.0, 4.0)]
+    # the start's q at 1 and 1.5 s, velocities 1e-3: at 4 s (the path moved on) or 1e-2 the four-input crane's exact
+    # recovery asks a winch to push (the reference has no QP)
+    states = [(t, q0 + 1e-4 * rng.standard_normal(q0.size), 1e-3 * rng.standard_normal(q0.size)) for t in (1.0, 1.5)]
     export = build_step(spec, method, Gains.from_spec(spec))
     u_c = np.array([np.asarray(export.function(q, qd, *desired.signal_arrays(t))).ravel() for t, q, qd in states])
     err = relative_error(u_c, penalty_inputs_40_digits(model, desired, Gains.from_spec(spec), method, states))
     if model.layout.l > model.layout.k:
         assert err <= 2e-9
     else:
-        assert err <= (1e-10 if export.system == "multipliers" else RTOL)
+        assert err <= (1e-10 if export.system == "multipliers" else 3e-8)
 
 
 def test_perturbed_gain_is_caught(scenario, tmp_path):
@@ -529,8 +519,8 @@ def test_refuses_distributions_it_cannot_bound(scenario, four_cable, monkeypatch
     ExportError, exit 2 from the CLI, no traceback. Forced here: every Hessian counts as singular."""
     monkeypatch.setattr(step_methods, "SINGULAR_MARGIN", 1e30)
     spec = scenario[0]
-    with pytest.raises(ExportError, match="cannot bound the inputs: the projected recovery's fit H\\^T P H is "
-                       "singular at the nominal configuration"):
+    with pytest.raises(ExportError, match="the projected recovery's matrix E = sigma_q P H is singular at the "
+                       "nominal configuration"):
         build_step(spec, "penalty", Gains.from_spec(spec))
     with pytest.raises(ExportError, match="E = sigma_q P H .* is rank deficient"):
         build_step(four_cable[0], "mlm", Gains.from_spec(four_cable[0]))

@@ -34,17 +34,17 @@ the tuned numbers; constants let CasADi fold them (e.g. α̃ φ_qᵀφ_q is one 
 call signature the same as the model functions (q, qd, s, sd, sdd), and leave no way to run with a
 mismatched or unvalidated gain set. Changing a gain means re-exporting; the header records them all.
 
-The mass matrix of natural coordinates is constant, so its Cholesky factor's inverse L⁻¹ (used by the
-'projected' recovery, a least squares in the M⁻¹ metric) is a numeric constant in the C as well.
+The mass matrix of natural coordinates is constant, so its inverse (in the constrained projection P of the
+'projected' recovery and of MLM's bounded terms) is a numeric constant in the C as well.
 
 Input limits (the spec's actuator `limits` and `preferred`, baked in as constants like the gains) are
 honoured as the Python controllers do (acroboter.control.distribution.BoundedInputs), branch for branch, so the
 C gives their u also where a limit binds:
 - no more inputs than servo-constraints: the unbounded u above if it is within the limits (bit for bit
   the unbounded export); otherwise, in a CasADi Switch that the C evaluates only then, the recovery's
-  least squares ½uᵀGu + gᵀu (projected: G = HᵀPH, g = HᵀPσ_qᵀλ̂, codegen.solver_terms.penalty_bounded_terms;
-  MLM: ½|E u − e|², mlm_bounded_terms; eq12/eq13: G = HᵀH), its unbounded minimiser if within, else a
-  box QP; eq15/kappa (explicit maps, G = I): the clip onto the limits.
+  least squares ½uᵀGu + gᵀu (projected: G = EᵀE, g = EᵀFλ̂ with E = σ_q P H, F = σ_q P σ_qᵀ,
+  codegen.solver_terms.penalty_bounded_terms; MLM: ½|E u − e|², mlm_bounded_terms; eq12/eq13: G = HᵀH), its
+  unbounded minimiser if within, else a box QP; eq15/kappa (explicit maps, G = I): the clip onto the limits.
 - more inputs than servo-constraints (internal forces, e.g. the four-cable crane): always distributed.
   MLM: lexicographic, u = u_pref + Eᵀ(EEᵀ)⁻¹(e − E u_pref) (Python's eigen split of EᵀE in closed form)
   and, bounded, the QP with Hessian EᵀE + μZZᵀ, ZZᵀ = I − Eᵀ(EEᵀ)⁻¹E, μ = SECONDARY_WEIGHT·tr(EᵀE)/l.
@@ -119,14 +119,7 @@ def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = N
     parametric (the Python controllers' fast path, acroboter.codegen.fast_step): (u, q̈, within, rcond) =
     step(q, qd, s, sd, sdd, p, limits) with the gains and z in p, no QP (see fast_step)."""
     iterations = parse_method(method)
-    if gains.recovery not in RECOVERIES:
-        raise ExportError(f"unknown input recovery '{gains.recovery}': choose one of {', '.join(RECOVERIES)}")
-    if gains.saturation != "qp":
-        raise ExportError(
-            f"the spec asks saturation = '{gains.saturation}', and the exported step meets limits with the bounded "
-            "least squares only: its hysteresis is state between steps that the step does not carry, and its active "
-            "set a loop of SVDs the generated C has none of (docs/saturation.md). Set [controller] saturation = "
-            "\"qp\" for the export, or run the Python controller (acroboter run --saturation underactuation)")
+    _refuse_unexportable(gains, iterations)
     if penalty_system not in PENALTY_SYSTEMS:
         raise ExportError(f"unknown penalty system '{penalty_system}': choose one of {', '.join(PENALTY_SYSTEMS)}")
     if mlm_system not in MLM_SYSTEMS:
@@ -182,6 +175,23 @@ def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = N
     export.qp_used = graph.bounds.used_qp
     return export
 
+
+
+def _refuse_unexportable(gains: Gains, iterations: int | None) -> None:
+    """ExportError, naming the way out, for the settings the exported step has no form of."""
+    if gains.recovery not in RECOVERIES:
+        raise ExportError(f"unknown input recovery '{gains.recovery}': choose one of {', '.join(RECOVERIES)}")
+    if gains.recovery == "kinetic" and iterations is not None:
+        raise ExportError(
+            "the 'kinetic' recovery (the whole acceleration's fit, kept for cranes whose zero dynamics are unstable) "
+            "runs in the Python controller only; export 'projected' (the default) or another recovery, or run the "
+            "Python controller (acroboter run --recovery kinetic)")
+    if gains.saturation != "qp":
+        raise ExportError(
+            f"the spec asks saturation = '{gains.saturation}', and the exported step meets limits with the bounded "
+            "least squares only: its hysteresis is state between steps that the step does not carry, and its active "
+            "set a loop of SVDs the generated C has none of (docs/saturation.md). Set [controller] saturation = "
+            "\"qp\" for the export, or run the Python controller (acroboter run --saturation underactuation)")
 
 def parametric_function(graph: StepGraph, u: ca.MX) -> ca.Function:
     """The step's graph as the fast path's function (called by export_step.build_step with parametric=True)."""

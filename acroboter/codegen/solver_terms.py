@@ -106,12 +106,16 @@ def mlm_terms(model: SymbolicModel, p: ca.SX) -> dict[str, ca.SX]:
 def penalty_terms(model: SymbolicModel, p: ca.SX) -> dict[str, ca.SX]:
     """Penalty matrix, right-hand sides and the projected recovery as a linear map of q̈.
 
-    Recovery: minimise |H u − φ_qᵀ Δλ + σ_qᵀ λ̂|² in the M⁻¹ metric over x = (u, Δλ):
-    (Bᵀ M⁻¹ B) x = −(Bᵀ M⁻¹ σ_qᵀ) λ̂ with B = [H, −φ_qᵀ]. Only the independent constraint rows enter
-    B: redundant rows span no new reaction directions and would make the normal equations singular.
-    The normal matrix depends on q alone, so it is factored here (Cholesky, in the generated code)
-    and, with λ̂ = α̂(σ_q Σq̈_i + N ρ_s) after N iterations, the input is
+    Recovery: the inputs whose servo accelerations are the ideal servo force's. On the constraint manifold a
+    generalized force f accelerates the servo outputs by σ_q P f (P: _constrained_projections), so the inputs
+    minimise |E u + F λ̂|² with E = σ_q P H, F = σ_q P σ_qᵀ (penalty_bounded_terms, which also says the fit
+    where there are fewer inputs than servo-constraints): G u = −g_map λ̂ with G = EᵀE, g_map = EᵀF, by
+    Cholesky. With as many inputs as servo-constraints and E regular (MLM's condition) this is exact on any
+    crane: the servo outputs accelerate as the penalty formulation's. The normal matrix depends on q alone and,
+    with λ̂ = α̂(σ_q Σq̈_i + N ρ_s) after N iterations, the input is
     u = recovery_gain · Σq̈_i + N · recovery_offset.
+    (With more inputs than servo-constraints EᵀE is singular and the map not finite: the controller distributes
+    the internal forces instead, acroboter.control.distribution.)
     """
     v = runtime_view(p, model.sigma.shape[0])
     alpha_g, alpha_s = v.alpha_geometric, v.alpha_servo
@@ -119,10 +123,6 @@ def penalty_terms(model: SymbolicModel, p: ca.SX) -> dict[str, ca.SX]:
     phi_q, sigma_q = model.phi_q, model.sigma_q
     penalty_matrix = model.mass_matrix + alpha_g * ca.mtimes(phi_q.T, phi_q) + alpha_s * ca.mtimes(sigma_q.T, sigma_q)
     penalty_force = -alpha_g * ca.mtimes(phi_q.T, rho) - alpha_s * ca.mtimes(sigma_q.T, rho_s)
-    minv = constant_inverse_mass(model)
-    rows = independent_rows(model)
-    b = ca.horzcat(model.input_matrix, -phi_q[rows, :].T)
-    minv_b = ca.mtimes(minv, b)
     return {
         "penalty_matrix": penalty_matrix,
         "penalty_force": penalty_force,
@@ -133,8 +133,8 @@ def penalty_terms(model: SymbolicModel, p: ca.SX) -> dict[str, ca.SX]:
         "sigma_q": sigma_q,
         "rho_s": rho_s,
         "input_matrix": model.input_matrix,
-        # u-rows of −α̂ (BᵀM⁻¹B)⁻¹ BᵀM⁻¹σ_qᵀ, applied to σ_q Σq̈ and to ρ_s
-        **_projected_recovery(model, minv_b, b, sigma_q, rho_s, alpha_s),
+        # −α̂ (EᵀE)⁻¹EᵀF, applied to σ_q Σq̈ and to ρ_s
+        **_projected_recovery(model, p, sigma_q, rho_s, alpha_s),
     }
 
 
@@ -179,23 +179,47 @@ def mlm_bounded_terms(model: SymbolicModel, p: ca.SX) -> dict[str, ca.SX]:
 def penalty_bounded_terms(model: SymbolicModel, p: ca.SX) -> dict[str, ca.SX]:
     """The projected recovery as a least-squares problem in u alone, for bounded or redundant inputs.
 
-    Eliminating the free reactions Δλ from min |H u − φ_qᵀ Δλ + σ_qᵀ λ̂|² in the M⁻¹ metric leaves
-    ½ uᵀ G u + gᵀ u with G = Hᵀ P H and g = Hᵀ P σ_qᵀ λ̂ = servo_map · λ̂ (P as in
-    _constrained_projections): the same fit as penalty_terms' recovery, whose minimiser it is when
-    G is nonsingular, and a problem a bounded QP solver takes when it is not (internal forces).
+    The servo accelerations the inputs cause, E u with E = σ_q P H, against those of the ideal servo force
+    −σ_qᵀλ̂, −F λ̂ with F = σ_q P σ_qᵀ (P as in _constrained_projections: constraint reactions taken out):
+    min ½|E u + F λ̂|² is ½ uᵀ G u + gᵀ u with G = EᵀE and g = EᵀF λ̂ = servo_map · λ̂, whose minimiser is
+    penalty_terms' recovery where G is regular, and a problem a bounded QP solver takes where it is not (more
+    inputs than servo-constraints: internal forces).
+
+    Why the servo accelerations and not the whole acceleration (a fit in the M⁻¹ metric, the recovery's form
+    until 2026-12-06): the winches cannot reproduce an ideal force on the unit alone, and whatever that fit
+    leaves moves the servo outputs too, which the feedback then absorbs as a tracking error; 1.1-496 mm on 13
+    of 16 generated cranes (docs/plant-fuzz-cranes.md), 0.04-0.26 mm with this fit, as MLM.
+
+    Fewer inputs than servo-constraints: no input meets them all, and the servo accelerations' rows (m/s² of
+    position, 1/s² of axes) have no common scale; there the fit stays that of the whole acceleration in the M⁻¹
+    metric, |H u + σ_qᵀλ̂ − φ_qᵀΔλ|² with the reactions Δλ eliminated (G = HᵀPH, g = HᵀPσ_qᵀλ̂): on the four-input
+    crane it tracks within 20 mm where the servo fit diverges with MLM's zero dynamics (28.7 s).
     """
-    h = model.input_matrix
-    l = model.layout.l
-    p_cols, _ = _constrained_projections(model, ca.horzcat(h, model.sigma_q.T))
+    l, k = model.layout.l, model.sigma.shape[0]
+    if k > l:
+        h = model.input_matrix
+        p_cols, _ = _constrained_projections(model, ca.horzcat(h, model.sigma_q.T))
+        return {"hessian": ca.mtimes(h.T, p_cols[:, :l]), "servo_map": ca.mtimes(h.T, p_cols[:, l:])}
+    e_map, f_map = servo_maps(model)
     return {
-        "hessian": ca.mtimes(h.T, p_cols[:, :l]),
-        "servo_map": ca.mtimes(h.T, p_cols[:, l:]),
+        "hessian": ca.mtimes(e_map.T, e_map),
+        "servo_map": ca.mtimes(e_map.T, f_map),
     }
 
 
-def _projected_recovery(model, minv_b, b, sigma_q, rho_s, alpha_s) -> dict[str, ca.SX]:
+def servo_maps(model: SymbolicModel) -> tuple[ca.SX, ca.SX]:
+    """(E, F) = (σ_q P H, σ_q P σ_qᵀ): the servo accelerations an input and an ideal servo force cause."""
     l = model.layout.l
-    servo_map = cholesky_solve(ca.mtimes(b.T, minv_b), ca.mtimes(minv_b.T, sigma_q.T))[:l, :]
+    p_cols, _ = _constrained_projections(model, ca.horzcat(model.input_matrix, model.sigma_q.T))
+    return ca.mtimes(model.sigma_q, p_cols[:, :l]), ca.mtimes(model.sigma_q, p_cols[:, l:])
+
+
+def _projected_recovery(model, p, sigma_q, rho_s, alpha_s) -> dict[str, ca.SX]:
+    l, k = model.layout.l, model.sigma.shape[0]
+    if l > k:  # EᵀE is singular (internal forces): no map; the controllers always distribute there
+        return {"recovery_gain": ca.SX.zeros(l, model.layout.n), "recovery_offset": ca.SX.zeros(l, 1)}
+    terms = penalty_bounded_terms(model, p)
+    servo_map = cholesky_solve(terms["hessian"], terms["servo_map"])
     return {
         "recovery_gain": -alpha_s * ca.mtimes(servo_map, sigma_q),
         "recovery_offset": -alpha_s * ca.mtimes(servo_map, rho_s),

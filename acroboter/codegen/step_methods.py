@@ -13,14 +13,10 @@ import casadi as ca
 import numpy as np
 
 from ..model.settings import MLM_RCOND_LIMIT, PENALTY_SECONDARY_WEIGHT, RANK_TOLERANCE
-from .solver_terms import mlm_bounded_terms, penalty_bounded_terms
+from .solver_terms import mlm_bounded_terms, penalty_bounded_terms, servo_maps
 from .step_graph import LINSOL_GENERAL, LINSOL_SPD, ExportError, StepGraph, constant
 from .step_qp import symmetric, symmetric_numeric
 
-# Relative singular value below which the projected recovery's least-squares matrix counts as rank
-# deficient (redundant constraints): then, and only then, a Tikhonov term makes its normal equations solvable.
-RANK_TOL = 1e-10
-TIKHONOV = 1e-12
 # Non-redundant inputs: the distribution's Hessian must be nonsingular at the nominal configuration, its
 # smallest/largest eigenvalue this far above acroboter.control.distribution.RANK_TOLERANCE (which is relative to
 # the mean eigenvalue, never above the largest: the check is the stricter one).
@@ -278,14 +274,15 @@ def _recovered_input(graph: StepGraph, P: dict, lam, lam_hat, x, mass_mx: ca.MX)
     kind, bounds = g.recovery, graph.bounds
     if kind == "projected" and l > k:
         # More inputs than servo-constraints: as controllers.Penalty, always the distribution of the fit
-        # ½uᵀGu + gᵀu, G = HᵀPH, g = servo_map λ̂ (codegen.solver_terms.penalty_bounded_terms), lexicographic in
+        # ½uᵀGu + gᵀu, G = EᵀE, g = servo_map λ̂ (codegen.solver_terms.penalty_bounded_terms), lexicographic in
         # the servo accelerations E u (E from codegen.solver_terms.mlm_bounded_terms).
         return bounds.task(P["bounded_hessian"], ca.mtimes(P["bounded_servo_map"], lam_hat), P["bounded_task_map"])
     if kind == "projected":
         size = P["normal"].shape[0]
         rhs = -ca.mtimes(P["normal_map"], lam_hat)
-        export.linear_solvers.append(f"'{LINSOL_SPD}' on the {size}x{size} normal equations of the projected recovery")
-        u0 = ca.solve(P["normal"], rhs, LINSOL_SPD)[:l]
+        solver = LINSOL_SPD if graph.k > l else LINSOL_GENERAL
+        export.linear_solvers.append(f"'{solver}' on the {size}x{size} matrix of the projected recovery")
+        u0 = ca.solve(P["normal"], rhs, solver)
         return _bounded_projected(graph, u0, lam_hat)
     if kind == "eq15":
         return _box_projection(graph, lam_hat)
@@ -304,17 +301,18 @@ def _recovered_input(graph: StepGraph, P: dict, lam, lam_hat, x, mass_mx: ca.MX)
 
 def _bounded_projected(graph: StepGraph, u0: ca.MX, lam_hat: ca.MX) -> ca.MX:
     """Projected recovery, no more inputs than servo-constraints: u0 if within the limits, else the same fit
-    ½uᵀGu + gᵀu (G = HᵀPH, g = servo_map λ̂, codegen.solver_terms.penalty_bounded_terms) bounded, lexicographic."""
+    ½uᵀGu + gᵀu (G = EᵀE, g = servo_map λ̂, codegen.solver_terms.penalty_bounded_terms) bounded, lexicographic."""
     bounds, model = graph.bounds, graph.model
     if not bounds.bounded:
         return u0
     terms = penalty_bounded_terms(model, graph.params)
-    check_nonsingular(graph, terms["hessian"], "the projected recovery's fit H^T P H")
+    check_nonsingular(graph, terms["hessian"], "the projected recovery's fit E^T E")
     lam_sx = ca.SX.sym("lam_hat", graph.k)
     outputs = [symmetric(terms["hessian"]), ca.mtimes(terms["servo_map"], lam_sx)]
     graph.export.distribution.append(
         "u = the projected recovery if within the limits; otherwise (a Switch, evaluated only then) the same fit "
-        "1/2 u^T G u + g^T u, G = H^T P H, g = H^T P sigma_q^T lambda_hat (codegen.solver_terms.penalty_bounded_terms) "
+        "1/2 u^T G u + g^T u, G = E^T E, g = E^T F lambda_hat (E = sigma_q P H, F = sigma_q P sigma_q^T: "
+        "codegen.solver_terms.penalty_bounded_terms) "
         "over lower <= u <= upper: its unbounded minimiser -G^-1 g (SX Cholesky) if within, else the QP"
     )
 
@@ -378,16 +376,17 @@ def _recovery_prelude(graph: StepGraph) -> dict[str, ca.SX]:
                                   f"the projected fit in the task directions E G E^T ({k}x{k})")
         graph.export.linear_solvers.append(
             f"SX Cholesky of the {k}x{k} matrices E G E^T (smallest/largest eigenvalue {ratio:.1e} at the nominal "
-            "configuration) and E E^T of the input distribution (G = H^T P H, "
+            "configuration) and E E^T of the input distribution (G = E^T E, "
             "codegen.solver_terms.penalty_bounded_terms; E = sigma_q P H, codegen.solver_terms.mlm_bounded_terms; "
             "P through an SX Cholesky of phi_q M^-1 phi_q^T)"
         )
         graph.export.distribution.append(
             f"{l} inputs for {k} servo-constraints: as controllers.Penalty, always the distribution of the projected "
-            "recovery's fit 1/2 u^T G u + g^T u, G = H^T P H, g = H^T P sigma_q^T lambda_hat, lexicographic in the "
-            "servo accelerations E u (acroboter.control.distribution.BoundedInputs.solve_task): the fit's input in the "
-            "task directions u_F = -E^T (E G E^T)^-1 E g, its servo accelerations e_F = E u_F exactly and the internal "
-            "forces (null(E)) at the preferred values: u = u_pref + E^T (E E^T)^-1 (e_F - E u_pref)"
+            "recovery's fit 1/2 u^T G u + g^T u, G = E^T E, g = E^T F lambda_hat (F = sigma_q P sigma_q^T), "
+            "lexicographic in the servo accelerations E u (acroboter.control.distribution.BoundedInputs.solve_task): "
+            "the fit's input in the task directions u_F = -E^T (E G E^T)^-1 E g, its servo accelerations "
+            "e_F = E u_F exactly and the internal forces (null(E)) at the preferred values: "
+            "u = u_pref + E^T (E E^T)^-1 (e_F - E u_pref)"
             + (", if within the limits; otherwise the QP with Hessian E^T E + mu Z Z^T, Z Z^T = I - E^T (E E^T)^-1 E, "
                "gradient -E^T e_F - mu Z Z^T u_pref, mu = SECONDARY_WEIGHT * tr(E^T E)/l"
                if graph.bounds.bounded else "")
@@ -411,38 +410,38 @@ def _recovery_prelude(graph: StepGraph) -> dict[str, ca.SX]:
 
 
 def _projected_prelude(graph: StepGraph) -> dict[str, ca.SX]:
-    """min over (u, Δλ) of |L⁻¹(H u − φ_qᵀΔλ + σ_qᵀλ̂)|² with M = L Lᵀ, by its normal equations.
-
-    With W = L⁻¹[H, −φ_qᵀ] (independent constraint rows only: redundant rows add no reaction direction)
-    the normal equations are (WᵀW) x = −(Wᵀ L⁻¹ σ_qᵀ) λ̂ for x = (u, Δλ); WᵀW is factored by LDLᵀ.
-    """
-    export, T, lay = graph.export, graph.sx, graph.model.layout
-    redundant = set(lay.redundant_rows)
-    rows = [i for i in range(graph.m) if i not in redundant]
-    inv_chol = ca.SX(constant(graph.inv_chol))
-    weighted = ca.mtimes(inv_chol, ca.horzcat(T["input_matrix"], -T["phi_q"][rows, :].T))
-    normal = ca.mtimes(weighted.T, weighted)
-    normal_map = ca.mtimes(weighted.T, ca.mtimes(inv_chol, T["sigma_q"].T))
-    sv = np.linalg.svd(graph.nominal(weighted), compute_uv=False)
-    ratio = sv[-1] / sv[0]
-    size = normal.shape[0]
-    dropped = f" ({len(redundant)} redundant constraint rows left out)" if redundant else ""
-    if ratio < RANK_TOL:
-        # Still rank deficient: a tiny Tikhonov term on the diagonal picks the small-norm Δλ; u (fixed
-        # by the fit) moves by O(1e-12) relative.
-        normal = normal + TIKHONOV * ca.trace(normal) / size * ca.SX.eye(size)
-        export.notes.append(
-            f"projected recovery: L^-1 [H, -phi_q^T]{dropped} is rank deficient (smallest/largest singular value "
-            f"{ratio:.1e} at the nominal configuration), so its normal equations carry a Tikhonov term "
-            f"{TIKHONOV:g} * trace/size on the diagonal."
-        )
+    """The projected recovery's fit ½uᵀGu + gᵀu (codegen.solver_terms.penalty_bounded_terms: the servo accelerations
+    of the inputs, E u, against those of the ideal servo force, −F λ̂; with fewer inputs than servo-constraints
+    G = HᵀPH, g = HᵀPσ_qᵀλ̂). As many inputs as servo-constraints: E u = −F λ̂ itself (QR; the normal equations
+    would square E's condition); fewer: G u = −g (LDLᵀ). E regular is MLM's condition, checked at the nominal
+    configuration."""
+    if graph.k > graph.l:
+        terms = penalty_bounded_terms(graph.model, graph.params)
+        matrix, rhs_map, fit = symmetric(terms["hessian"]), terms["servo_map"], "H^T P H"
+        eigenvalues = np.linalg.eigvalsh(symmetric_numeric(graph.nominal(terms["hessian"])))
+        ratio = eigenvalues[0] / eigenvalues[-1] if eigenvalues[-1] > 0 else 0.0
     else:
-        export.notes.append(
-            f"projected recovery: L^-1 [H, -phi_q^T]{dropped} has full column rank (smallest/largest singular "
-            f"value {ratio:.1e} at the nominal configuration): plain normal equations, no Tikhonov term."
+        matrix, rhs_map = servo_maps(graph.model)
+        fit = "E = sigma_q P H"
+        singular = np.linalg.svd(graph.nominal(matrix), compute_uv=False)
+        ratio = (singular[-1] / singular[0]) ** 2 if singular[0] > 0 else 0.0  # as E^T E's eigenvalues
+    if not ratio > SINGULAR_MARGIN * RANK_TOLERANCE:
+        raise ExportError(
+            f"the projected recovery's matrix {fit} is singular at the nominal configuration (smallest/largest "
+            f"eigenvalue of its normal matrix {ratio:.1e}): the inputs cannot set the servo accelerations there; use "
+            "MLM or another recovery"
         )
-    return {"normal": normal, "normal_map": normal_map}
+    graph.export.notes.append(
+        f"projected recovery: {fit}, P through an SX Cholesky of phi_q M^-1 phi_q^T over the independent "
+        f"rows{_dropped(graph)}; smallest/largest eigenvalue of its normal matrix {ratio:.1e} at the nominal "
+        "configuration."
+    )
+    return {"normal": matrix, "normal_map": rhs_map}
 
+
+def _dropped(graph: StepGraph) -> str:
+    redundant = graph.model.layout.redundant_rows
+    return f" ({len(redundant)} redundant constraint rows left out)" if redundant else ""
 
 
 def check_nonsingular(graph: StepGraph, hessian: ca.SX, what: str) -> float:

@@ -336,7 +336,8 @@ class Penalty(Controller):
         self._qdd_sum = np.zeros(n)
         self._qdd_last = np.zeros(n)
         self._potrf, self._potrs = lapack.get_lapack_funcs(("potrf", "potrs"), (self.mass,))
-        self.recovery = InputRecovery(gains.recovery, self.mass, self.k, self.l, gains.kappa)
+        rows = [i for i in range(self.m) if i not in set(model.layout.redundant_rows)]
+        self.recovery = InputRecovery(gains.recovery, self.mass, self.k, self.l, gains.kappa, rows)
         self.u = self.recovery.u  # the recovery writes the input in place: one buffer, no copy
         if iterations > 1:
             # Iterations 2..N: two bindings of the generated update read each other's outputs, so the
@@ -380,7 +381,9 @@ class Penalty(Controller):
         fast = self.fast_recovery and self.recovery.projected_fast(T, self._qdd_sum, self.iterations) is not None
         if not fast:  # another recovery, or the generated projected map was singular
             self._multipliers()
-            self.recovery.recover(T, self.lam_hat, self._qdd_last, self.lam)
+            if self.fast_recovery:
+                self._bounded_fn.call()  # the projected fit's terms at the state penalty_terms just read
+            self.recovery.recover(T, self.lam_hat, self._qdd_last, self.lam, self.bounded_terms)
         if self.underactuation is not None:
             self._underactuate(self.u)
             return self.u

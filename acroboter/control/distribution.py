@@ -6,8 +6,8 @@ Every controller ends with a small least-squares problem in the inputs u (l of t
     subject to  min ≤ u ≤ max                   (the spec's limits: a winch never pushes)
     secondary   among the primary's minimisers, the one closest to u_pref (½|u − u_pref|²)
 
-G and g come from the controller: the projected recovery's fit of the servo force in the M⁻¹
-metric (penalty methods), or the servo-constraint accelerations |E u − e|² (MLM). The secondary
+G and g come from the controller: the servo-constraint accelerations, |E u + F λ̂|² for the penalty methods'
+projected recovery (those of the ideal servo force, F = σ_q P σ_qᵀ), |E u − e|² for MLM. The secondary
 objective is the tension distribution of cable robots: where there are more inputs than the task
 needs (four winches for the three of them a position and a level need), the primary leaves the
 internal forces, the cables pulling against each other, free; they are set to the spec's
@@ -31,10 +31,11 @@ How it is solved:
    saturation is never silent.
 
 The penalty methods' projected fit with redundant inputs (`solve_task`): lexicographic in the
-servo-constraint accelerations, as MLM. The fit is never exact on a non-collocated crane, so it
-has no exact null space of its own: on the four-cable crane G's smallest eigenvalue is 5e-15..1.3e-7
-of its mean (the next 0.17) along the cables' internal force, so taken literally (−G⁻¹g) the fit
-asks for −440..+480 N on the 55 s path for next to nothing. Its internal forces are instead those of
+servo-constraint accelerations, as MLM. (Written when the fit was of the whole acceleration in the M⁻¹
+metric, G = HᵀPH, which has no exact null space of its own: on the four-cable crane G's smallest eigenvalue
+was 5e-15..1.3e-7 of its mean along the cables' internal force, and −G⁻¹g asked for −440..+480 N on the 55 s
+path for next to nothing. Since 2026-12-06 G = EᵀE, whose null space is null(E) exactly; the same steps give
+its lexicographic solution, and the figures below are of the earlier fit.) Its internal forces are those of
 the task, the null space of E = σ_q P H (the servo-constraint accelerations per input, generated
 `mlm_bounded_terms`): an input along it leaves σ̈ unchanged, whatever the fit says about the rest of
 the crane. So, with Π = I − Eᵀ(EEᵀ)⁻¹E the projector onto that null space:

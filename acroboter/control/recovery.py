@@ -1,15 +1,22 @@
 """Input recovery for the penalty methods: u from the servo-constraint forces (docs/model.md §6).
 
-- projected (default): least squares over (u, Δλ) of H u − φ_qᵀ Δλ = −σ_qᵀ λ̂. The actuators need to
-  reproduce the ideal servo force only up to constraint reactions; equals eq. 12 when collocated.
-  When it cannot be met exactly (the crane's winches also pull the connector), the residual r is
-  measured in the kinetic-energy metric rᵀM⁻¹r, i.e. by the acceleration it would cause. In natural
-  coordinates the rows mix forces (N) and axis "forces" (N·m); the plain Euclidean norm weighs
-  them arbitrarily, and in trials let the SU tilt by 3° where this metric keeps it under 0.2°.
-  The generated code solves the normal equations (BᵀM⁻¹B) x = −(BᵀM⁻¹σ_qᵀ) λ̂, B = [H, −φ_qᵀ] over the
-  independent constraint rows, by Cholesky, and hands over u as a linear map of Σq̈ (see
-  acroboter.codegen.solver_terms.penalty_terms); should they be singular (dependent actuators and reactions:
-  the map comes out non-finite), a pivoted QR of M^(-1/2) B gives the minimum-norm solution.
+- projected (default): the inputs whose servo accelerations are those of the ideal servo force:
+  min |E u + F λ̂|² with E = σ_q P H, F = σ_q P σ_qᵀ, P the constrained projection (a generalized force f
+  accelerates the servo outputs by σ_q P f once the constraint reactions are taken out). Exact on any crane
+  whose E is regular (MLM's condition): the winches need not reproduce the ideal force on the unit, only its
+  effect on what the servo-constraints prescribe; equals eq. 15 when collocated (H = −σ_qᵀ). The generated
+  code solves (EᵀE) u = −(EᵀF) λ̂ by Cholesky and hands over u as a linear map of Σq̈ (see
+  acroboter.codegen.solver_terms.penalty_terms); should it be singular (the map comes out non-finite), the
+  minimum-norm solution by pivoted QR of the same least squares (acroboter.codegen.solver_terms.penalty_bounded_terms).
+  Until 2026-12-06 the fit was of the whole acceleration (in the M⁻¹ metric): what it left moved the servo
+  outputs too, 1.1-496 mm of tracking error on 13 of 16 generated cranes (docs/plant-fuzz-cranes.md).
+- kinetic: the recovery's form until 2026-12-06, the whole acceleration fitted: min over (u, Δλ) of
+  |H u − φ_qᵀ Δλ + σ_qᵀ λ̂|² in the M⁻¹ metric (rᵀM⁻¹r, the acceleration a residual force r causes), Δλ
+  eliminated: ½uᵀGu + gᵀu with G = HᵀPH, g = HᵀPσ_qᵀλ̂. Not exact where the winches cannot reproduce an ideal
+  force on the unit alone, and what it leaves moves the servo outputs too (1.1-496 mm on generated cranes); but
+  on a crane whose zero dynamics are unstable (the four-input crane: MLM and the projected recovery diverge at
+  28.7-28.9 s) that inexactness kept it within 20 mm. Computed with numpy (the reference path only: the fast
+  path and export-step take the others).
 - eq12: u = −(HᵀH)⁻¹Hᵀ σ_qᵀ λ̂
 - eq13: u = (HᵀH)⁻¹Hᵀ (M q̈ + c + φ_qᵀ λ)
 - eq15: u = λ̂ (only meaningful when H = −σ_qᵀ)
@@ -25,7 +32,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.linalg import cholesky, lstsq, solve_triangular
+from scipy.linalg import lstsq
 
 from ..model.spec import RECOVERIES
 
@@ -35,7 +42,8 @@ class RecoveryError(ValueError):
 
 
 class InputRecovery:
-    def __init__(self, kind: str, mass: np.ndarray, k: int, l: int, kappa: float):
+    def __init__(self, kind: str, mass: np.ndarray, k: int, l: int, kappa: float, rows=None):
+        """`rows`: the independent geometric constraint rows (the kinetic fit's reactions)."""
         if kind not in RECOVERIES:
             raise RecoveryError(f"unknown input recovery '{kind}': choose one of {', '.join(RECOVERIES)}")
         if kind in ("eq15", "kappa") and k != l:
@@ -51,8 +59,8 @@ class InputRecovery:
         self._force = np.zeros(n)
         self._hth = np.zeros((l, l))
         self._hrhs = np.zeros(l)
-        chol = cholesky(mass, lower=True, check_finite=False)
-        self._inv_chol = solve_triangular(chol, np.eye(n), lower=True, check_finite=False)  # M^(-1/2)
+        self._minv = np.linalg.inv(mass)
+        self._rows = rows
 
     def _pseudo_inverse_apply(self, H: np.ndarray, force: np.ndarray) -> np.ndarray:
         """(HᵀH)⁻¹Hᵀ force, raising a clear error if H has dependent columns."""
@@ -75,22 +83,33 @@ class InputRecovery:
             self.u += iterations * offset
         return self.u
 
-    def _projected(self, terms: dict, lam_hat: np.ndarray) -> None:
-        # Singular normal equations: Δλ is not unique; pivoted QR picks the minimum-norm solution.
-        stacked = np.hstack([terms["input_matrix"], -terms["phi_q"].T])
-        np.matmul(terms["sigma_q"].T, lam_hat, out=self._servo_force)
-        sol = lstsq(self._inv_chol @ stacked, -(self._inv_chol @ self._servo_force), lapack_driver="gelsy",
-                    check_finite=False)[0]
-        self.u[:] = sol[: self.l]
+    def _projected(self, bounded: dict, lam_hat: np.ndarray) -> None:
+        # EᵀE singular: u is not unique; pivoted QR picks the minimum-norm solution.
+        np.matmul(bounded["servo_map"], lam_hat, out=self._hrhs)
+        self.u[:] = lstsq(bounded["hessian"], -self._hrhs, lapack_driver="gelsy", check_finite=False)[0]
+
+    def _kinetic_fit(self, terms: dict, lam_hat: np.ndarray) -> None:
+        """G = HᵀPH and g = HᵀPσ_qᵀλ̂ into _hth, _hrhs, P = M⁻¹ − M⁻¹φ_qᵀ(φ_q M⁻¹φ_qᵀ)⁻¹φ_q M⁻¹ (independent rows)."""
+        H, phi_q = terms["input_matrix"], terms["phi_q"]
+        if self._rows is not None:
+            phi_q = phi_q[self._rows]
+        minv_phi = self._minv @ phi_q.T
+        projector = self._minv - minv_phi @ np.linalg.solve(phi_q @ minv_phi, minv_phi.T)
+        ph = projector @ H
+        np.matmul(H.T, ph, out=self._hth)
+        np.matmul(ph.T, terms["sigma_q"].T @ lam_hat, out=self._hrhs)
 
     def least_squares(self, terms: dict, lam_hat: np.ndarray, qdd: np.ndarray, lam: np.ndarray):
         """(G, g) of ½uᵀGu + gᵀu whose minimiser is this recovery's u (after recover()), for the limits.
 
-        eq12 and eq13 are least squares in H u: bounded, they stay the same fit. eq15 and kappa are
+        kinetic, eq12 and eq13 are least squares: bounded, they stay the same fit. eq15 and kappa are
         explicit maps: bounded, they give the input within the limits closest to their u.
         (The projected recovery has its own terms: acroboter.codegen.solver_terms.penalty_bounded_terms.)
         """
         H = terms["input_matrix"]
+        if self.kind == "kinetic":
+            self._kinetic_fit(terms, lam_hat)
+            return self._hth, self._hrhs
         if self.kind in ("eq12", "eq13"):
             if self.kind == "eq12":  # min ½|H u + σ_qᵀ λ̂|²
                 np.matmul(terms["sigma_q"].T, lam_hat, out=self._force)
@@ -106,11 +125,17 @@ class InputRecovery:
         np.negative(self.u, out=self._hrhs)
         return self._hth, self._hrhs
 
-    def recover(self, terms: dict, lam_hat: np.ndarray, qdd: np.ndarray, lam: np.ndarray) -> np.ndarray:
-        """u from the penalty step's terms (acroboter.codegen.solver_terms.penalty_terms), λ̂, q̈ and λ."""
+    def recover(self, terms: dict, lam_hat: np.ndarray, qdd: np.ndarray, lam: np.ndarray,
+                bounded: dict | None = None) -> np.ndarray:
+        """u from the penalty step's terms (acroboter.codegen.solver_terms.penalty_terms), λ̂, q̈ and λ;
+        the projected recovery reads `bounded` (penalty_bounded_terms at the same state)."""
         kind = self.kind
         if kind == "projected":
-            self._projected(terms, lam_hat)
+            self._projected(bounded, lam_hat)
+            return self.u
+        if kind == "kinetic":  # the minimum-norm minimiser of ½uᵀGu + gᵀu
+            self._kinetic_fit(terms, lam_hat)
+            self.u[:] = lstsq(self._hth, -self._hrhs, lapack_driver="gelsy", check_finite=False)[0]
             return self.u
         H, sigma_q = terms["input_matrix"], terms["sigma_q"]
         np.matmul(sigma_q.T, lam_hat, out=self._servo_force)

@@ -38,7 +38,7 @@ from .ranges import (
     Range,
 )
 
-RECOVERIES = ("projected", "eq12", "eq13", "eq15", "kappa")
+RECOVERIES = ("projected", "kinetic", "eq12", "eq13", "eq15", "kappa")
 # How a controller meets an input limit (docs/saturation.md): the bounded least squares, or the saturated input
 # fixed at its limit and the task reduced by priority (Zelei, Bencsik, Stépán 2017).
 SATURATIONS = ("qp", "underactuation")
@@ -111,7 +111,10 @@ PARAMETERS: tuple[ControllerParameter, ...] = (
     ControllerParameter("mu", "controller.penalty", "μ of the constraint penalty's stabilisation", MU, runtime=True),
     ControllerParameter("ki", "controller", "integral gain k_I of the servo error dynamics, below 2·kd·kp²; 0: the "
                         "PD law (docs/integral_action.md)", KI, default=0.0, runtime=True),
-    ControllerParameter("recovery", "controller.penalty", "input recovery of the penalty methods",
+    ControllerParameter("recovery", "controller.penalty", "input recovery of the penalty methods: projected (the "
+                        "servo accelerations of the ideal servo force, exact where MLM is regular), kinetic (the whole "
+                        "acceleration in the M⁻¹ metric, the default until 2026-12-06), or the paper's eq12, eq13, "
+                        "eq15, kappa",
                         choices=RECOVERIES, default="projected"),
     ControllerParameter("kappa", "controller.penalty", "κ of the 'kappa' recovery's blend", KAPPA, default=0.5),
     ControllerParameter("saturation", "controller", "how a controller meets an input limit: qp (the bounded least "

@@ -16,7 +16,7 @@ from .grid import crane_for, run_cases
 SPECS = spec_folder()
 REDUNDANT_SPECS = ("acroboter", "acroboter_redundant", "acroboter_redundant_task")
 REDUNDANT_METHODS = ("mlm", "penalty", "iterative-3", "iterative-5")
-RECOVERY_CASES = (("projected", None), ("eq12", None), ("eq13", None), ("eq15", None),
+RECOVERY_CASES = (("projected", None), ("kinetic", None), ("eq12", None), ("eq13", None), ("eq15", None),
                   ("kappa", 0.0), ("kappa", 0.5), ("kappa", 1.0))
 
 
