@@ -8,8 +8,8 @@ import numpy as np
 
 
 def penalty_inputs_40_digits(model, desired, gains, method, states) -> np.ndarray:
-    """The penalty methods with the projected recovery (the fit of the servo accelerations, E u + σ_q P σ_qᵀλ̂ = 0;
-    with fewer inputs than servo-constraints the fit of the whole acceleration in the P metric), in 40-digit
+    """The penalty methods with the projected recovery (the fit of the servo accelerations, E u + σ_q P σ_qᵀλ̂ = 0,
+    least squares where there are more servo-constraints than inputs), in 40-digit
     arithmetic (mpmath), from the model terms at each state: a reference free of the round-off of either
     formulation. With more inputs than
     servo-constraints, the distribution of the same fit, lexicographic in the servo accelerations
@@ -43,10 +43,7 @@ def penalty_inputs_40_digits(model, desired, gains, method, states) -> np.ndarra
             phi = mpmath.matrix([[phi_q[row, c] for c in range(lay.n)] for row in rows])
             P = minv - minv * phi.T * mpmath.inverse(phi * minv * phi.T) * phi * minv
             E = sigma_q * P * H
-            if lay.k > lay.l:  # fewer inputs than servo-constraints: |H u + σ_qᵀλ̂|² in the P metric
-                G, g = H.T * P * H, H.T * P * sigma_q.T * lam_hat
-            else:  # the servo accelerations: |E u + σ_q P σ_qᵀ λ̂|²
-                G, g = E.T * E, E.T * (sigma_q * P * sigma_q.T) * lam_hat
+            G, g = E.T * E, E.T * (sigma_q * P * sigma_q.T) * lam_hat  # the servo accelerations: |E u + F λ̂|²
             G = (G + G.T) / 2
             if lay.l > lay.k:
                 # lexicographic in the servo accelerations (BoundedInputs.solve_task):

@@ -338,7 +338,7 @@ def expected_input(kind: str, T: dict, mass: np.ndarray, qdd, lam, lam_hat, kapp
         return lam_hat.copy()
     if kind == "kappa":
         return -(kappa * pinv - (1 - kappa) * sigma_q) @ servo_force
-    if kind == "kinetic" or sigma_q.shape[0] > H.shape[1]:  # projected with fewer inputs than servo-constraints:
+    if kind == "kinetic":
         # min over (u, Δλ) of |H u − φ_qᵀΔλ + σ_qᵀλ̂| in the M⁻¹ metric, WᵀW = M⁻¹
         weight = np.linalg.cholesky(np.linalg.inv(mass)).T
         stacked = np.hstack([H, -phi_q.T])

@@ -378,7 +378,7 @@ def test_the_recoveries_refuse_what_they_cannot_do_and_say_why():
     with pytest.raises(RecoveryError, match="^" + re.escape(f"unknown input recovery 'eq14': choose one of "
                                                             f"{', '.join(RECOVERIES)}") + "$"):
         InputRecovery("eq14", mass, 3, 3, 0.5)
-    assert ", ".join(RECOVERIES) == "projected, eq12, eq13, eq15, kappa"
+    assert ", ".join(RECOVERIES) == "projected, kinetic, eq12, eq13, eq15, kappa"
     for kind in ("eq15", "kappa"):
         with pytest.raises(RecoveryError, match="^" + re.escape(f"recovery '{kind}' needs as many servo-constraints "
                                                                 "as inputs (found 3 for 2): use 'projected' or "

@@ -55,8 +55,20 @@ SETTLING_PERIODS = 2
 
 
 
-# Bit for bit only where LAPACK, numpy and CasADi are the ones the baseline was recorded with.
-SAME_ENVIRONMENT = BASELINE["environment"] == numeric_environment()
+# Bit for bit only where LAPACK, numpy and CasADi are the ones the baseline was recorded with (the entries
+# re-recorded on 2026-12-06, when the projected recovery changed on purpose: theirs, BASELINE["rerecorded"]).
+RERECORDED = BASELINE.get("rerecorded", {})
+
+
+def recorded_environment(kind: str, key=None) -> dict:
+    """The environment entry `key` of `kind` ("steps": "spec/case", "closed_loop": index, "cli_run") was recorded
+    with."""
+    listed = RERECORDED.get("cli_run", False) if kind == "cli_run" else key in RERECORDED.get(kind, ())
+    return RERECORDED["environment"] if listed else BASELINE["environment"]
+
+
+def same_environment(kind: str, key=None) -> bool:
+    return recorded_environment(kind, key) == numeric_environment()
 
 
 def digest(a: np.ndarray) -> str:
@@ -95,13 +107,14 @@ def differing(got: dict, recorded: dict) -> list[str]:
     return out
 
 
-def closed_loop_comparable(spec: str) -> bool:
+def closed_loop_comparable(spec: str, kind: str, key=None) -> bool:
     """Whether the closed-loop digests apply here (the baseline's numpy, scipy, CasADi and machine). Where
     they do not, the caller compares the recorded figures to a tolerance instead (never a silent skip)."""
-    if not SAME_ENVIRONMENT:
-        print(f"\n{spec}: baseline recorded with {BASELINE['environment']}, this is {numeric_environment()}: figures "
-              f"compared to 1e-6 instead of digests; {RERECORD}")
-    return SAME_ENVIRONMENT
+    same = same_environment(kind, key)
+    if not same:
+        print(f"\n{spec}: baseline recorded with {recorded_environment(kind, key)}, this is {numeric_environment()}: "
+              f"figures compared to 1e-6 instead of digests; {RERECORD}")
+    return same
     # The nominal plant is the folded step (plant_step_folded), the same arithmetic as the baseline's
     # plant_step: its C differs only by an (empty) parameter input, so the digests are compared as they are.
 
@@ -182,7 +195,7 @@ def test_ki_zero_steps_equal_the_code_before(cranes, spec, case):
     for gains in (crane.gains(**overrides), crane.gains(ki=0.0, **overrides), crane.gains(ki=None, **overrides)):
         c = make_controller(method, crane.model, crane.path, gains)
         got = np.array([c.compute(q[i], qd[i], t[i]).copy() for i in range(len(t))])
-        if SAME_ENVIRONMENT:
+        if same_environment("steps", f"{spec}/{case}"):
             assert got.tobytes() == expected.tobytes(), np.abs(got - expected).max()
         else:
             # another CPU's BLAS/libm: 1e-10 N apart on 27 N tensions, and a saturated distribution passes
@@ -194,7 +207,7 @@ def test_ki_zero_steps_equal_the_code_before(cranes, spec, case):
 def test_ki_zero_closed_loop_equals_the_code_before(cranes, index):
     case = BASELINE["closed_loop"][index]
     spec, method = case["spec"], case["method"]
-    exact = closed_loop_comparable(spec if spec != "saturating" else "acroboter")
+    exact = closed_loop_comparable(spec if spec != "saturating" else "acroboter", "closed_loop", index)
     crane = cranes[spec]
     r = crane.simulate(method, duration=case["duration"], ki=0.0, **case["overrides"])
     figures = {k: v for k, v in r.summary().items() if k not in TIMING and k in case["summary"]}
@@ -271,7 +284,7 @@ def test_the_run_command_with_ki_zero_writes_what_it_wrote_before(tmp_path, caps
         assert summary["provenance"]["gains"]["ki"] == 0.0
     capsys.readouterr()
     assert csvs[False] == csvs[True]
-    exact = closed_loop_comparable("acroboter")
+    exact = closed_loop_comparable("acroboter", "cli_run")
     if exact:
         assert {name: hashlib.sha256(data).hexdigest() for name, data in csvs[False].items()} == base["csv"]
     for method, figures in summary["methods"].items():

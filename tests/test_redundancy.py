@@ -78,8 +78,10 @@ def test_penalty_methods_track_redundant_systems_as_the_default(name, method, de
         assert s[key] == pytest.approx(reference[key], rel=0.10), key
 
 
-def test_noncollocated_projected_recovery_tracks():
-    result, s = short_run("acroboter_4input", "penalty", recovery="projected")
+def test_noncollocated_kinetic_recovery_tracks():
+    """The whole acceleration's fit (the projected recovery until 2026-12-06) keeps the four-input crane, whose zero
+    dynamics are unstable, within its drift; the exact recovery follows MLM (tests/test_loop_stability.py)."""
+    result, s = short_run("acroboter_4input", "penalty", recovery="kinetic")
     assert result.diverged_at is None
     assert s["max_position_error_mm"] < 25.0  # drifts to ~20 mm over the whole path, see docs/studies.md
     assert s["min_winch_tension_N"] > 0

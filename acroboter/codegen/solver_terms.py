@@ -108,13 +108,12 @@ def penalty_terms(model: SymbolicModel, p: ca.SX) -> dict[str, ca.SX]:
 
     Recovery: the inputs whose servo accelerations are the ideal servo force's. On the constraint manifold a
     generalized force f accelerates the servo outputs by σ_q P f (P: _constrained_projections), so the inputs
-    minimise |E u + F λ̂|² with E = σ_q P H, F = σ_q P σ_qᵀ (penalty_bounded_terms, which also says the fit
-    where there are fewer inputs than servo-constraints): G u = −g_map λ̂ with G = EᵀE, g_map = EᵀF, by
-    Cholesky. With as many inputs as servo-constraints and E regular (MLM's condition) this is exact on any
-    crane: the servo outputs accelerate as the penalty formulation's. The normal matrix depends on q alone and,
-    with λ̂ = α̂(σ_q Σq̈_i + N ρ_s) after N iterations, the input is
+    minimise |E u + F λ̂|² with E = σ_q P H, F = σ_q P σ_qᵀ (penalty_bounded_terms): G u = −g_map λ̂ with
+    G = EᵀE, g_map = EᵀF, by Cholesky. With as many inputs as servo-constraints and E regular (MLM's condition)
+    this is exact on any crane: the servo outputs accelerate as the penalty formulation's. The normal matrix
+    depends on q alone and, with λ̂ = α̂(σ_q Σq̈_i + N ρ_s) after N iterations, the input is
     u = recovery_gain · Σq̈_i + N · recovery_offset.
-    (With more inputs than servo-constraints EᵀE is singular and the map not finite: the controller distributes
+    (With more inputs than servo-constraints EᵀE is singular: the map is zero, and the controller distributes
     the internal forces instead, acroboter.control.distribution.)
     """
     v = runtime_view(p, model.sigma.shape[0])
@@ -190,16 +189,10 @@ def penalty_bounded_terms(model: SymbolicModel, p: ca.SX) -> dict[str, ca.SX]:
     leaves moves the servo outputs too, which the feedback then absorbs as a tracking error; 1.1-496 mm on 13
     of 16 generated cranes (docs/plant-fuzz-cranes.md), 0.04-0.26 mm with this fit, as MLM.
 
-    Fewer inputs than servo-constraints: no input meets them all, and the servo accelerations' rows (m/s² of
-    position, 1/s² of axes) have no common scale; there the fit stays that of the whole acceleration in the M⁻¹
-    metric, |H u + σ_qᵀλ̂ − φ_qᵀΔλ|² with the reactions Δλ eliminated (G = HᵀPH, g = HᵀPσ_qᵀλ̂): on the four-input
-    crane it tracks within 20 mm where the servo fit diverges with MLM's zero dynamics (28.7 s).
+    With more servo-constraints than inputs (a redundant task) the fit is exact where the rows agree (a repeated
+    row) and least squares where they cannot all be met ('kinetic', the whole acceleration's fit, is the
+    alternative there: acroboter.control.recovery).
     """
-    l, k = model.layout.l, model.sigma.shape[0]
-    if k > l:
-        h = model.input_matrix
-        p_cols, _ = _constrained_projections(model, ca.horzcat(h, model.sigma_q.T))
-        return {"hessian": ca.mtimes(h.T, p_cols[:, :l]), "servo_map": ca.mtimes(h.T, p_cols[:, l:])}
     e_map, f_map = servo_maps(model)
     return {
         "hessian": ca.mtimes(e_map.T, e_map),

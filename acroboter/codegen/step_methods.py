@@ -280,7 +280,7 @@ def _recovered_input(graph: StepGraph, P: dict, lam, lam_hat, x, mass_mx: ca.MX)
     if kind == "projected":
         size = P["normal"].shape[0]
         rhs = -ca.mtimes(P["normal_map"], lam_hat)
-        solver = LINSOL_SPD if graph.k > l else LINSOL_GENERAL
+        solver = LINSOL_GENERAL if graph.k == l else LINSOL_SPD
         export.linear_solvers.append(f"'{solver}' on the {size}x{size} matrix of the projected recovery")
         u0 = ca.solve(P["normal"], rhs, solver)
         return _bounded_projected(graph, u0, lam_hat)
@@ -410,33 +410,27 @@ def _recovery_prelude(graph: StepGraph) -> dict[str, ca.SX]:
 
 
 def _projected_prelude(graph: StepGraph) -> dict[str, ca.SX]:
-    """The projected recovery's fit ½uᵀGu + gᵀu (codegen.solver_terms.penalty_bounded_terms: the servo accelerations
-    of the inputs, E u, against those of the ideal servo force, −F λ̂; with fewer inputs than servo-constraints
-    G = HᵀPH, g = HᵀPσ_qᵀλ̂). As many inputs as servo-constraints: E u = −F λ̂ itself (QR; the normal equations
-    would square E's condition); fewer: G u = −g (LDLᵀ). E regular is MLM's condition, checked at the nominal
-    configuration."""
-    if graph.k > graph.l:
-        terms = penalty_bounded_terms(graph.model, graph.params)
-        matrix, rhs_map, fit = symmetric(terms["hessian"]), terms["servo_map"], "H^T P H"
-        eigenvalues = np.linalg.eigvalsh(symmetric_numeric(graph.nominal(terms["hessian"])))
-        ratio = eigenvalues[0] / eigenvalues[-1] if eigenvalues[-1] > 0 else 0.0
-    else:
-        matrix, rhs_map = servo_maps(graph.model)
-        fit = "E = sigma_q P H"
-        singular = np.linalg.svd(graph.nominal(matrix), compute_uv=False)
-        ratio = (singular[-1] / singular[0]) ** 2 if singular[0] > 0 else 0.0  # as E^T E's eigenvalues
+    """The projected recovery's fit |E u + F λ̂|² (codegen.solver_terms.penalty_bounded_terms: the servo accelerations
+    of the inputs against those of the ideal servo force). As many inputs as servo-constraints: E u = −F λ̂ itself
+    (QR; the normal equations would square E's condition); more servo-constraints: EᵀE u = −EᵀF λ̂ (LDLᵀ). E of full
+    column rank is MLM's condition, checked at the nominal configuration."""
+    e_map, f_map = servo_maps(graph.model)
+    singular = np.linalg.svd(graph.nominal(e_map), compute_uv=False)
+    ratio = (singular[-1] / singular[0]) ** 2 if singular[0] > 0 else 0.0  # as E^T E's eigenvalues
     if not ratio > SINGULAR_MARGIN * RANK_TOLERANCE:
         raise ExportError(
-            f"the projected recovery's matrix {fit} is singular at the nominal configuration (smallest/largest "
-            f"eigenvalue of its normal matrix {ratio:.1e}): the inputs cannot set the servo accelerations there; use "
+            f"the projected recovery's matrix E = sigma_q P H is singular at the nominal configuration (smallest/"
+            f"largest eigenvalue of E^T E {ratio:.1e}): the inputs cannot set the servo accelerations there; use "
             "MLM or another recovery"
         )
     graph.export.notes.append(
-        f"projected recovery: {fit}, P through an SX Cholesky of phi_q M^-1 phi_q^T over the independent "
-        f"rows{_dropped(graph)}; smallest/largest eigenvalue of its normal matrix {ratio:.1e} at the nominal "
-        "configuration."
+        f"projected recovery: E = sigma_q P H, F = sigma_q P sigma_q^T, P through an SX Cholesky of phi_q M^-1 "
+        f"phi_q^T over the independent rows{_dropped(graph)}; smallest/largest eigenvalue of E^T E {ratio:.1e} at "
+        "the nominal configuration."
     )
-    return {"normal": matrix, "normal_map": rhs_map}
+    if graph.k == graph.l:
+        return {"normal": e_map, "normal_map": f_map}
+    return {"normal": symmetric(ca.mtimes(e_map.T, e_map)), "normal_map": ca.mtimes(e_map.T, f_map)}
 
 
 def _dropped(graph: StepGraph) -> str:

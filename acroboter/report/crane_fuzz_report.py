@@ -59,6 +59,7 @@ def crane_report(cranes: list[dict], open_rows: list[dict], closed_rows: list[di
                          f"{max(r['max_error_mm'] for r in mine):.3g} | "
                          f"{max(r['plants_max_diff_m'] for r in mine) * 1e6:.3g} |")
         lines.append("")
+        lines += _unstable_loops(closed_rows)
     if failed:
         lines += ["## Cranes that fail a check", ""]
         lines += [f"- {c['crane']}: {c['status']}" for c in failed[:80]]
@@ -72,3 +73,19 @@ def crane_report(cranes: list[dict], open_rows: list[dict], closed_rows: list[di
         text = open_loop_report(open_rows, wall_s, workers, mujoco_timestep)
         lines += ["## Open loop", ""] + ["#" + line if line.startswith("#") else line for line in text.splitlines()[1:]]
     return "\n".join(lines) + "\n"
+
+
+def _unstable_loops(closed_rows: list[dict]) -> list[str]:
+    """The cranes whose loop is unstable at the start (acroboter.sim.loop_stability), by cause, with the methods."""
+    causes: dict[tuple[str, str], list[str]] = {}
+    for r in closed_rows:
+        if r.get("loop_cause"):
+            causes.setdefault((r["crane"], r["loop_cause"]), []).append(r["method"])
+    if not causes:
+        return ["Every loop is stable at the start (acroboter.sim.loop_stability).", ""]
+    lines = [f"Loops unstable at the start (acroboter.sim.loop_stability), {len({c for c, _ in causes})} cranes:"]
+    for (crane, cause), methods in sorted(causes.items()):
+        growth = max((r["zero_dynamics_growth_per_s"] if cause == "zero dynamics" else r["sampled_growth_per_s"])
+                     for r in closed_rows if r["crane"] == crane and r["method"] in methods)
+        lines.append(f"- {crane}: {cause}, growing at up to {growth:.3g} 1/s ({', '.join(methods)})")
+    return lines + [""]

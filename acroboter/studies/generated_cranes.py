@@ -13,7 +13,8 @@ per crane (`run_crane`, a Dask task: module level, so that it pickles):
    rules as the fuzz of the shipped specs), the own plant against MuJoCo.
 4. **Closed loop**, every method (MLM, penalty, iterative with each of the spec's counts):
    - the whole path (the paper's, scaled to the crane's connector) on the own plant, its tracking error within
-     TRACKING_BOUND_M, no input on a limit, never diverged;
+     TRACKING_BOUND_M, no input on a limit, never diverged (a diverged run says why; the loop's stability at the
+     start, acroboter.sim.loop_stability, is in every row: a cause where it is unstable);
    - the first CLOSED_LOOP_MUJOCO_S of it on the MuJoCo plant at its default step (the crane's own,
      acroboter.sim.mujoco_step): the bodies' centres within CLOSED_LOOP_BOUND_M of the own plant's (the same
      controller closes the loop around each).
@@ -44,6 +45,7 @@ CRANE_COLUMNS = ["crane", "seed", "status", "winches", "cc_mass_kg", "su_mass_kg
                  "main_cable_m", "cc_radius_m", "su_radius_m", "drop_m", "min_start_share", "max_start_share",
                  "deterministic_code", "build_s", "open_loop_failed", "closed_loop_failed", "wall_s"]
 CLOSED_COLUMNS = ["crane", "method", "passed", "status", "max_error_mm", "saturated_steps", "diverged_at",
+                  "loop_cause", "zero_dynamics_growth_per_s", "sampled_growth_per_s",
                   "mujoco_s", "mujoco_max_error_mm", "plants_max_diff_m", "mujoco_timestep", "replay"]
 
 
@@ -143,6 +145,7 @@ def run_crane(seed: int, cases: int, case_seed: int, closed_loop: bool = True,
 
 def closed_loop_rows(crane, mujoco_timestep: float | None) -> list[dict]:
     """Every method on the whole path (own plant), and on its first CLOSED_LOOP_MUJOCO_S on both plants."""
+    from ..sim.loop_stability import loop_stability
     from ..sim.mujoco_step import crane_step
     from .plant_differential import generated_seed
 
@@ -158,6 +161,11 @@ def closed_loop_rows(crane, mujoco_timestep: float | None) -> list[dict]:
         saturated = np.asarray(whole.saturated)  # per instant (a row per instant and input, where it is 2-D)
         row["saturated_steps"] = int(np.count_nonzero(saturated.any(axis=-1) if saturated.ndim > 1 else saturated))
         row["diverged_at"] = whole.diverged_at
+        stability = loop_stability(crane.model, crane.path, crane.gains(), method, crane.equilibrium().q,
+                                   np.zeros(crane.layout.n), 0.0)
+        row["loop_cause"] = stability.cause or ""
+        row["zero_dynamics_growth_per_s"] = stability.zero_dynamics_growth
+        row["sampled_growth_per_s"] = stability.sampled_growth
         span = min(CLOSED_LOOP_MUJOCO_S, float(whole.time[-1]))
         own = crane.simulate(name, duration=span, **kwargs)
         engine = crane.simulate(name, duration=span, plant="mujoco", mujoco_timestep=mujoco_timestep, **kwargs)
@@ -170,7 +178,8 @@ def closed_loop_rows(crane, mujoco_timestep: float | None) -> list[dict]:
             for b in crane.layout.body_offset.values())
         problems = []
         if whole.diverged_at is not None or engine.diverged_at is not None:
-            problems.append(f"diverged at t = {whole.diverged_at or engine.diverged_at:.3f} s")
+            run = whole if whole.diverged_at is not None else engine
+            problems.append(f"diverged at t = {run.diverged_at:.3f} s ({run.run.divergence})")
         if row["max_error_mm"] > TRACKING_BOUND_M * 1e3:
             problems.append(f"tracks the path at {row['max_error_mm']:.3g} mm (bound {TRACKING_BOUND_M * 1e3:g})")
         if row["saturated_steps"]:
