@@ -110,3 +110,40 @@ def test_the_shipped_cranes_recovery_meets_the_servo_law(name):
         u = make_controller(method, model, path, gains).compute(q, qd, t).copy()
         residual, scale = servo_residual(model, path, gains, q, qd, t, u)
         assert residual <= RESIDUAL * scale, f"{name} {method}: servo law missed by {residual:.3g}"
+
+
+@pytest.mark.parametrize("name", ["acroboter", "acroboter_4cable"])
+@pytest.mark.parametrize("method", ["penalty", "iterative-3"])
+def test_the_kinetic_recovery_is_the_projected_one_of_before(name, method):
+    """`kinetic` keeps the fit that was the default until 2026-12-06: its u at the states recorded then
+    (tests/data/kinetic_reference.json, from the integral-action baseline at git 7f0a606), also where spare winches
+    leave internal forces to distribute (the four-cable crane: lexicographic, the preferred tension)."""
+    import json
+    from pathlib import Path
+
+    from acroboter.api.crane import Crane
+
+    reference = json.loads((Path(__file__).parent / "data" / "kinetic_reference.json").read_text())[name]
+    crane = Crane.from_example(name)
+    controller = make_controller(method, crane.model, crane.path, crane.gains(recovery="kinetic"))
+    for i, t in enumerate(reference["t"]):
+        q, qd = (np.array([float.fromhex(v) for v in reference[k][i]]) for k in ("q", "qd"))
+        expected = np.array([float.fromhex(v) for v in reference["u"][method][i]])
+        u = controller.compute(q, qd, float.fromhex(t)).copy()
+        np.testing.assert_allclose(u, expected, rtol=1e-8, atol=1e-8 * np.abs(expected).max())
+
+
+def test_the_kinetic_recovery_is_refused_where_it_has_no_compiled_form(tmp_path, capsys):
+    """export-step: exit 2 naming why; the fast path: the reference path, saying why."""
+    from acroboter.api.crane import Crane
+    from acroboter.cli.generate import export_step_main
+    from acroboter.process.locations import example_spec
+
+    argv = ["--spec", str(example_spec("acroboter")), "--method", "penalty", "--recovery", "kinetic",
+            "--out", str(tmp_path / "step")]
+    assert export_step_main(argv) == 2
+    err = capsys.readouterr().err
+    assert "'kinetic' recovery" in err and "Python controller" in err and "Traceback" not in err
+    crane = Crane.from_example("acroboter")
+    controller = make_controller("penalty", crane.model, crane.path, crane.gains(recovery="kinetic"), fast=True)
+    assert controller.fast_refusal is not None and "kinetic" in controller.fast_refusal

@@ -265,6 +265,8 @@ def export_step_main(argv: list[str] | None = None) -> int:
         PENALTY_SYSTEMS,
         ExportError,
         export_step,
+        parse_method,
+        refuse_unexportable,
         step_name,
     )
     from ..model.controller_parameters import PARAMETERS
@@ -309,6 +311,8 @@ def export_step_main(argv: list[str] | None = None) -> int:
         except ValueError as err:
             print(f"error: {as_option_text(err)}", file=sys.stderr)
             return 2
+        if args.method != "mlm":
+            refuse_unexportable(gains, parse_method(args.method))  # before any folder is locked or crane built
         out = args.out if args.out is not None else DEFAULT_EMBEDDED / f"{spec.name}_{args.method}"
         if args.stateful:
             name = controller_name(spec, args.method, gains.recovery)

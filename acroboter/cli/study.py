@@ -3,7 +3,8 @@
 - redundant: the default crane, the same crane with redundant geometric constraints (w = u × v on
   both bodies) and with a redundant task (yaw twice), under MLM, Penalty and Iterative Penalty.
 - noncollocated: the four-input crane (three winches and the yaw torque, task XYZ and yaw) under
-  MLM and the penalty methods with every input recovery (projected, eq12, eq13, eq15, κ = 0, 0.5, 1):
+  MLM and the penalty methods with every input recovery (projected, kinetic, eq12, eq13, eq15, κ = 0, 0.5,
+  1):
   which track, which drift, which diverge and when.
 
 Writes a Markdown table, summary.json and figures per study into --out (default results/study).

@@ -2,6 +2,7 @@
 
     acroboter export-step [--spec model_spec/acroboter.toml] [--method penalty|mlm|iterative-N]
                                   [--recovery projected|eq12|eq13|eq15|kappa] [--kp ...] [--out DIR]
+    (--recovery kinetic, the whole acceleration's fit, runs in the Python controller only: refused, exit 2)
 
 The step u = step(q, qd, s, sd, sdd) is one CasADi MX graph: the spec's SX model terms and what is
 assembled from them (one casadi.Function with shared subexpressions, called on the MX symbols), the
@@ -119,7 +120,7 @@ def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = N
     parametric (the Python controllers' fast path, acroboter.codegen.fast_step): (u, q̈, within, rcond) =
     step(q, qd, s, sd, sdd, p, limits) with the gains and z in p, no QP (see fast_step)."""
     iterations = parse_method(method)
-    _refuse_unexportable(gains, iterations)
+    refuse_unexportable(gains, iterations)
     if penalty_system not in PENALTY_SYSTEMS:
         raise ExportError(f"unknown penalty system '{penalty_system}': choose one of {', '.join(PENALTY_SYSTEMS)}")
     if mlm_system not in MLM_SYSTEMS:
@@ -177,7 +178,7 @@ def build_step(spec: Spec, method: str, gains: Gains, spec_path: Path | None = N
 
 
 
-def _refuse_unexportable(gains: Gains, iterations: int | None) -> None:
+def refuse_unexportable(gains: Gains, iterations: int | None) -> None:
     """ExportError, naming the way out, for the settings the exported step has no form of."""
     if gains.recovery not in RECOVERIES:
         raise ExportError(f"unknown input recovery '{gains.recovery}': choose one of {', '.join(RECOVERIES)}")

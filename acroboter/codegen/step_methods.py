@@ -420,8 +420,8 @@ def _projected_prelude(graph: StepGraph) -> dict[str, ca.SX]:
     if not ratio > SINGULAR_MARGIN * RANK_TOLERANCE:
         raise ExportError(
             f"the projected recovery's matrix E = sigma_q P H is singular at the nominal configuration (smallest/"
-            f"largest eigenvalue of E^T E {ratio:.1e}): the inputs cannot set the servo accelerations there; use "
-            "MLM or another recovery"
+            f"largest eigenvalue of E^T E {ratio:.1e}): the inputs cannot set the servo accelerations there, and MLM "
+            "cannot run either; export --recovery eq12 or eq13, or run the Python controller with --recovery kinetic"
         )
     graph.export.notes.append(
         f"projected recovery: E = sigma_q P H, F = sigma_q P sigma_q^T, P through an SX Cholesky of phi_q M^-1 "

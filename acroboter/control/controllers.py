@@ -322,7 +322,7 @@ class Penalty(Controller):
     secondary_weight = PENALTY_SECONDARY_WEIGHT  # eq12/eq13 with redundant inputs, where a limit is in the way
 
     def __init__(self, model, path: DesiredPath, gains: Gains, iterations: int = 1, limits=None):
-        if gains.recovery == "projected":
+        if gains.recovery in ("projected", "kinetic"):
             # Redundant inputs: lexicographic in the servo accelerations (BoundedInputs.solve_task), as MLM.
             self.secondary_weight = 0.0
         super().__init__(model, path, gains, limits)
@@ -378,6 +378,11 @@ class Penalty(Controller):
             self._qdd_sum = self._chain_end["qdd_sum_next"]
         if self.redundant_inputs and self.fast_recovery:
             return self._bounded_projected()  # the fit leaves internal forces free: distribute them
+        if self.redundant_inputs and self.recovery.kind == "kinetic":  # the same, with the whole acceleration's fit
+            self._multipliers()
+            fit = self.recovery.least_squares(T, self.lam_hat, self._qdd_last, self.lam)
+            self._servo_fn.call()  # E at the state penalty_terms just read
+            return self._distribute(*fit, self._servo_fn.outputs["servo_map"])
         fast = self.fast_recovery and self.recovery.projected_fast(T, self._qdd_sum, self.iterations) is not None
         if not fast:  # another recovery, or the generated projected map was singular
             self._multipliers()

@@ -32,6 +32,7 @@ round-trip numbers).
 from __future__ import annotations
 
 import math
+import sys
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
@@ -69,8 +70,10 @@ def _num(x: float) -> str:
     x = float(x)
     if math.isinf(x):
         return "inf" if x > 0 else "-inf"
-    if x == 0:
-        return "0"  # never "-0.0"
+    if abs(x) < sys.float_info.min:
+        # zero, never "-0.0"; a subnormal (a drawn anchor height of 5e-324 m) MuJoCo's parser refuses as "too large",
+        # and it is no length a crane has
+        return "0"
     text = repr(x)
     return text[:-2] if text.endswith(".0") else text
 

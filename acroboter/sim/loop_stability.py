@@ -35,7 +35,9 @@ UNSTABLE_GROWTH = 0.01
 @dataclass(frozen=True)
 class LoopStability:
     """The two linearisations at time `t`: growth rates (1/s, > 0 grows) and frequencies (Hz) of their least stable
-    modes."""
+    modes. `exact`: the method inverts the dynamics exactly (MLM, the penalty methods' projected recovery), so the
+    zero dynamics are its continuous loop's; for the other recoveries only the sampled loop is theirs
+    (zero_dynamics_growth is then the crane's under MLM, nan where MLM cannot run)."""
 
     t: float
     zero_dynamics_growth: float
@@ -43,30 +45,38 @@ class LoopStability:
     sampled_growth: float
     sampled_hz: float
     rate_hz: float
+    exact: bool = True
 
     @property
     def cause(self) -> str | None:
-        """'zero dynamics', 'sampled loop' or None (both stable here)."""
-        if self.zero_dynamics_growth > UNSTABLE_GROWTH:
+        """'zero dynamics', 'sampled loop' (an exact method), 'loop' (an inexact recovery) or None (both stable)."""
+        if self.exact and self.zero_dynamics_growth > UNSTABLE_GROWTH:
             return "zero dynamics"
         if self.sampled_growth > UNSTABLE_GROWTH:
-            return "sampled loop"
+            return "sampled loop" if self.exact else "loop"
         return None
 
-    def describe(self) -> str | None:
-        """The cause in words, with the fix; None when the loop is stable at this state."""
-        if self.cause == "zero dynamics":
+    def describe(self, horizon: float | None = None) -> str | None:
+        """The cause in words, with the fix; None when the loop is stable here, or, given `horizon` (s: when the run
+        diverged), when its mode grows less than e-fold over it (then it did not end the run)."""
+        cause = self.cause
+        growth = self.zero_dynamics_growth if cause == "zero dynamics" else self.sampled_growth
+        if cause is None or (horizon is not None and growth * max(horizon - self.t, 0.0) < 1.0):
+            return None
+        if cause == "zero dynamics":
             return (f"the crane's zero dynamics are unstable at t = {self.t:.2f} s: with the servo-constraints met "
-                    f"exactly its internal motion grows at {self.zero_dynamics_growth:.3g} 1/s"
+                    f"exactly its internal motion grows there at {self.zero_dynamics_growth:.3g} 1/s"
                     f"{_at(self.zero_dynamics_hz)}, which no exact inverse dynamics (MLM, the projected penalty "
-                    "recovery) holds at any rate; a task with other servo-constraints, another geometry, or the "
-                    "penalty methods' inexact 'kinetic' recovery may")
-        if self.cause == "sampled loop":
+                    "recovery) holds at any control rate; a task with other servo-constraints, another geometry, or "
+                    "the penalty methods' inexact 'kinetic' recovery may")
+        if cause == "sampled loop":
             return (f"the sampled loop is unstable at t = {self.t:.2f} s: the crane's motion is stable in continuous "
                     f"time, but held over the {1e3 / self.rate_hz:.3g} ms control period a mode{_at(self.sampled_hz)} "
                     f"grows at {self.sampled_growth:.3g} 1/s; a faster control rate (controller.rate_hz) or lower "
                     "gains")
-        return None
+        return (f"the closed loop is unstable at t = {self.t:.2f} s: with this recovery's inexact fit a "
+                f"mode{_at(self.sampled_hz)} grows at {self.sampled_growth:.3g} 1/s; the exact 'projected' recovery "
+                "or MLM")
 
 
 def _at(hz: float) -> str:
@@ -75,15 +85,17 @@ def _at(hz: float) -> str:
 
 def loop_stability(model, path, gains, method: str, q: np.ndarray, qd: np.ndarray, t: float) -> LoopStability:
     """Both linearisations of module docstring at (q, q̇, t), for `method` ('mlm', 'penalty', 'iterative-N') with
-    `gains` on the model's crane."""
-    from ..control.controllers import make_controller
+    `gains` on the model's crane. The controllers without limits (the spec's preferred values for spare inputs)."""
+    from ..control.controllers import SingularSystemError, make_controller, unbounded
     from .plants import setup_default
 
     spec = model.spec
-    l = model.layout.l
-    free = (np.full(l, -np.inf), np.full(l, np.inf), np.zeros(l))
-    exact = make_controller("mlm", model, path, gains, limits=free)
-    controller = exact if method == "mlm" else make_controller(method, model, path, gains, limits=free)
+    free = unbounded(spec)
+    controller = make_controller(method, model, path, gains, limits=free)
+    try:
+        exact_law = controller if method == "mlm" else make_controller("mlm", model, path, gains, limits=free)
+    except SingularSystemError:
+        exact_law = None  # MLM cannot run on this crane: its zero dynamics stay unknown
     plant = setup_default(model, path)
     period = 1.0 / spec.controller.rate_hz
     steps = max(1, round(period / spec.simulation.step))
@@ -94,9 +106,9 @@ def loop_stability(model, path, gains, method: str, q: np.ndarray, qd: np.ndarra
     d = basis.shape[1]
 
     def ideal(dq, dqd):
-        exact.reset()
-        exact.compute(q + dq, qd + dqd, t)
-        return basis.T @ exact.qdd
+        exact_law.reset()
+        exact_law.compute(q + dq, qd + dqd, t)
+        return basis.T @ exact_law.qdd
 
     def one_period(dq, dqd):
         controller.reset()
@@ -106,20 +118,19 @@ def loop_stability(model, path, gains, method: str, q: np.ndarray, qd: np.ndarra
             plant.step(x, t + j * h, u, h)
         return np.concatenate([basis.T @ x[:n], basis.T @ x[n : 2 * n]])
 
-    rows = np.zeros((d, 2 * d))
-    flow = np.zeros((2 * d, 2 * d))
-    for i in range(2 * d):
-        step = np.zeros(2 * d)
-        step[i] = DIFFERENCE_STEP
-        dq, dqd = basis @ step[:d], basis @ step[d:]
-        rows[:, i] = (ideal(dq, dqd) - ideal(-dq, -dqd)) / (2 * DIFFERENCE_STEP)
-        flow[:, i] = (one_period(dq, dqd) - one_period(-dq, -dqd)) / (2 * DIFFERENCE_STEP)
-    exact.reset()
-    controller.reset()
-    lam = np.linalg.eigvals(np.block([[np.zeros((d, d)), np.eye(d)], [rows]]))
-    worst = lam[int(np.argmax(lam.real))]
+    flow = _jacobian(one_period, basis, 2 * d)
     mu = np.linalg.eigvals(flow)
     largest = mu[int(np.argmax(np.abs(mu)))]
+    worst = complex(float("nan"), 0.0)
+    if exact_law is not None:
+        try:
+            rows = _jacobian(ideal, basis, d)
+            lam = np.linalg.eigvals(np.block([[np.zeros((d, d)), np.eye(d)], [rows]]))
+            worst = lam[int(np.argmax(lam.real))]
+        except SingularSystemError:
+            pass
+        exact_law.reset()
+    controller.reset()
     return LoopStability(
         t=float(t),
         zero_dynamics_growth=float(worst.real),
@@ -127,4 +138,17 @@ def loop_stability(model, path, gains, method: str, q: np.ndarray, qd: np.ndarra
         sampled_growth=float(math.log(max(abs(largest), 1e-300)) / period),
         sampled_hz=float(abs(np.angle(largest)) / (2 * math.pi * period)),
         rate_hz=float(spec.controller.rate_hz),
+        exact=method == "mlm" or gains.recovery == "projected",
     )
+
+
+def _jacobian(function, basis: np.ndarray, rows: int) -> np.ndarray:
+    """d function / d (tangent position, tangent velocity) by central differences: `rows` x 2d."""
+    d = basis.shape[1]
+    out = np.zeros((rows, 2 * d))
+    for i in range(2 * d):
+        step = np.zeros(2 * d)
+        step[i] = DIFFERENCE_STEP
+        dq, dqd = basis @ step[:d], basis @ step[d:]
+        out[:, i] = (function(dq, dqd) - function(-dq, -dqd)) / (2 * DIFFERENCE_STEP)
+    return out

@@ -78,7 +78,7 @@ def simulate(
             divergence = f"{trouble}; then {divergence}"
         if (too_fast := path_too_fast(path, timing)) is not None:
             divergence = f"{too_fast}; then {divergence}"
-        elif (unstable := unstable_loop(model, path, controller, q0, qd0)) is not None:
+        elif (unstable := unstable_loop(model, path, controller, q0, qd0, diverged_at)) is not None:
             divergence = f"{unstable}; then {divergence}"
         if not allow_divergence or kept == 0:  # kept == 0: not one instant was recorded, nothing to report
             raise SimulationError(f"{controller.name}: the loop diverged at t = {diverged_at:.2f} s: {divergence}")
@@ -87,9 +87,11 @@ def simulate(
     return records.result(controller.name, plant, wall, None, None)
 
 
-def unstable_loop(model, path: DesiredPath, controller: Controller, q0: np.ndarray, qd0) -> str | None:
-    """What to say of a loop that is unstable at the run's start (acroboter.sim.loop_stability), None when it is
-    stable there or the analysis cannot be made (a method the crane's system is singular for)."""
+def unstable_loop(model, path: DesiredPath, controller: Controller, q0: np.ndarray, qd0,
+                  diverged_at: float) -> str | None:
+    """What to say of a loop that is unstable at the run's start (acroboter.sim.loop_stability) with a mode that grows
+    at least e-fold before `diverged_at`; None when it is not, or the analysis cannot be made. A diagnosis only:
+    whatever it raises, the divergence is still reported."""
     from .loop_stability import loop_stability
 
     gains = getattr(controller, "gains", None)
@@ -97,8 +99,8 @@ def unstable_loop(model, path: DesiredPath, controller: Controller, q0: np.ndarr
         return None
     qd = np.zeros_like(q0) if qd0 is None else qd0
     try:
-        return loop_stability(model, path, gains, controller.name, q0, qd, 0.0).describe()
-    except (SingularSystemError, SimulationError, np.linalg.LinAlgError, FloatingPointError, ValueError):
+        return loop_stability(model, path, gains, controller.name, q0, qd, 0.0).describe(diverged_at)
+    except Exception:  # noqa: BLE001 (a diagnosis must never hide the divergence it explains)
         return None
 
 
