@@ -336,7 +336,8 @@ class Penalty(Controller):
         self._qdd_sum = np.zeros(n)
         self._qdd_last = np.zeros(n)
         self._potrf, self._potrs = lapack.get_lapack_funcs(("potrf", "potrs"), (self.mass,))
-        rows = [i for i in range(self.m) if i not in set(model.layout.redundant_rows)]
+        redundant = set(model.layout.redundant_rows)
+        rows = [i for i in range(self.m) if i not in redundant]
         self.recovery = InputRecovery(gains.recovery, self.mass, self.k, self.l, gains.kappa, rows)
         self.u = self.recovery.u  # the recovery writes the input in place: one buffer, no copy
         if iterations > 1:
