@@ -121,7 +121,10 @@ def plant_step_function(model: SymbolicModel, name: str, rows: list[int]) -> ca.
            cable_gap     (per spec cable, |p_a − p_b| − L at the end of the step, m; > 0 stretched),
            cable_events  ([max over taut cables of −tension, max over slack cables of gap], each at
                           least 0 and over the independent cable rows only: two numbers the caller
-                          compares with its tolerances instead of scanning both vectors every step).
+                          compares with its tolerances instead of scanning both vectors every step;
+                          a taut cable's tension counts at the start of the step and as the last RK4
+                          stage estimates it at the end, so that a cable that starts to push inside the
+                          step is flagged in it, and its instant located, not a step late).
     """
     q, qd, s, sd, sdd = model.inputs
     n, ns = q.shape[0], s.shape[0]
@@ -175,13 +178,17 @@ def plant_step_function(model: SymbolicModel, name: str, rows: list[int]) -> ca.
     k1, lam1 = f(x, 0)
     k2, _ = f(x + 0.5 * h * k1, 1)
     k3, _ = f(x + 0.5 * h * k2, 1)
-    k4, _ = f(x + h * k3, 2)
+    x4 = x + h * k3
+    k4, lam4 = f(x4, 2)
     x_next = x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
     start_tension = tension_fn(x[:n], lam1, params)
+    # The last stage's tension, at its estimate of the end state: free here, and close enough to flag a
+    # cable whose tension crosses zero inside the step (the plant locates the instant on exact tensions).
+    end_tension = tension_fn(x4[:n], lam4, params)
     end_gap = gap_fn(x_next[:n], stage[6 * ns : 7 * ns], params)
     slack_indicator, taut_indicator = ca.MX(0), ca.MX(0)
     for c in independent_cables:
-        slack_indicator = ca.fmax(slack_indicator, -mask[c] * start_tension[c])
+        slack_indicator = ca.fmax(slack_indicator, -mask[c] * ca.fmin(start_tension[c], end_tension[c]))
         taut_indicator = ca.fmax(taut_indicator, (1 - mask[c]) * end_gap[c])
     return ca.Function(
         name,

@@ -15,12 +15,15 @@ two float comparisons. Otherwise (rare; numpy):
   the solution of the complementarity conditions of the plant's own stabilised multiplier system
   at that instant: taut cables pull, slack ones are not accelerated into stretch. The system is
   positive definite, so the solution is unique; it is found among all masks of those cables
-  (nearest to the current first). A taut cable that starts to push therefore goes slack at step
-  granularity, from the start-of-step tension: with u held piecewise constant the tension changes
-  smoothly, and the switch comes up to one substep late (while the cable pushes by at most about
-  |dT/dt|·h). A slack cable separating so slowly, under an acceleration back into stretch, that its
+  (nearest to the current first). A slack cable separating so slowly, under an acceleration back into stretch, that its
   dip would be shallower than GAP_TOL (too shallow to locate its return) is taken taut there too,
   with its tiny rate projected out (the energy that return's impact would take, into impact_energy).
+- Taut → slack inside the step: a taut cable whose tension crosses zero inside the step (the step
+  flags it from its last RK4 stage's estimate of the end tension) has the instant located by Illinois
+  regula falsi on its exact tension at the end of a partial step (acroboter.sim.cable_crossings), to
+  within [−tension_tol, 0]; it goes slack there and the rest of the step runs without it. (It went slack
+  at the start of the next step before, having pushed for up to a step: 52 mm off MuJoCo on a generated
+  crane, docs/plant-fuzz-cranes.md.)
 - Slack → taut inside the step: a slack cable that ends the step stretched has its crossing located
   by Illinois regula falsi (each evaluation one RK4 step of a fraction θ of the step with the path's
   signals at t, t + θh/2, t + θh) to |gap| ≤ GAP_TOL: on the gap g(θ) when the cable starts below
@@ -51,8 +54,8 @@ Why: an inextensible cable that goes taut stops the relative motion along it at 
 that as an impulse at the located instant keeps the constraint exact (no stiff spring, no
 penetration) and the integration between events is the unchanged smooth RK4.
 
-Limits: slack onset at step granularity (above); re-tension located to ~1e-12 m in gap; a gap that
-goes positive and back within one substep is not seen; a cable whose row is dependent
+Limits: a tension that dips below zero and back within one substep is not seen; re-tension located to
+~1e-12 m in gap; a gap that goes positive and back within one substep is not seen; a cable whose row is dependent
 (left out of the plant, acroboter.codegen.solver_terms.independent_rows) is never switched and reports
 tension 0. Stage signals at fractional times come from `path` (a hand-made table is taken to follow
 `path` when an event happens). No consistent state within max_events_per_step events raises
@@ -69,6 +72,8 @@ from dataclasses import dataclass
 from itertools import combinations
 
 import numpy as np
+
+from .cable_crossings import CableCrossings
 
 
 class SimulationError(RuntimeError):
@@ -92,10 +97,6 @@ START_SLACK_GAP = 1e-9
 # and as accelerated into stretch when its gap's acceleration exceeds GAP_ACC_TOL (m/s²).
 GAP_RATE_TOL = 1e-10
 GAP_ACC_TOL = 1e-7
-# The earliest fraction of a step at which a return to contact is located (below it: at the start).
-THETA_MIN = 1e-9
-# A change of a gap smaller than this (m) within a step is not told from round-off (|d| − L of ~1 m).
-GAP_RESOLUTION = 1e-13
 # Invariants checked in every run (InvariantError beyond them): no slack cable ends a substep stretched
 # by more than STRETCH_TOL (m); no taut cable starts a substep pushing by more than PUSH_TOL_REL × the
 # bodies' weight (N); |energy residual| stays within acroboter.sim.plant.ENERGY_TOL_REL × the energy scale (J):
@@ -114,7 +115,7 @@ class CableEvent:
     delta_kinetic: float  # J: T⁺ − T⁻ of the impact (0 for a cable going slack)
 
 
-class CableEvents:
+class CableEvents(CableCrossings):
     """The event logic of Plant (see the module docstring); Plant provides the state it works on."""
 
     def _kinetic(self, q: np.ndarray, qd: np.ndarray) -> float:
@@ -165,7 +166,20 @@ class CableEvents:
                 self.start_active[:] = self._active
                 record = False
             candidates = [c for c in self._modelled if self._active[c] == 0.0 and self._gap[c] > self.gap_tol]
-            located = self._locate(self._x.copy(), start_t, rest, candidates, here) if candidates else None
+            x_start = self._x.copy()
+            # the step, its start settled, still flags a push: a taut cable's tension crosses zero inside it
+            pushes = self._events[0] > self.tension_tol
+            onset = self._slack_onset(x_start, start_t, rest, here) if pushes else None
+            located = self._locate(x_start, start_t, rest, candidates, here) if candidates or pushes else None
+            if onset is not None and (located is None or onset[0] < located[0]):
+                theta, cable, x_event = onset  # it goes slack there, and the rest of the step runs without it
+                if theta > 0.0:
+                    refused = set()
+                self._active[cable] = 0.0
+                self._note(start_t + theta * rest, cable, "slack")
+                tau += theta * (1.0 - tau)
+                self._x[:] = x_event
+                continue
             if located is None:  # no slack cable crosses into stretch inside the step
                 self._x[:] = self._x_next
                 self._settings[0] = h
@@ -335,82 +349,6 @@ class CableEvents:
                 if violation < best_violation:
                     best, best_violation = mask, violation
         return best  # none within the tolerances (round-off): the least violating
-
-    def _gaps_after(self, x_start: np.ndarray, t: float, h: float, address: int | None = None) -> np.ndarray:
-        """The cable gaps after an RK4 step of length h from x_start at t (x buffer: x_start)."""
-        self._x[:] = x_start
-        self._point_step(t, h, address)
-        self._step.call()
-        return self._gap
-
-    def _first_crossing(self, x_start, t: float, h: float, cable: int, address: int | None) -> float | None:
-        """The θ in (0, 1] where the slack `cable`'s gap g(θ) comes up through its contact level in the
-        step of length h from x_start (to GAP_TOL), None if it does not come up inside the step.
-
-        A cable below contact at the start (g(0) < −GAP_TOL) is bracketed by [0, 1] on g itself. A
-        cable at contact at the start (|g(0)| ≤ GAP_TOL) that separates and comes back is located on
-        the secant slope f(θ) = (g(θ) − g(0))/θ instead: f starts at the separation rate (× h, < 0)
-        and ends at g(1) − g(0) > 0, so its root, the return, is bracketed however shallow the dip
-        (g itself may never go below −GAP_TOL in a micro-second dip: scanning g for such a point
-        missed returns and let the cable end the step stretched, the cascade of issue 18). The lower
-        end of the bracket is the first θ of THETA_MIN, 10 THETA_MIN, ... at which g has moved by more
-        than GAP_RESOLUTION from g(0) (below that its change is round-off, of either sign). If it has
-        moved up there, the cable is coming up from the start: that θ is returned (the impact there
-        takes it taut, or leaves it slack if its impulse would push)."""
-        gap_tol = self.gap_tol
-
-        def g(theta: float) -> float:
-            return float(self._gaps_after(x_start, t, theta * h, address if theta == 1.0 else None)[cable])
-
-        g0, g1 = g(0.0), g(1.0)
-        if g0 < -gap_tol:
-            f, lo, hi, f_lo, f_hi = g, 0.0, 1.0, g0, g1
-        else:
-            if g1 - g0 <= gap_tol:  # not coming up beyond where it started: no crossing in this step
-                return None
-
-            def f(theta: float) -> float:
-                return (g(theta) - g0) / theta
-
-            lo, hi, f_hi = THETA_MIN, 1.0, g1 - g0
-            while True:
-                f_lo = f(lo)
-                if abs(f_lo) * lo > GAP_RESOLUTION or lo >= 0.1:
-                    break
-                lo *= 10.0
-            if f_lo >= 0.0:
-                return lo
-        side = 0
-        theta = hi
-        for _ in range(200):  # Illinois regula falsi
-            theta = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
-            if not lo < theta < hi:
-                theta = 0.5 * (lo + hi)
-            value = f(theta)
-            if abs(value if f is g else value * theta) <= gap_tol or hi - lo <= 1e-15:
-                break
-            if value < 0.0:
-                lo, f_lo = theta, value
-                if side == -1:
-                    f_hi *= 0.5  # Illinois: keep the stale end from stalling the secant
-                side = -1
-            else:
-                hi, f_hi = theta, value
-                if side == 1:
-                    f_lo *= 0.5
-                side = 1
-        return theta
-
-    def _locate(self, x_start, t: float, h: float, candidates: list[int], address: int | None):
-        """The earliest crossing among the candidates: (θ, the state there, every cable's gap there),
-        or None when none crosses inside the step."""
-        thetas = [th for c in candidates if (th := self._first_crossing(x_start, t, h, c, address)) is not None]
-        if not thetas:
-            self._gaps_after(x_start, t, h, address)  # leave the whole step's result in the outputs
-            return None
-        theta = min(thetas)
-        self._gaps_after(x_start, t, theta * h, address if theta == 1.0 else None)
-        return theta, self._x_next.copy(), self._gap.copy()
 
     def _inverse_mass(self) -> np.ndarray:
         if self._minv is None:  # natural coordinates: M is constant
