@@ -47,6 +47,7 @@ from .cable_events import (  # noqa: F401 - the plant's errors, events and toler
     InvariantError,
     SimulationError,
 )
+from .plant_refinement import EnergyBalanceError, StepRefinement
 
 log = logging.getLogger(__name__)
 
@@ -98,7 +99,7 @@ def stage_rows(path: DesiredPath, h: float, first_step: int, steps: int) -> Stag
     return table
 
 
-class Plant(CableEvents):
+class Plant(CableEvents, StepRefinement):
     def __init__(self, model, path: DesiredPath, zeta: float, omega: float, parameters=None):
         """The plant of `model`'s crane; `parameters` (name -> value, acroboter.model.physical) replace the
         spec's physical parameters in it (checked here: PlantParameterError; fixed for its lifetime)."""
@@ -144,6 +145,7 @@ class Plant(CableEvents):
         self._loop = self._compiled  # the loop in use: the compiled one, or None for Python's
         self._stage_at = self._stage.ctypes.data
         self._table, self._table_at = None, (0, 0, False)  # the last advance's table (held: its address stays valid)
+        self._init_refinement()
 
     def _bind(self, model) -> None:
         """Its own bindings of the generated plant step, terms and energy, reading this plant's parameters."""
@@ -261,6 +263,7 @@ class Plant(CableEvents):
         self.impact_energy = 0.0
         self.transitions[:] = 0
         self.events = []
+        self.refined_periods, self.finest_step = 0, None
         _, gap, _ = self._contact_state(x, 0.0)
         self._active[gap < -START_SLACK_GAP] = 0.0
         self.start_active[:] = self._active
@@ -299,13 +302,25 @@ class Plant(CableEvents):
     # --- stepping -----------------------------------------------------------------------------
     def advance(self, x: np.ndarray, u: np.ndarray, h: float, table: np.ndarray, first_step: int,
                 steps: int, t0: float | None = None) -> None:
-        """`steps` RK4 steps of x (in place) with u held, stage signals from `table`.
+        """`steps` RK4 steps of x (in place) with u held, stage signals from `table`; a period the step cannot
+        resolve is flown again at a finer one (acroboter.sim.plant_refinement).
 
         Substep i runs from t0 + i·h; t0 is the table's (stage_table records it), else 0.
         """
         if t0 is None:
             t0 = getattr(table, "t0", None)
             t0 = 0.0 if t0 is None else t0
+        residual = self._fly_period(x, u, h, table, first_step, steps, t0)
+        self.cable_gap[:] = self._gap
+        for index, capacity, cable in self._drums:
+            if x[index] >= capacity - DRUM_END_M:
+                raise drum_ran_out(cable, float(x[index]), capacity, t0 + (first_step + steps) * h)
+        self._check_energy(x, t0 + (first_step + steps) * h, residual)
+        self._refined_to = None
+
+    def _run_substeps(self, x: np.ndarray, u: np.ndarray, h: float, table: np.ndarray, first_step: int,
+                      steps: int, t0: float) -> None:
+        """The substeps of advance at step h, x in place, without the period's end checks."""
         self._x[:] = x
         self._u[:] = u
         settings = self._settings
@@ -313,17 +328,14 @@ class Plant(CableEvents):
         if table is not self._table:  # a new table (every STAGE_CHUNK periods of a run): its address, once
             self._table, self._table_at = table, (table.ctypes.data, table.strides[0], table.flags.c_contiguous)
         base, row_bytes, contiguous = self._table_at
-        if self._loop is not None and contiguous:
-            self._advance_compiled(t0, h, base, row_bytes, first_step, steps)
-        else:
-            self._advance_python(t0, h, base, row_bytes, first_step, steps)
-        self._step.point_input(self._stage_input, self._stage_at)  # never leave a pointer into `table`
+        try:
+            if self._loop is not None and contiguous:
+                self._advance_compiled(t0, h, base, row_bytes, first_step, steps)
+            else:
+                self._advance_python(t0, h, base, row_bytes, first_step, steps)
+        finally:
+            self._step.point_input(self._stage_input, self._stage_at)  # never leave a pointer into `table`
         x[:] = self._x
-        self.cable_gap[:] = self._gap
-        for index, capacity, cable in self._drums:
-            if x[index] >= capacity - DRUM_END_M:
-                raise drum_ran_out(cable, float(x[index]), capacity, t0 + (first_step + steps) * h)
-        self._check_energy(x, t0 + (first_step + steps) * h)
 
     def _advance_compiled(self, t0: float, h: float, base: int, row_bytes: int, first_step: int, steps: int) -> None:
         """The substeps in C (acroboter.runtime.plant_loop) up to each event, the events resolved here."""
@@ -373,12 +385,12 @@ class Plant(CableEvents):
         return max(ENERGY_TOL_REL * (self._potential_scale + self._peak_kinetic),
                    ROUNDING_ULPS * np.finfo(float).eps * self._peak_terms)
 
-    def _check_energy(self, x: np.ndarray, t: float) -> None:
+    def _check_energy(self, x: np.ndarray, t: float, residual: float | None = None) -> None:
         """The energy invariant at x. A plant that starts off its constraints (its geometry differs
         from the model's, whose rest it starts at) is held to the balance from the instant Baumgarte
         has closed them (max |φ| ≤ CLOSED_TOL), against the energy there: the stabilisation's work
         while it closes them is no term of the balance (its residual is recorded, not checked)."""
-        self.energy_residual = residual = self.energy_balance(x)
+        self.energy_residual = residual = self.energy_balance(x) if residual is None else residual
         if self.closing:
             if self._constraint_violation(x, t) <= CLOSED_TOL:
                 self.closing = False
@@ -387,10 +399,13 @@ class Plant(CableEvents):
                 self.energy_residual = 0.0
             return
         if not abs(residual) <= self.energy_bound:
+            if self.refining:
+                raise EnergyBalanceError(t)
+            refined = f" (also at a step refined to {self._refined_to:g} s)" if self._refined_to else ""
             raise InvariantError(
                 f"at t = {t:.6f} s the plant's energy balance is off by {residual:+.3e} J (bound "
                 f"{self.energy_bound:.3e} J: {ENERGY_TOL_REL:g} of the crane's energy scale): energy was "
-                "created or lost without a cause; report the inputs that led here")
+                f"created or lost without a cause{refined}; report the inputs that led here")
 
     def step(self, x: np.ndarray, t: float, u: np.ndarray, h: float) -> None:
         """One RK4 step of x (in place) from t to t + h (convenience; evaluates the path here)."""

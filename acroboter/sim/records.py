@@ -63,6 +63,10 @@ class RunResult:
     # From when (s) the residual is checked: 0, or once a plant that started off its constraints has
     # closed them (Plant._check_energy); None: never within the run.
     energy_checked_from: float | None = None
+    # The own plant's periods flown again at a finer step where its energy balance said the spec's step could not
+    # resolve them (acroboter.sim.plant_refinement), and the finest step used (s; None: none refined, or MuJoCo).
+    plant_refined_periods: int = 0
+    plant_finest_step: float | None = None
     # Open loop (acroboter.sim.open_loop): per input, the instants at which it was outside the spec's limits.
     outside_limits: dict[str, dict] | None = None
     # With sensing, per instant: the measurement the estimator read (columns: measured_names), the estimate the
@@ -159,7 +163,9 @@ class Records:
                            plant_params=dict(getattr(plant, "parameters", {})), anchors=self.anchors,
                            cable_gap=self.gap, energy_residual=self.residual,
                            energy_bound=plant.energy_bound if self.checks_energy else None,
-                           energy_checked_from=plant.energy_checked_from if self.checks_energy else None)
+                           energy_checked_from=plant.energy_checked_from if self.checks_energy else None,
+                           plant_refined_periods=int(getattr(plant, "refined_periods", 0)),
+                           plant_finest_step=getattr(plant, "finest_step", None))
         if self.sensor is not None:
             result.measured_names = [self.layout.coordinates[i] for i in self.sensor.index]
             result.measurements, result.step_code = self.y, self.code
@@ -274,6 +280,8 @@ def summarize(result: RunResult, scenario: Scenario, layout) -> dict:
         summary["max_abs_energy_residual_J"] = float(np.abs(checked).max()) if checked.size else None
         summary["energy_residual_bound_J"] = result.energy_bound
         summary["energy_checked_from_s"] = start
+        summary["plant_refined_periods"] = result.plant_refined_periods
+        summary["plant_finest_step_s"] = result.plant_finest_step
     if result.outside_limits is not None:
         summary["inputs_outside_limits"] = result.outside_limits
     summary["saturated"] = bool(saturated.any())

@@ -181,6 +181,7 @@ class Outcome:
     impact_loss_own_j: float = 0.0  # the own plant's loss (−ΣΔT) in the impact of the worst agreement
     impact_loss_mujoco_j: float = 0.0  # MuJoCo's (−W of its constraint forces) in that impact
     max_impact_energy_ratio: float = 0.0  # worst |loss difference| / its bound (max(1 % own loss, 1e-4 J))
+    refined_steps: int = 0  # plant steps the own plant flew again at a finer step (acroboter.sim.plant_refinement)
 
     @property
     def passed(self) -> bool:
@@ -413,6 +414,7 @@ def replayed_loss(engine, ledger, own_states: np.ndarray, inputs: np.ndarray, su
 def _finish(outcome: Outcome, own) -> Outcome:
     outcome.retensions = sum(e.kind == "taut" for e in own.events)
     outcome.transitions = len(own.events)
+    outcome.refined_steps = own.refined_periods
     return outcome
 
 
@@ -494,4 +496,4 @@ COLUMNS = ["spec", "seed", "duration", "compared_s", "passed", "status", "mujoco
            "position_diff_by_step",
            "max_position_diff_m", "slack_mismatch_steps", "max_slack_stretch_m", "max_energy_ratio", "retensions",
            "transitions", "impacts", "max_impact_energy_ratio", "impact_loss_own_j", "impact_loss_mujoco_j", "left",
-           "replay"]
+           "refined_steps", "replay"]
