@@ -246,6 +246,17 @@ def test_regression_crane_217_case_4_refines_the_plant_step_where_a_snap_is_fast
     assert np.abs(refined - fine).max() < 20e-6
 
 
+def test_regression_crane_217_case_4_agrees_with_mujoco_at_step_0():
+    """The same case against MuJoCo: the bodies agree at MuJoCo's finest step (17.6 µm), and its grazing re-tension
+    takes 0 J in the own plant while MuJoCo's compliant cable takes 0.0303, 0.00602, 0.00301 J at 5e-5, 1e-5, 5e-6 s:
+    first-order convergence on 0, which the verdict extrapolates (acroboter.studies.impact_comparison)."""
+    pytest.importorskip("mujoco")
+    from acroboter.studies.plant_differential import crane_of, experiment_of, run_experiment
+
+    outcome = run_experiment(experiment_of("crane_217", 4), crane_of("crane_217"))
+    assert outcome.passed and "extrapolated to step 0" in outcome.status, outcome.status
+
+
 def test_regression_a_subnormal_anchor_height_is_a_valid_mjcf():
     """Shrunk by hypothesis (a drawn crane with a connector anchor at height 5e-324 m): MuJoCo's XML parser refused the
     subnormal as 'number is too large'; the MJCF writes it as 0."""

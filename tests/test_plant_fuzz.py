@@ -432,3 +432,23 @@ def test_the_two_cases_that_needed_mujocos_finer_step_are_converged_in_the_own_p
     its crane leaves sensible motion."""
     coarse, fine = (_own_positions(name, seed, n, stop_s) for n in (1, 4))
     assert np.abs(coarse - fine).max() < 0.5e-6  # m (a re-tension located to 1e-7 m instead of 1e-12: 0.63 µm)
+
+
+def test_an_impact_is_extrapolated_to_step_0_only_where_mujoco_converges_at_first_order():
+    """acroboter.studies.impact_comparison.agrees_extrapolated on figures made up to be first-order in MuJoCo's step
+    (loss(h) = own + c·h): the limit is the own plant's; at second order, not converging, or unmatched, no verdict."""
+    from acroboter.studies.impact_comparison import IMPACT_ENERGY_J, agrees_extrapolated
+
+    own, c = 0.05, 600.0  # J, J/s: 0.006 J off at 1e-5 s, 0.003 J at 5e-6 s, 60x the bound
+    first_order = lambda h: own + c * h  # noqa: E731
+    note = agrees_extrapolated([(0.4, own, first_order(5e-6))], 5e-6, [(0.4, own, first_order(1e-5))], 1e-5)
+    assert note is not None and "extrapolated to step 0" in note
+    assert agrees_extrapolated([(0.4, own, own + 0.5 * IMPACT_ENERGY_J)], 5e-6, [], 1e-5) is None  # nothing beyond
+    second_order = lambda h: own + 6e7 * h**2  # noqa: E731
+    assert agrees_extrapolated([(0.4, own, second_order(5e-6))], 5e-6, [(0.4, own, second_order(1e-5))], 1e-5) is None
+    assert agrees_extrapolated([(0.4, own, own + 0.003)], 5e-6, [(0.4, own, own + 0.003)], 1e-5) is None  # stalled
+    assert agrees_extrapolated([(0.4, own, own + 0.003)], 5e-6, [(0.4, own, own - 0.006)], 1e-5) is None  # other side
+    assert agrees_extrapolated([(0.4, own, first_order(5e-6))], 5e-6, [(0.7, own, first_order(1e-5))], 1e-5) is None
+    # converging at first order, but on a figure other than the own plant's
+    off = lambda h: own + 0.002 + c * h  # noqa: E731
+    assert agrees_extrapolated([(0.4, own, off(5e-6))], 5e-6, [(0.4, own, off(1e-5))], 1e-5) is None
