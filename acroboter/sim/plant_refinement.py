@@ -7,13 +7,15 @@ drum) at 0.16-0.19 s of a plant-fuzz drive goes through a snap whose growth rate
 (docs/plant-fuzz-cranes.md). At 1 ms the same drive holds it.
 
 The rule. The energy balance (acroboter.sim.plant) is an error indicator the plant already computes at the end of
-every control period. Where its residual changes within one period by more than REFINE_SHARE of its bound (or
-breaks it at an event inside the period), the period is flown again from its start at h/2, then h/4, ... down to
-h / 2**MAX_HALVINGS, and the first step whose period keeps within that share is kept. Nothing in a period that
-holds is touched: on every shipped crane's runs a period's residual changes by ~1e-8 J against a threshold of
-~3e-5 J, so their numbers are unchanged to the bit. The periods refined and the finest step are counted
-(`refined_periods`, `finest_step`); a run's summary reports them. A period that no finer step resolves raises the
-plant's energy InvariantError, as before, naming the finest step tried.
+every control period. Where its residual changes within one period by more than REFINE_SHARE of its bound, or an
+invariant breaks inside the period (the balance at an event, a slack cable stretched, a taut one pushing, no
+consistent cable state: acroboter.sim.cable_events), the period is flown again from its start at h/2, then h/4,
+... down to h / 2**MAX_HALVINGS, and the first step whose period keeps within that share and breaks nothing is
+kept. (Generated crane_222: at 2 ms a cable event inside a fast period chattered 250 times; refined, it holds.)
+Nothing in a period that holds is touched: on every shipped crane's runs a period's residual changes by
+~1e-8 J against a threshold of ~3e-5 J, so their numbers are unchanged to the bit. The periods refined and the
+finest step are counted (`refined_periods`, `finest_step`); a run's summary reports them. A period that no finer
+step resolves raises the plant's error, as before (the energy's naming the finest step tried).
 
 Why a period and not a substep: the energy residual is checked per period (per event substep inside it), the
 rollback is one saved state, and the cost falls only on the periods that need it.
@@ -22,6 +24,8 @@ rollback is one saved state, and the cost falls only on the periods that need it
 from __future__ import annotations
 
 import numpy as np
+
+from .cable_events import SimulationError
 
 REFINE_SHARE = 0.01  # a period whose energy residual changes by more than this share of its bound is refined
 MAX_HALVINGS = 4  # down to h/16
@@ -78,7 +82,7 @@ class StepRefinement:
             self._run_substeps(x, u, h, table, first_step, steps, t0)
             if self._period_holds(x, before):
                 return self._period_residual
-        except EnergyBalanceError:
+        except (EnergyBalanceError, SimulationError):  # an invariant broken at this step: a finer one may keep it
             pass
         finally:
             self.refining = False
@@ -90,7 +94,9 @@ class StepRefinement:
             self._refined_to = fine
             try:
                 self._run_substeps(x, u, fine, self.stage_table(start, fine, count), 0, count, start)
-            except EnergyBalanceError:
+            except (EnergyBalanceError, SimulationError):
+                if not self.refining:
+                    raise  # the finest step breaks it too: the plant's error, as before
                 continue
             finally:
                 self.refining = False
