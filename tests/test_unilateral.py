@@ -600,3 +600,46 @@ def test_the_non_collocated_crane_under_mlm_keeps_its_cables_consistent():
         scale = np.abs(e["work_inputs"]).max()
     assert drifts[0] < 2e-8 * scale  # seen: 6e-9 · scale (3.8e-7 J)
     assert drifts[1] < drifts[0] / 4  # truncation error, not a term left out
+
+
+def _flight_at(plant, velocity, h: float, seconds: float) -> np.ndarray:
+    """The ball from the bottom of its string with a velocity, unforced, in steps of h: the state after each."""
+    q0 = np.concatenate([HOOK - [0.0, 0.0, LENGTH], np.eye(3).reshape(-1)])
+    x = plant.initial_state(q0, np.concatenate([velocity, np.zeros(9)]))
+    steps = round(seconds / h)
+    table = plant.stage_table(0.0, h, steps)
+    states = []
+    for i in range(steps):
+        plant.advance(x, np.zeros(1), h, table, i, 1)
+        states.append(x.copy())
+    return np.array(states)
+
+
+def test_a_refined_period_leaves_nothing_of_the_attempts_it_undid(ball, monkeypatch):
+    """Every period forced to refine (REFINE_RATE < 0: none holds, so each is flown at H, H/2, H/4, H/8 and kept at
+    H/16, acroboter.sim.plant_refinement): the attempts undone leave nothing behind. The whirl's event log, its
+    bookkeeping and its end state are those of the same flight at H/16 with nothing refined, and the C and Python
+    substep loops give the same states, bit for bit."""
+    from acroboter.sim import plant_refinement
+
+    _, plant = ball
+    velocity = np.array([math.sqrt(3.5 * G * LENGTH), 0.0, 0.0])
+    reference = _flight_at(plant, velocity, H / 16, 1.4)
+    expected = [(e.t, e.kind, e.delta_kinetic) for e in plant.events]
+    assert plant.refined_periods == 0 and [k for _, k, _ in expected] == ["slack", "taut"]
+    monkeypatch.setattr(plant_refinement, "REFINE_RATE", -1.0)
+    runs = {}
+    for compiled in (True, False):
+        plant.use_compiled_loop(compiled)
+        try:
+            runs[compiled] = _flight_at(plant, velocity, H, 1.4)
+        finally:
+            plant.use_compiled_loop(True)
+        assert plant.refined_periods == round(1.4 / H) and plant.finest_step == H / 16
+        assert [k for _, k, _ in ((e.t, e.kind, 0) for e in plant.events)] == ["slack", "taut"]
+        for (t, kind, delta), event in zip(expected, plant.events, strict=True):
+            assert abs(event.t - t) < 1e-9 and event.kind == kind
+            assert event.delta_kinetic == pytest.approx(delta, rel=1e-6)
+        assert_event_log_consistent(plant, [True])
+    np.testing.assert_array_equal(runs[True], runs[False])
+    np.testing.assert_allclose(runs[True][-1], reference[-1], rtol=0, atol=1e-9)

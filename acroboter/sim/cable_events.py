@@ -19,7 +19,8 @@ two float comparisons. Otherwise (rare; numpy):
   dip would be shallower than GAP_TOL (too shallow to locate its return) is taken taut there too,
   with its tiny rate projected out (the energy that return's impact would take, into impact_energy).
 - Taut → slack inside the step: a taut cable whose tension crosses zero inside the step (the step
-  flags it from its last RK4 stage's estimate of the end tension) has the instant located by Illinois
+  flags it from its last RK4 stage's estimate of the end tension; one it misses near the step's end goes
+  slack at the next step's start) has the instant located by Illinois
   regula falsi on its exact tension at the end of a partial step (acroboter.sim.cable_crossings), to
   within [−tension_tol, 0]; it goes slack there and the rest of the step runs without it. (It went slack
   at the start of the next step before, having pushed for up to a step: 52 mm off MuJoCo on a generated
@@ -179,6 +180,12 @@ class CableEvents(CableCrossings):
                 self._note(start_t + theta * rest, cable, "slack")
                 tau += theta * (1.0 - tau)
                 self._x[:] = x_event
+                if 1.0 - tau <= 1e-12:  # at the end of the substep: its end state, its gaps there
+                    self._gaps_after(x_event, t + h, 0.0)
+                    self._settings[0] = h
+                    self._check_cables(t + h)
+                    self._check_energy(self._x, t + h)
+                    return
                 continue
             if located is None:  # no slack cable crosses into stretch inside the step
                 self._x[:] = self._x_next

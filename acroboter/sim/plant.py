@@ -263,7 +263,7 @@ class Plant(CableEvents, StepRefinement):
         self.impact_energy = 0.0
         self.transitions[:] = 0
         self.events = []
-        self.refined_periods, self.finest_step = 0, None
+        self.refined_periods, self.finest_step, self._refined_to = 0, None, None
         _, gap, _ = self._contact_state(x, 0.0)
         self._active[gap < -START_SLACK_GAP] = 0.0
         self.start_active[:] = self._active
@@ -310,13 +310,15 @@ class Plant(CableEvents, StepRefinement):
         if t0 is None:
             t0 = getattr(table, "t0", None)
             t0 = 0.0 if t0 is None else t0
-        residual = self._fly_period(x, u, h, table, first_step, steps, t0)
-        self.cable_gap[:] = self._gap
-        for index, capacity, cable in self._drums:
-            if x[index] >= capacity - DRUM_END_M:
-                raise drum_ran_out(cable, float(x[index]), capacity, t0 + (first_step + steps) * h)
-        self._check_energy(x, t0 + (first_step + steps) * h, residual)
-        self._refined_to = None
+        try:
+            residual = self._fly_period(x, u, h, table, first_step, steps, t0)
+            self.cable_gap[:] = self._gap
+            for index, capacity, cable in self._drums:
+                if x[index] >= capacity - DRUM_END_M:
+                    raise drum_ran_out(cable, float(x[index]), capacity, t0 + (first_step + steps) * h)
+            self._check_energy(x, t0 + (first_step + steps) * h, residual)
+        finally:
+            self._refined_to = None
 
     def _run_substeps(self, x: np.ndarray, u: np.ndarray, h: float, table: np.ndarray, first_step: int,
                       steps: int, t0: float) -> None:

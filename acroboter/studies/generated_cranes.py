@@ -128,7 +128,8 @@ def run_crane(seed: int, cases: int, case_seed: int, closed_loop: bool = True,
     step = mujoco_timestep or MUJOCO_TIMESTEP
     for i in range(cases):
         outcome = run_experiment(experiment_of(spec.name, case_seed + i), crane, step)
-        out["open"].append(asdict(outcome) | {"seed": case_seed + i, "passed": outcome.passed})
+        case_row = {k: v for k, v in asdict(outcome).items() if k != "impact_records"}
+        out["open"].append(case_row | {"seed": case_seed + i, "passed": outcome.passed})
     if closed_loop:
         out["closed"] = closed_loop_rows(crane, mujoco_timestep)
     row["open_loop_failed"] = sum(not r["passed"] for r in out["open"])

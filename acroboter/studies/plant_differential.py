@@ -182,7 +182,7 @@ class Outcome:
     impact_loss_mujoco_j: float = 0.0  # MuJoCo's (−W of its constraint forces) in that impact
     max_impact_energy_ratio: float = 0.0  # worst |loss difference| / its bound (max(1 % own loss, 1e-4 J))
     refined_steps: int = 0  # plant steps the own plant flew again at a finer step (acroboter.sim.plant_refinement)
-    # per impact compared: (its window's start, s; the own plant's loss, J; MuJoCo's, J); not a CSV column
+    # per impact compared: (its window's start and end, s; the own plant's loss, J; MuJoCo's, J); not a CSV column
     impact_records: list = field(default_factory=list)
 
     @property
@@ -205,10 +205,11 @@ def run_experiment(experiment: Experiment, crane=None, mujoco_timestep: float = 
     if len(tried) > 1 and outcome.status.startswith("fails: an impact takes") and ";" not in outcome.status:
         # only an impact's energy is off, at the finest step: MuJoCo's figure at step 0 (acroboter.studies.
         # impact_comparison), where its two finest steps show it converging on the own plant's at first order
-        note = agrees_extrapolated(outcome.impact_records, outcome.mujoco_timestep, tried[-2].impact_records,
-                                   tried[-2].mujoco_timestep)
-        if note:
-            outcome.status = f"agrees ({note})"
+        extrapolated = agrees_extrapolated(outcome.impact_records, outcome.mujoco_timestep,
+                                           tried[-2].impact_records, tried[-2].mujoco_timestep)
+        if extrapolated:
+            outcome.status = f"agrees ({extrapolated[0]})"
+            outcome.max_impact_energy_ratio = extrapolated[1]
     if len(tried) > 1:
         outcome.first_status = "; ".join(f"at {o.mujoco_timestep:g} s: {o.status}" for o in tried[:-1])
         outcome.position_diff_by_step = ", ".join(f"{o.mujoco_timestep:g} s: {o.max_position_diff_m * 1e6:.1f} µm"
@@ -359,7 +360,7 @@ class _Comparison:
             own_loss = impact_loss(own.events, first, last, h)
             mj_loss = replayed_loss(replay, ledger, self.own_states, self.inputs, self.substeps, h, first, last)
             outcome.impacts += 1
-            outcome.impact_records.append((first * h, own_loss, mj_loss))
+            outcome.impact_records.append((first * h, last * h, own_loss, mj_loss))
             ratio = abs(mj_loss - own_loss) / max(IMPACT_ENERGY_REL * abs(own_loss), IMPACT_ENERGY_J)
             if ratio >= outcome.max_impact_energy_ratio:
                 outcome.max_impact_energy_ratio = ratio
