@@ -48,7 +48,12 @@ def test_a_run_that_diverges_keeps_the_last_good_results(tmp_path, capsys):
     assert "mlm diverged at t = " in why
     # issue 36: the cause named, not only the plant's symptom ("energy created or lost without a cause")
     assert "the path is too fast for the crane" in why and "control periods of 20 ms" in why
-    assert json.loads((record / "summary.json").read_text())["methods"]["mlm"]["max_position_error_mm"] is None
+    # the diverged run's error is no figure of tracking: none where the state blew up between two records, or one
+    # beyond the divergence limit (0.5 m) where the plant flew on until the crane was that far off (its periods
+    # refined, acroboter.sim.plant_refinement)
+    failed = json.loads((record / "summary.json").read_text())["methods"]["mlm"]
+    assert failed["max_position_error_mm"] is None or failed["max_position_error_mm"] > 500.0
+    assert failed["diverged_at_s"] is not None
     assert f"the failed run's records in {record}/" in printed.out and "as they were" in printed.out
     manifest = json.loads((out / MANIFEST).read_text())["commands"]
     assert set(manifest) == {"run", "run (failed)"}
