@@ -173,7 +173,7 @@ class OffManifoldPlant(Plant):
     def _check_energy(self, x, t, residual=None):
         self.energy_residual = 0.0
 
-    def _period_holds(self, x, before, duration):
+    def _period_holds(self, x, duration):
         self._period_residual = 0.0
         return True
 

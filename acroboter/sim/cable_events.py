@@ -182,16 +182,12 @@ class CableEvents(CableCrossings):
                 self._x[:] = x_event
                 if 1.0 - tau <= 1e-12:  # at the end of the substep: its end state, its gaps there
                     self._gaps_after(x_event, t + h, 0.0)
-                    self._settings[0] = h
-                    self._check_cables(t + h)
-                    self._check_energy(self._x, t + h)
+                    self._end_substep(t, h)
                     return
                 continue
             if located is None:  # no slack cable crosses into stretch inside the step
                 self._x[:] = self._x_next
-                self._settings[0] = h
-                self._check_cables(t + h)
-                self._check_energy(self._x, t + h)
+                self._end_substep(t, h)
                 return
             theta, x_event, gap = located
             t_event = start_t + theta * rest
@@ -204,15 +200,20 @@ class CableEvents(CableCrossings):
             tau += theta * (1.0 - tau)
             self._x[:] = x_event
             if 1.0 - tau <= 1e-12:  # the crossing was at the end of the substep
-                self._settings[0] = h
                 self._gap[:] = gap  # the end's gaps (the impact moved no position)
-                self._check_cables(t + h)
-                self._check_energy(self._x, t + h)
+                self._end_substep(t, h)
                 return
         raise SimulationError(
             f"more than {self.max_events_per_step} cable events in the plant step at t = {t:.6f} s "
             "(chattering cables): shorten simulation.step"
         )
+
+    def _end_substep(self, t: float, h: float) -> None:
+        """The substep [t, t + h] resolved, its end state in the x buffer: the step's settings back to h, and the
+        invariants checked there."""
+        self._settings[0] = h
+        self._check_cables(t + h)
+        self._check_energy(self._x, t + h)
 
     def _terms_at(self, x: np.ndarray, t: float) -> dict[str, np.ndarray]:
         n, ns = self.n, self.ns

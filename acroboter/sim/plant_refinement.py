@@ -69,47 +69,46 @@ class StepRefinement:
          self.closing, self.energy_checked_from) = self._saved_scalars
         del self.events[events:]
 
-    def _period_holds(self, x: np.ndarray, before: float, duration: float) -> bool:
-        """Whether the `duration` s just flown keep the energy residual's change within REFINE_RATE·duration of its
-        bound; the residual in `_period_residual`. A period that started or ends closing the constraints is not
-        judged: the residual is re-based where they close (Plant._check_energy), a jump that is no error."""
+    def _period_holds(self, x: np.ndarray, duration: float) -> bool:
+        """Whether the `duration` s just flown keep the energy residual's change since the period's start within
+        REFINE_RATE·duration of its bound; the residual in `_period_residual`. A period that started or ends
+        closing the constraints is not judged: the residual is re-based where they close (Plant._check_energy), a
+        jump that is no error."""
         self._period_residual = residual = self.energy_balance(x)
-        if self.closing or self._saved_scalars[6]:
+        _, _, _, _, before, _, started_closing, _ = self._saved_scalars
+        if self.closing or started_closing:
             return True
         return abs(residual - before) <= REFINE_RATE * duration * self.energy_bound
 
     def _fly_period(self, x: np.ndarray, u: np.ndarray, h: float, table, first_step: int, steps: int,
-                    t0: float) -> float | None:
+                    t0: float) -> float:
         """The period [t0 + first_step·h, + steps·h] from x (in place), refined where it must be (module
-        docstring); its end's energy residual (None: not computed). The check of it is the caller's."""
+        docstring); its end's energy residual. The check of it is the caller's."""
         self._save_period(x)
-        before = self.energy_residual
-        self.refining = True  # an energy check broken inside the period asks for a finer step, not an error
-        try:
-            self._run_substeps(x, u, h, table, first_step, steps, t0)
-            if self._period_holds(x, before, steps * h):
-                return self._period_residual
-        except (EnergyBalanceError, SimulationError):  # an invariant broken at this step: a finer one may keep it
-            pass
-        finally:
-            self.refining = False
         start = t0 + first_step * h
-        for halving in range(1, MAX_HALVINGS + 1):
-            fine, count = h / 2**halving, steps * 2**halving
-            self._restore_period(x)
-            self.refining = halving < MAX_HALVINGS  # the finest step tried raises as the plant always did
-            self._refined_to = fine
+        for halving in range(MAX_HALVINGS + 1):
+            step, count = h / 2**halving, steps * 2**halving
+            if halving:
+                self._restore_period(x)
+                self._refined_to = step
+            # an invariant broken inside the period asks for a finer step, not an error; at the finest step tried
+            # it raises as the plant always did
+            self.refining = halving < MAX_HALVINGS
             try:
-                self._run_substeps(x, u, fine, self.stage_table(start, fine, count), 0, count, start)
+                if halving:
+                    self._run_substeps(x, u, step, self.stage_table(start, step, count), 0, count, start)
+                else:
+                    self._run_substeps(x, u, h, table, first_step, steps, t0)
             except (EnergyBalanceError, SimulationError):
                 if not self.refining:
-                    raise  # the finest step breaks it too: the plant's error, as before
+                    raise
                 continue
             finally:
                 self.refining = False
-            if self._period_holds(x, before, steps * h) or halving == MAX_HALVINGS:
-                # (the finest step's period is kept whatever its share: the caller's check of the bound decides)
-                self.refined_periods += 1
-                self.finest_step = fine if self.finest_step is None else min(self.finest_step, fine)
+            # (the finest step's period is kept whatever its share: the caller's check of the bound decides)
+            if self._period_holds(x, steps * h) or halving == MAX_HALVINGS:
+                if halving:
+                    self.refined_periods += 1
+                    self.finest_step = step if self.finest_step is None else min(self.finest_step, step)
                 return self._period_residual
         raise AssertionError("unreachable: the finest step's period returns or raises")

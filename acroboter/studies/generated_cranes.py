@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import tempfile
 import time
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -109,7 +108,7 @@ def run_crane(seed: int, cases: int, case_seed: int, closed_loop: bool = True,
               mujoco_timestep: float | None = None) -> dict:
     """Crane `seed` through every check of the module docstring: {"crane": row, "open": rows, "closed": rows}."""
     from ..api.crane import Crane
-    from .plant_differential import MUJOCO_TIMESTEP, experiment_of, remember_crane, run_experiment
+    from .plant_differential import MUJOCO_TIMESTEP, experiment_of, outcome_row, remember_crane, run_experiment
 
     t0 = time.perf_counter()
     spec = crane_spec(seed)
@@ -128,8 +127,7 @@ def run_crane(seed: int, cases: int, case_seed: int, closed_loop: bool = True,
     step = mujoco_timestep or MUJOCO_TIMESTEP
     for i in range(cases):
         outcome = run_experiment(experiment_of(spec.name, case_seed + i), crane, step)
-        case_row = {k: v for k, v in asdict(outcome).items() if k != "impact_records"}
-        out["open"].append(case_row | {"seed": case_seed + i, "passed": outcome.passed})
+        out["open"].append(outcome_row(outcome, case_seed + i))
     if closed_loop:
         out["closed"] = closed_loop_rows(crane, mujoco_timestep)
     row["open_loop_failed"] = sum(not r["passed"] for r in out["open"])

@@ -89,6 +89,11 @@ def replayed_loss(engine, ledger, own_states: np.ndarray, inputs: np.ndarray, su
 ORDER_RANGE = (0.7, 1.4)
 
 
+def impact_bound(own_loss: float) -> float:
+    """J: how far MuJoCo's loss may be from the own plant's `own_loss` (IMPACT_ENERGY_REL of it, or IMPACT_ENERGY_J)."""
+    return max(IMPACT_ENERGY_REL * abs(own_loss), IMPACT_ENERGY_J)
+
+
 Impact = tuple[float, float, float, float]  # its window's start and end (s), the own plant's loss and MuJoCo's (J)
 
 
@@ -102,7 +107,7 @@ def agrees_extrapolated(fine: list[Impact], fine_step: float, coarse: list[Impac
     ratio = coarse_step / fine_step
     notes, worst = [], 0.0
     for start, end, own, loss in fine:
-        bound = max(IMPACT_ENERGY_REL * abs(own), IMPACT_ENERGY_J)
+        bound = impact_bound(own)
         if abs(loss - own) <= bound:
             worst = max(worst, abs(loss - own) / bound)
             continue

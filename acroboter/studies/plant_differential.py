@@ -48,6 +48,7 @@ from .impact_comparison import (  # noqa: F401 - the impact bounds are the fuzz'
     IMPACT_ENERGY_REL,
     IMPACT_LEAD_S,
     agrees_extrapolated,
+    impact_bound,
     impact_loss,
     impact_windows,
     replayed_loss,
@@ -361,7 +362,7 @@ class _Comparison:
             mj_loss = replayed_loss(replay, ledger, self.own_states, self.inputs, self.substeps, h, first, last)
             outcome.impacts += 1
             outcome.impact_records.append((first * h, last * h, own_loss, mj_loss))
-            ratio = abs(mj_loss - own_loss) / max(IMPACT_ENERGY_REL * abs(own_loss), IMPACT_ENERGY_J)
+            ratio = abs(mj_loss - own_loss) / impact_bound(own_loss)
             if ratio >= outcome.max_impact_energy_ratio:
                 outcome.max_impact_energy_ratio = ratio
                 outcome.impact_loss_own_j, outcome.impact_loss_mujoco_j = own_loss, mj_loss
@@ -445,7 +446,11 @@ def experiment_of(name: str, seed: int) -> Experiment:
 def run_case(case: tuple[str, int], mujoco_timestep: float = MUJOCO_TIMESTEP) -> dict:
     """One (spec, seed) case as a row of the report (a task: module level, so that it pickles)."""
     name, seed = case
-    outcome = run_experiment(experiment_of(name, seed), crane_of(name), mujoco_timestep)
+    return outcome_row(run_experiment(experiment_of(name, seed), crane_of(name), mujoco_timestep), seed)
+
+
+def outcome_row(outcome: Outcome, seed: int) -> dict:
+    """An experiment's outcome as a row of plant_fuzz.csv (COLUMNS; its per-impact records are no column)."""
     row = asdict(outcome)
     del row["impact_records"]
     row["seed"] = seed
