@@ -20,16 +20,53 @@ the next edge, as the plant will), and those inputs are the plan's, checked agai
 from __future__ import annotations
 
 import sys
+from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..runtime.progress import progress_disabled
 from .ideal_motion import PlanningError
+from .limits import CHECK_STEP_S, INPUT_TOLERANCE
 from .retiming import MAX_SLOWDOWN, MIN_PHASE_INTERVALS, REST_TOL, Part, Retiming
 from .windows import PHASE_BISECTION, _substeps, _warm, first_serving, phase_factor
 
+# An edge whose inputs leave the bounds once the chain carries the swing into it is solved again from there at
+# most this many times (EdgeRetiming.carried).
+CARRY_ROUNDS = 3
+# Each of those solves gets at most this many IPOPT iterations and no second try (from an answer nearby they took
+# 17-25; one that finds no timing would otherwise take minutes to say so). An edge after which no timing of the next
+# one keeps the bounds is solved again with the crane held at its last corner this long within them (s: half the
+# default crane's swing period).
+CARRY_MAX_ITER = 60
+CARRY_TAIL_S = 1.5
 # The quasi-static motion that finds the configuration at rest at a corner lasts at least this long (s).
 QUASI_STATIC_S = 120.0
+
+
+@dataclass
+class Edge:
+    """One edge's answer: its duration (1 value), σ̈ and σ⃛ per interval, IPOPT's status, the solve records, the
+    iterations, and the lag model's state at its end and start (a plan to a tolerance; else None and zeros)."""
+
+    durations: np.ndarray
+    tau_dd: np.ndarray
+    tau_ddd: np.ndarray
+    status: str
+    records: list[dict]
+    iterations: int
+    lag_end: np.ndarray | None
+    lag_start: np.ndarray
+    substeps: int  # RK4 steps per interval of its solve: the chain integrates it with as many
+
+
+def node_guess(edge: Edge, smooth: bool) -> np.ndarray:
+    """An edge's answer as a solve's starting guess: σ̈ per interval, or with a smooth timing at every node (the
+    end's from the last interval's jerk)."""
+    if not smooth:
+        return edge.tau_dd
+    h = float(edge.durations[0]) / edge.tau_dd.size
+    return np.append(edge.tau_dd, edge.tau_dd[-1] + edge.tau_ddd[-1] * h)
 
 
 class EdgeRetiming(Retiming):
@@ -65,50 +102,219 @@ class EdgeRetiming(Retiming):
         factors = [self.rest_factor(j, counts[j], phase_factor(self, self.at_rest(j), j, factor)) for j in range(K)]
         self.phase_slowdown = (factors, float(sum(f * T for f, (_, _, T) in zip(factors, self.geo.phases,
                                                                                 strict=True))))
-        durations, tau_dd, jerks, records = [], [], [], []
-        status, iterations = "", 0
+        ends = [self.corner(j + 1, MIN_PHASE_INTERVALS) for j in range(K)]  # in turn: each from the one before
         from tqdm import tqdm
 
         bar = tqdm(total=K, unit="edge", desc="planning", file=sys.stderr, disable=progress_disabled(), leave=False)
-        lag = np.zeros(6)  # a plan to a tolerance: the lag model's state carried from edge to edge
-        for j in range(K):
-            # from rest, not from the state the edge before leaves: its residual swing (within REST_TOL) must then be
-            # stopped too, and on the paper's path at [5, 30] N that made the second edge 4.72 s where it takes 1.79 s
-            # from rest (the whole plan 38.5 s, measured 2026-12-06); the chain carries the swing instead
-            start = self.at_rest(j)
+
+        def solved(j: int, lag: np.ndarray) -> Edge:
+            # from rest, not from the state the edge before leaves: the edges are then independent problems, solved
+            # side by side; the swing the chain carries over is taken out afterwards (`carried`)
             warm_a, warm_T = _warm(self, j, counts[j], factors[j])
-            guess_a, guess_T = (warm_a, warm_T) if self.warm is None else (self.warm[0][j], self.warm[1][j])
-            m = _substeps([guess_T], [counts[j]])
-            try:
-                while True:
-                    part = self.solve_phases(start, [j], counts, guess_a, [guess_T], uniform_duration, max_iter,
-                                             verbose, m, rest_at=self.corner(j + 1, MIN_PHASE_INTERVALS),
-                                             lag_start=lag)
-                    records += part.windows
-                    iterations += part.iterations
-                    needed = _substeps(part.durations, [counts[j]])
-                    if needed <= m:
-                        break
-                    m, guess_a, guess_T = needed, part.tau_dd, float(part.durations[0])
-                edge_T, edge_a, edge_j, edge_status = part.durations, part.tau_dd, part.tau_ddd, part.status
-                lag = part.lag_end if part.lag_end is not None else lag
-            except PlanningError as unsolved:
-                # IPOPT gave no answer: the edge keeps its warm start, its own timing slowed from rest (feasible and
-                # ending at rest by rest_factor's bisection), and the summary says so
-                edge_T, edge_a, edge_status = np.array([warm_T]), warm_a, "quintic_slowdown_kept"
-                edge_j = np.zeros_like(warm_a)
-                records.append({"phases": [j], "intervals": counts[j], "status": edge_status, "iterations": 0,
-                                "reason": str(unsolved)})
+            guess = (warm_a, warm_T) if self.warm is None else (self.warm[0][j], self.warm[1][j])
+            edge = self._solve_edge(j, counts, self.at_rest(j), guess, (warm_a, warm_T), ends[j], uniform_duration,
+                                    max_iter, verbose, lag)
+            bar.set_postfix_str(f"edge {j + 1}: {float(edge.durations[0]):.3g} s ({edge.status})")
+            bar.update()
+            return edge
+
+        if self.lag is not None:  # a plan to a tolerance: the lag model's state is carried from edge to edge
+            edges, lag = [], np.zeros(6)
+            for j in range(K):
+                edges.append(solved(j, lag))
+                lag = edges[-1].lag_end if edges[-1].lag_end is not None else lag
+        else:  # independent problems: solved side by side (CasADi releases the GIL while IPOPT runs)
+            edges = self._side_by_side(solved, K)
+        bar.close()
+        edges = self.carried(x0, counts, edges, ends, uniform_duration, max_iter, verbose)
+        status, iterations, records = "", 0, []
+        for edge in edges:
             if not status or status == "Solve_Succeeded":
-                status = edge_status
-            durations.append(edge_T)
-            tau_dd.append(edge_a)
-            jerks.append(edge_j)
-            bar.set_postfix_str(f"edge {j + 1}: {float(edge_T[0]):.3g} s ({edge_status})")
+                status = edge.status
+            records += edge.records
+            iterations += edge.iterations
+        return self.chain(x0, counts, np.concatenate([e.durations for e in edges]),
+                          np.concatenate([e.tau_dd for e in edges]), status, iterations, records,
+                          np.concatenate([e.tau_ddd for e in edges]), [e.substeps for e in edges])
+
+    def _side_by_side(self, solved, K: int) -> list[Edge]:
+        """solved(j, no lag) for every edge on up to `workers` threads, in edge order. A Ctrl-C in the main thread
+        while they run, or an error in one of them, sets `cancelled`: each running solve stops at its next IPOPT
+        iteration, the ones not started never start, and the error is raised once they have."""
+        workers = max(1, min(self.workers, K))
+        if workers == 1:
+            return [solved(j, np.zeros(6)) for j in range(K)]
+        pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="edge")
+        try:
+            futures = [pool.submit(solved, j, np.zeros(6)) for j in range(K)]
+            done, _ = wait(futures, return_when=FIRST_EXCEPTION)  # an edge's error stops the others at once
+            for future in done:
+                if future.exception() is not None:
+                    raise future.exception()
+            return [f.result() for f in futures]
+        except BaseException:
+            self.cancelled.set()
+            raise
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+            self.cancelled.clear()
+
+    def carried(self, x0: np.ndarray, counts: list[int], edges: list[Edge], ends: list[np.ndarray],
+                uniform_duration: float, max_iter: int, verbose: bool) -> list[Edge]:
+        """The edges flown in one chain from x0, as the plant flies them: each corner's residual swing (within
+        REST_TOL of rest) carried into the next edge. An edge whose inputs then leave the bounds anywhere on a
+        CHECK_STEP_S grid (its solve started at rest, and its time-optimal inputs ride the bounds) is solved again
+        from the state the chain reaches there, from its own answer: first with the same bounds, then with them moved
+        in by the excess and a fifth, up to CARRY_ROUNDS solves (`_mend`). Where no timing of it keeps the bounds,
+        the edge before is solved again once with the crane held at its corner for CARRY_TAIL_S within the bounds
+        (a calmer corner), and this edge mended from there. An edge that still leaves the bounds ends the mending:
+        the plan then leaves them whatever follows, and planner.solve_within_bounds says where. Measured on the
+        paper's path at [5, 30] N (2026-12-07): a residual swing of 12 mm and 40 mm/s took tension_1 to 31.34 N
+        against bounds of [6.25, 28.75] N; edges 3 and 4 were mended (each 7-10 s of solve), edge 5, the 0.1 m climb
+        to the upper square, found no timing from the swing edge 4 leaves, nor after edge 4 with its corner held."""
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(edges), unit="edge", desc="carrying the swing", file=sys.stderr,
+                   disable=progress_disabled(), leave=False)
+        starts, out, tailed, mending = [np.asarray(x0, float)], [], set(), True
+        while len(out) < len(edges):
+            j = len(out)
+            if not mending:  # an edge before could not be mended: the plan leaves the bounds whatever comes after
+                out.append(edges[j])
+                starts.append(self.edge_excess(starts[j], j, counts[j], edges[j])[2])
+                bar.update()
+                continue
+            edge, worst, x_end = self._mend(j, starts[j], edges[j], counts, ends[j], uniform_duration, verbose)
+            if worst > INPUT_TOLERANCE and j > 0 and j - 1 not in tailed:
+                # no timing of this edge keeps the bounds from the swing the edge before leaves: that edge again, from
+                # where it starts, with the crane then held at its corner for CARRY_TAIL_S within the bounds
+                tailed.add(j - 1)
+                before = self._solve_edge(j - 1, counts, self._start(starts[j - 1], j - 1),
+                                          (node_guess(out[-1], self.smooth), out[-1].durations[0]), None, ends[j - 1],
+                                          uniform_duration, CARRY_MAX_ITER, verbose, out[-1].lag_start,
+                                          tail_s=CARRY_TAIL_S)
+                if before is not None:
+                    above, below, x_before = self.edge_excess(starts[j - 1], j - 1, counts[j - 1], before)
+                    if max(above.max(initial=-np.inf), below.max(initial=-np.inf)) <= INPUT_TOLERANCE:
+                        before.records = out[-1].records + before.records
+                        before.records[-1]["carried_swing"] = True
+                        out[-1], starts[j] = before, x_before
+                        continue  # this edge again, from the calmer corner
+            mending = worst <= INPUT_TOLERANCE
+            out.append(edge)
+            starts.append(x_end)
+            bar.set_postfix_str(f"edge {j + 1}: {float(edge.durations[0]):.3g} s")
             bar.update()
         bar.close()
-        return self.chain(x0, counts, np.concatenate(durations), np.concatenate(tau_dd), status, iterations, records,
-                          np.concatenate(jerks))
+        return out
+
+    def _start(self, x: np.ndarray, j: int) -> np.ndarray:
+        """The chain's state x at edge j's first corner, σ there exactly and σ̇ = 0."""
+        start = np.asarray(x, float).copy()
+        start[-2:] = self.geo.phases[j][0], 0.0
+        return start
+
+    def _mend(self, j: int, x: np.ndarray, edge: Edge, counts: list[int], end: np.ndarray, uniform_duration: float,
+              verbose: bool) -> tuple[Edge, float, np.ndarray]:
+        """Edge j flown from the chain's state x, solved again from there while its inputs leave the bounds (see
+        `carried`): (the edge kept, its largest step beyond the bounds as a fraction of the span, its end state)."""
+        span = np.where(np.isfinite(self.upper - self.lower), self.upper - self.lower, 1.0)
+        above, below, x_end = self.edge_excess(x, j, counts[j], edge)
+        start = self._start(x, j)
+        # first with the same bounds (what the swing carried in takes), then, while the inputs still leave them
+        # between the optimiser's nodes, with the bounds moved in
+        from_here = bool(np.array_equal(start, self.at_rest(j)))
+        down, up = np.zeros_like(span), np.zeros_like(span)  # how far this edge's bounds are moved in
+        worst = max(above.max(initial=-np.inf), below.max(initial=-np.inf))
+        for _ in range(CARRY_ROUNDS):
+            if worst <= INPUT_TOLERANCE:
+                break
+            if from_here:
+                down += 1.2 * np.maximum(above, 0.0) * span
+                up += 1.2 * np.maximum(below, 0.0) * span
+            from_here = True
+            base = self.lower, self.upper
+            self.lower, self.upper = base[0] + up, base[1] - down
+            try:
+                again = self._solve_edge(j, counts, start, (node_guess(edge, self.smooth), edge.durations[0]), None,
+                                         end, uniform_duration, CARRY_MAX_ITER, verbose, edge.lag_start)
+            finally:
+                self.lower, self.upper = base
+            if again is None:
+                break
+            above_again, below_again, x_again = self.edge_excess(x, j, counts[j], again)
+            worst_again = max(above_again.max(initial=-np.inf), below_again.max(initial=-np.inf))
+            if worst_again >= worst:
+                break
+            again.records = edge.records + again.records
+            again.records[-1]["carried_swing"] = True
+            again.iterations += edge.iterations
+            edge, above, below, x_end, worst = again, above_again, below_again, x_again, worst_again
+        return edge, worst, x_end
+
+    def edge_inputs(self, x: np.ndarray, j: int, count: int, edge: Edge) -> np.ndarray:
+        """Edge j's inputs from the state x on a CHECK_STEP_S grid (each interval integrated again from its node
+        state, as planner.solve_within_bounds checks the plan): samples x l."""
+        T = float(edge.durations[0])
+        states = self._edge_states(x, j, count, edge)
+        h = T / count
+        m = max(1, int(np.ceil(h / CHECK_STEP_S)))
+        key = ("map", count, m)
+        if key not in self._check_cache:
+            self._check_cache[key] = self.stepper(m).map(count)
+        _, us, ds, u_end, d_end, _ = self._check_cache[key](states[:-1].T, edge.tau_dd[None, :],
+                                                            edge.tau_ddd[None, :], h)
+        return self.fit_spare(np.vstack([np.asarray(us).T, np.asarray(u_end)[:, -1:].T]),
+                              np.vstack([np.asarray(ds).T, np.asarray(d_end)[:, -1:].T]))
+
+    def edge_excess(self, x: np.ndarray, j: int, count: int, edge: Edge) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Edge j flown from x: (each input's largest step above its upper bound, and below its lower one, as a
+        fraction of the span (≤ 0: within); the state at its end, at the corner exactly, as `chain` continues)."""
+        inputs = self.edge_inputs(x, j, count, edge)
+        span = np.where(np.isfinite(self.upper - self.lower), self.upper - self.lower, 1.0)  # as beyond_bounds
+        above, below = ((inputs - self.upper) / span).max(axis=0), ((self.lower - inputs) / span).max(axis=0)
+        end = self._edge_states(x, j, count, edge)[-1].copy()
+        end[-2:] = self.geo.phases[j][1], 0.0
+        return above, below, end
+
+    def _edge_states(self, x: np.ndarray, j: int, count: int, edge: Edge) -> np.ndarray:
+        """Edge j's node states flown from x (σ at its corner, at rest), as `chain` integrates them."""
+        T = float(edge.durations[0])
+        start = np.asarray(x, float).copy()
+        start[-2:] = self.geo.phases[j][0], 0.0
+        states, _ = self.run_grid(start, edge.tau_dd, T / count, edge.substeps, jerk=edge.tau_ddd)
+        return states
+
+    def _solve_edge(self, j: int, counts: list[int], start: np.ndarray, guess: tuple, fallback: tuple | None,
+                    end: np.ndarray, uniform_duration: float, max_iter: int, verbose: bool,
+                    lag: np.ndarray, tail_s: float = 0.0) -> Edge | None:
+        """Edge j from the state `start` at its corner to rest at `end` (its solve, again with more RK4 steps per
+        interval while the solution's intervals need them), from `guess` (σ̈, duration). An edge IPOPT gives no
+        answer for keeps `fallback` (its own timing slowed from rest, feasible and ending at rest by rest_factor),
+        and its status says so; None without a fallback."""
+        guess_a, guess_T = guess
+        m = _substeps([guess_T], [counts[j]])
+        records, iterations = [], 0
+        try:
+            while True:
+                part = self.solve_phases(start, [j], counts, guess_a, [guess_T], uniform_duration, max_iter,
+                                         verbose, m, rest_at=end, lag_start=lag, tail_s=tail_s,
+                                         retry=fallback is not None)
+                records += part.windows
+                iterations += part.iterations
+                needed = _substeps(part.durations, [counts[j]])
+                if needed <= m:
+                    break
+                m, guess_a, guess_T = needed, part.tau_dd, float(part.durations[0])
+        except PlanningError as unsolved:
+            if fallback is None:
+                return None
+            records.append({"phases": [j], "intervals": counts[j], "status": "quintic_slowdown_kept", "iterations": 0,
+                            "reason": str(unsolved)})
+            warm_a, warm_T = fallback
+            return Edge(np.array([warm_T]), warm_a, np.zeros_like(warm_a), "quintic_slowdown_kept", records,
+                        iterations, None, lag, _substeps([warm_T], [counts[j]]))
+        return Edge(part.durations, part.tau_dd, part.tau_ddd, part.status, records, iterations, part.lag_end, lag, m)
 
     def grid_motion(self, j: int, count: int, factor: float, q: np.ndarray | None = None):
         """Edge j's own timing slowed by `factor` from rest (at q, else at corner j), σ̈ held per interval on `count`
@@ -134,21 +340,22 @@ class EdgeRetiming(Retiming):
                              f"{REST_TOL:g} on a grid of {count} intervals: give more --intervals")
 
     def chain(self, x0: np.ndarray, counts: list[int], durations: np.ndarray, tau_dd: np.ndarray, status: str,
-              iterations: int, records: list[dict], tau_ddd: np.ndarray) -> Part:
+              iterations: int, records: list[dict], tau_ddd: np.ndarray, substeps: list[int] | None = None) -> Part:
         """The whole path's timing integrated from x0 in one chain (the corners' residual swing carried over):
-        the node states and the inputs at every RK4 step start, with RK4 steps of at most MAX_STEP_S."""
+        the node states and the inputs at every RK4 step start, with RK4 steps of at most MAX_STEP_S, or each edge
+        with its solve's `substeps` per interval (its states are then the solve's)."""
         K = len(counts)
-        states, inputs, substeps = [np.asarray(x0, float)[None, :]], [], []
+        states, inputs, used = [np.asarray(x0, float)[None, :]], [], []
         x, k = np.asarray(x0, float), 0
         for j in range(K):
-            m = _substeps([durations[j]], [counts[j]])
+            m = _substeps([durations[j]], [counts[j]]) if substeps is None else substeps[j]
             xs, u = self.run_grid(x, tau_dd[k : k + counts[j]], durations[j] / counts[j], m, final=j == K - 1,
                                   jerk=tau_ddd[k : k + counts[j]])
             inputs.append(u)
             states.append(xs[1:])
-            substeps.append(m)
+            used.append(m)
             x = xs[-1].copy()
             x[-2:] = self.geo.phases[j][1], 0.0  # the corner exactly (σ ends there to the solver's tolerance)
             k += counts[j]
         return Part(np.asarray(durations, float), np.asarray(tau_dd, float), np.vstack(states), np.vstack(inputs),
-                    status, iterations, records, substeps, np.asarray(tau_ddd, float))
+                    status, iterations, records, used, np.asarray(tau_ddd, float))

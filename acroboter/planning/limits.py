@@ -13,6 +13,12 @@ from __future__ import annotations
 
 import numpy as np
 
+# The planned inputs are checked between the optimiser's nodes on a grid of this step (s), and may leave the bounds
+# there by at most INPUT_TOLERANCE of the span (rounding; the optimiser bounds every RK4 step's start and every
+# interval's end, where a bang-bang timing's input peaks).
+CHECK_STEP_S = 1e-3
+INPUT_TOLERANCE = 1e-6
+
 
 def tightened(lower: np.ndarray, upper: np.ndarray, margin: float) -> tuple[np.ndarray, np.ndarray]:
     """(lower, upper) moved inwards by the margin (see the module's docstring)."""

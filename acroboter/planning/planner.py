@@ -24,7 +24,7 @@ from .checks import Certificate, certify, check_statics
 from .edges import EdgeRetiming
 from .geometry import PathGeometry
 from .ideal_motion import IdealDynamics, PlanningError
-from .limits import active_intervals, beyond_bounds, margin_achieved, tightened
+from .limits import CHECK_STEP_S, INPUT_TOLERANCE, active_intervals, beyond_bounds, margin_achieved, tightened
 from .retiming import Retiming, Solution
 from .shaping import SHAPED_STATUS, SHAPERS, ShapedRetiming, corner_swing
 from .windows import WindowedRetiming
@@ -45,11 +45,6 @@ DEFAULT_WINDOW = 2
 CORNERS = ("rest", "swing")  # and "shaped", the corners of a shaper's plan (carried over, shaped edge by edge)
 # The two samples at a node of the grid, one on each side (s).
 NODE_GAP_S = 1e-6
-# The planned inputs are checked between the optimiser's nodes on a grid of this step (s), and may leave the bounds
-# there by at most INPUT_TOLERANCE of the span (rounding; the optimiser bounds every RK4 step's start and every
-# interval's end, where a bang-bang timing's input peaks).
-CHECK_STEP_S = 1e-3
-INPUT_TOLERANCE = 1e-6
 # Solves again with the bounds moved in where the inputs leave them between the nodes (solve_within_bounds).
 TIGHTEN_ROUNDS = 2
 # IPOPT's answers that are its optimum; any other (a fallback kept, out of iterations) is reported as not planned.
@@ -241,7 +236,7 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
     if warm is not None and problem.smooth:
         problem.warm = warm_start(warm, problem.grid(intervals), geometry.end)
     solution, _, grid_inputs, tightened_by, leak = solve_within_bounds(problem, intervals, low, high, list(lay.inputs),
-                                                                       list(lay.input_units), verbose)
+                                                                       list(lay.input_units), verbose, needs)
     trajectory, jerk = sample(geometry, solution, problem.n)
     achieved, where = margin_achieved(np.vstack([solution.inputs, grid_inputs]), lower, upper)
     result = Plan(
@@ -364,16 +359,20 @@ def unmet(solution: Solution, plan: Plan) -> list[str]:
     return out
 
 
-def solve_within_bounds(problem, intervals: int, low, high, names: list[str], units: list[str], verbose: bool):
+def solve_within_bounds(problem, intervals: int, low, high, names: list[str], units: list[str], verbose: bool,
+                        needs: np.ndarray | None = None):
     """The problem solved, and its inputs on a CHECK_STEP_S grid: (solution, grid times, grid inputs, how far the
     optimiser's bounds were moved in, per input, what is left outside the bounds: a message or None). Where the
-    inputs leave the bounds between the optimiser's nodes (a rest-to-rest plan's chain carries each corner's
-    residual swing into the next edge, which the edge's own solve started at rest), the problem is solved again
-    with those bounds moved in by the excess and a fifth, at most TIGHTEN_ROUNDS times."""
+    inputs leave the bounds between the optimiser's nodes, the problem is solved again with those bounds moved in
+    by the excess and a fifth, at most TIGHTEN_ROUNDS times; not when the bounds moved in leave no room for
+    `needs` (the inputs at rest along the path, places x inputs): no timing could meet them, and the bisection that
+    finds that out took 110 s on the paper's path (measured 2026-12-07)."""
     base_low, base_high = problem.lower.copy(), problem.upper.copy()
     kept = None  # the last solve's (solution, grid times, grid inputs, leak, its bounds)
     for attempt in range(TIGHTEN_ROUNDS + 1):
         try:
+            if attempt and needs is not None:
+                refuse_static(needs, problem.lower, problem.upper, names, units)
             solution = problem.solve(intervals, verbose=verbose)
         except PlanningError as err:
             if kept is None:
@@ -398,6 +397,16 @@ def solve_within_bounds(problem, intervals: int, low, high, names: list[str], un
         moved = np.maximum(base_high - problem.upper, problem.lower - base_low)
     problem.lower, problem.upper = base_low, base_high
     return solution, times, inputs, np.nan_to_num(moved, nan=0.0), leak
+
+
+def refuse_static(needs: np.ndarray, low, high, names: list[str], units: list[str]) -> None:
+    """PlanningError when an input at rest somewhere on the path (`needs`, places x inputs) is beyond (low, high)."""
+    over = beyond_bounds(needs, low, high)
+    if over.size and over.max() > 0:
+        k, i = np.unravel_index(np.argmax(over), over.shape)
+        bound = high[i] if needs[k, i] > high[i] else low[i]
+        raise PlanningError(f"holding the load at rest needs {names[i]} = {needs[k, i]:.6g} {units[i]} somewhere on "
+                            f"the path, beyond {bound:.6g} {units[i]}")
 
 
 def between_nodes(times: np.ndarray, inputs: np.ndarray, low, high, names: list[str], units: list[str]) -> str | None:

@@ -23,17 +23,19 @@ same dynamics) is the starting guess: it is feasible, so the solution can only b
 from __future__ import annotations
 
 import math
+import threading
 import time
 from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
 
+from ..process.cores import usable_cores
 from ..process.interrupts import interrupt_pending
 from .geometry import PathGeometry, point_jerk
 from .ideal_motion import IdealDynamics, PlanningError, inputs_at, rk4_step
 from .limits import best_spare, beyond_bounds, spare_constraints
-from .servo_lag import lag_step, lag_substeps
+from .servo_lag import lag_bounds, lag_substeps
 
 # The uniform slowdown's check: interval of the integration (s) and RK4 steps per interval.
 CHECK_INTERVAL_S = 0.1
@@ -60,21 +62,23 @@ REST_TOL = 1e-2
 # max_speed and max_accel are kept at the nodes this fraction inside: IPOPT meets a constraint to its tolerance
 # (sumsqr ≤ bound² to 1e-8, 5e-5 of a 0.01 m/s² bound), and the written samples between nodes must hold it too.
 KINEMATIC_SLACK = 1e-3
-# The lag model's error is bounded this long after a phase ends too, at this many places (s, count).
-LAG_SETTLE_S = 1.0
-LAG_SETTLE_STEPS = 5
-# The fewest RK4 steps of the lag model over each of its settling steps after the path.
-LAG_SUBSTEPS = 4
 # The fewest intervals a phase (an edge of a waypoint path) gets.
 MIN_PHASE_INTERVALS = 6
 
 
-def _stop_when_interrupted(iteration: int) -> None:
-    """IPOPT's iteration callback: a Ctrl-C (SIGTERM, SIGHUP) received meanwhile stops the solve (the exception ends
-    it as User_Requested_Stop; the signal is raised as CasADi returns, acroboter.process.interrupts). Without a
-    Python callback no Python runs inside the solve, and Ctrl-C waited for its end (8-11 s)."""
-    if interrupt_pending():
-        raise KeyboardInterrupt
+class SolveCancelled(Exception):
+    """A solve stopped because the plan was stopped (Ctrl-C in the main thread while edges are solved on others)."""
+
+
+def _stopper(cancelled: threading.Event):
+    """IPOPT's iteration callback: a Ctrl-C (SIGTERM, SIGHUP) received meanwhile, or `cancelled` set (the main thread
+    stopped while this solve runs on another), stops the solve (the exception ends it as User_Requested_Stop; the
+    signal is raised as CasADi returns, acroboter.process.interrupts). Without a Python callback no Python runs
+    inside the solve, and Ctrl-C waited for its end (8-11 s)."""
+    def stop(iteration: int) -> None:
+        if interrupt_pending() or cancelled.is_set():
+            raise KeyboardInterrupt
+    return stop
 
 
 @dataclass
@@ -165,6 +169,10 @@ class Retiming:
         # a smooth timing's starting guess from an earlier solve on the same grid (planner.warm_start): σ̈ at each
         # phase's nodes and each phase's duration
         self.warm: tuple[list[np.ndarray], list[float]] | None = None
+        # set when the plan is stopped: every solve running on another thread ends at its next iteration
+        self.cancelled = threading.Event()
+        # independent solves (rest-to-rest edges) run side by side on this many threads: the usable cores
+        self.workers = usable_cores()
 
     # --- the uniform slowdown: a lower-bound check and the starting guess ---------------------------
     def uniform(self, factor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -298,7 +306,7 @@ class Retiming:
     def solve_phases(self, x_start: np.ndarray, which: list[int], counts: list[int], guess_a: np.ndarray,
                      guess_T, uniform_duration: float, max_iter: int = 400, verbose: bool = False,
                      substeps: int | None = None, tail_s: float = 0.0, rest_at: np.ndarray | None = None,
-                     lag_start: np.ndarray | None = None) -> Part:
+                     lag_start: np.ndarray | None = None, retry: bool = True) -> Part:
         """The time-optimal problem over the consecutive phases `which` (indices into the path's phases), from the
         state x_start at the first one's start (σ there, σ̇ = 0 unless the path starts there). The inputs are kept
         at the start of every RK4 step, and at the end of the last phase. `tail_s` > 0: the path then held at rest
@@ -363,14 +371,15 @@ class Retiming:
             # each RK4 step of the ideal motion in lag steps short enough for the servo law's poles (twice the guess's
             # length: room for the solve to slow down)
             longest = 2.0 * max(T / (c * substeps) for T, c in zip(guess_T, sub, strict=True))
-            lag_end = self._lag_bounds(opti, servo_rate, steps, substeps, lag_substeps(longest, *self.lag[1:3], 1),
-                                       np.zeros(6) if lag_start is None else lag_start)
+            z0 = np.zeros(6) if lag_start is None else lag_start
+            lag_end = lag_bounds(opti, self.lag, servo_rate, steps, substeps, lag_substeps(longest, *self.lag[1:3], 1),
+                                 z0)
         opti.subject_to(durations >= 1e-3 * uniform_duration / len(phases))
         total = ca.sum1(durations)
         opti.minimize(total)
         opti.set_initial(durations, list(guess_T))
         started = time.perf_counter()
-        value = self._solved(opti, max_iter, verbose, uniform_duration)
+        value = self._solved(opti, max_iter, verbose, uniform_duration, retry)
         stats = opti.stats()
         record = {"phases": [int(j) for j in which], "intervals": N, "rk4_steps": N * substeps, "substeps": substeps,
                   "iterations": int(stats["iter_count"]), "solve_s": time.perf_counter() - started,
@@ -401,25 +410,29 @@ class Retiming:
         opti.set_initial(B, guess_a[None, :])
         return B[:, :N], (B[:, 1:] - B[:, :N]) / steps, [B[k] for k in range(N + 1)]
 
-    def _solved(self, opti: ca.Opti, max_iter: int, verbose: bool, uniform_duration: float):
+    def _solved(self, opti: ca.Opti, max_iter: int, verbose: bool, uniform_duration: float, retry: bool = True):
         """IPOPT on the problem, with its stopping rule (ACCEPTABLE) and the Ctrl-C poll: `value` of the answer.
-        A solve that fails is tried again once from the same start with RETRY's options (the adaptive barrier);
+        A solve that fails is tried again once from the same start with RETRY's options (the adaptive barrier),
+        unless `retry` is False;
         out of iterations at a point that meets the constraints is a feasible timing (reported as not optimal by
         its status); anything else is a PlanningError."""
-        for attempt in ({}, RETRY):
-            opti.callback(_stop_when_interrupted)  # Ctrl-C within an iteration, not at the solve's end
+        for attempt in ({}, RETRY) if retry else ({},):
+            opti.callback(_stopper(self.cancelled))  # Ctrl-C within an iteration, not at the solve's end
             opti.solver("ipopt", {"print_time": False},
                         {"print_level": 5 if verbose else 0, "max_iter": max_iter, "tol": 1e-8, "sb": "yes",
                          "constr_viol_tol": 1e-9, **ACCEPTABLE, **self.ipopt, **attempt})
             try:
                 return opti.solve().value
             except RuntimeError as err:
+                if self.cancelled.is_set():
+                    raise SolveCancelled("the plan was stopped") from None
                 stats = opti.stats()
                 if stats.get("return_status") == "Maximum_Iterations_Exceeded" and \
                         stats["iterations"]["inf_pr"][-1] < 1e-7:
                     return opti.debug.value
                 failed = f"{stats.get('return_status', err)} after {stats.get('iter_count', '?')} iterations"
-        raise PlanningError(f"the time-optimal problem was not solved ({failed}, also with {RETRY}); the best "
+        tried = f", also with {RETRY}" if retry else ""
+        raise PlanningError(f"the time-optimal problem was not solved ({failed}{tried}); the best "
                             f"uniform slowdown ({uniform_duration:.4g} s) is feasible: try more --intervals or a "
                             "larger margin")
 
@@ -458,25 +471,6 @@ class Retiming:
             x = np.asarray(self.step(x, a, 0.0, h)[0]).ravel()
             rows.append(x)
         return np.array(rows), acc
-
-    def _lag_bounds(self, opti, servo_rate, steps, substeps: int, lag_substeps_each: int, z0: np.ndarray):
-        """The servo lag model (acroboter.planning.servo_lag) driven by E u̇, the servo-constraint jerk a held input
-        misses (rk4_step's `servo_rate`, one value per RK4 step of the ideal motion), from the lag state z0 (the
-        phase before's, on a rest-to-rest path: the lags of a braking and an accelerating edge add up at a corner):
-        its error within the bound at the end of each of its own `lag_substeps_each` RK4 steps per step
-        (servo_lag.lag_substeps) and for LAG_SETTLE_S after the end (an underdamped servo law overshoots after the
-        drive stops)."""
-        bound, kp, kd, period = self.lag
-        dts = ca.horzcat(*[ca.repmat(steps[i] / substeps, 1, substeps) for i in range(steps.shape[1])])
-        step = lag_step(kp, kd, period, lag_substeps_each)
-        Z, errors = step.mapaccum(servo_rate.shape[1])(ca.DM(z0), servo_rate, dts)
-        h_settle = LAG_SETTLE_S / LAG_SETTLE_STEPS
-        settling = lag_step(kp, kd, period, lag_substeps(h_settle, kp, kd, LAG_SUBSTEPS))
-        _, settle = settling.mapaccum(LAG_SETTLE_STEPS)(Z[:, -1], ca.DM.zeros(3, LAG_SETTLE_STEPS), h_settle)
-        every = ca.horzcat(errors, settle)
-        for k in range(every.shape[1]):  # scaled: bound² (1e-8 m²) is IPOPT's tolerance
-            opti.subject_to(ca.sumsqr(every[:, k] / bound) <= 1.0)
-        return Z[:, -1]  # the lag state at the end (the next edge's start)
 
     def _path_bounds(self, opti, X, nodes_a, J, N):
         """max_speed, max_accel at every node (σ̈ there: `nodes_a`), max_jerk at both ends of every interval (its

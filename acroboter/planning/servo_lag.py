@@ -77,3 +77,31 @@ def predicted_error(times: np.ndarray, jerk: np.ndarray, kp: float, kd: float, p
     system = signal.lti([1.0], [1.0, 2.0 * kd, kp * kp])
     errors = np.column_stack([signal.lsim(system, -0.5 * period * drive[:, c], grid)[1] for c in range(3)])
     return float(np.linalg.norm(errors, axis=1).max())
+
+
+# The lag model's error is bounded this long after a phase ends too, at this many places (s, count).
+LAG_SETTLE_S = 1.0
+LAG_SETTLE_STEPS = 5
+# The fewest RK4 steps of the lag model over each of its settling steps after the path.
+LAG_SUBSTEPS = 4
+
+
+def lag_bounds(opti, lag: tuple, servo_rate, steps, substeps: int, lag_substeps_each: int, z0: np.ndarray):
+    """The lag model's constraints on a retiming problem (`opti`; `lag` = (bound m, kp, kd, period s)), driven by
+    E u̇, the servo-constraint jerk a held input misses (rk4_step's `servo_rate`, one value per RK4 step of the ideal
+    motion; `steps`: the problem's interval lengths, `substeps` RK4 steps each), from the lag state z0 (the phase
+    before's, on a rest-to-rest path: the lags of a braking and an accelerating edge add up at a corner): its error
+    within the bound at the end of each of its own `lag_substeps_each` RK4 steps per step (lag_substeps) and for
+    LAG_SETTLE_S after the end (an underdamped servo law overshoots after the drive stops). Returns the lag state at
+    the end (the next edge's start)."""
+    bound, kp, kd, period = lag
+    dts = ca.horzcat(*[ca.repmat(steps[i] / substeps, 1, substeps) for i in range(steps.shape[1])])
+    step = lag_step(kp, kd, period, lag_substeps_each)
+    Z, errors = step.mapaccum(servo_rate.shape[1])(ca.DM(z0), servo_rate, dts)
+    h_settle = LAG_SETTLE_S / LAG_SETTLE_STEPS
+    settling = lag_step(kp, kd, period, lag_substeps(h_settle, kp, kd, LAG_SUBSTEPS))
+    _, settle = settling.mapaccum(LAG_SETTLE_STEPS)(Z[:, -1], ca.DM.zeros(3, LAG_SETTLE_STEPS), h_settle)
+    every = ca.horzcat(errors, settle)
+    for k in range(every.shape[1]):  # scaled: bound² (1e-8 m²) is IPOPT's tolerance
+        opti.subject_to(ca.sumsqr(every[:, k] / bound) <= 1.0)
+    return Z[:, -1]

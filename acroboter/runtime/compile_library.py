@@ -32,6 +32,7 @@ from contextlib import contextmanager, suppress
 from pathlib import Path
 
 from ..model.spec import load_spec
+from ..process.cores import usable_cores
 from ..process.locations import cache_dir, shipped_generated_folder, spec_folder
 from .integrity import verify_sources
 from .progress import announce, progress_disabled
@@ -85,10 +86,7 @@ def key_source(spec_name: str, key: str) -> str:
 
 def compile_jobs() -> int:
     """Translation units compiled at once: the cores this process may use (gcc is single-threaded)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not Linux
-        return os.cpu_count() or 2
+    return usable_cores()
 
 
 class _Compilers:
