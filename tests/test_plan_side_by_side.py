@@ -14,7 +14,7 @@ import pytest
 
 import acroboter
 import acroboter.planning.retiming as retiming
-from acroboter.planning.edges import EdgeRetiming
+from acroboter.planning.edges import Edge, EdgeRetiming
 from acroboter.process.locations import example_spec
 
 TWO_EDGES = "waypoints = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.05], [0.0, 0.0, 0.1]]"
@@ -33,10 +33,17 @@ def test_edges_solved_side_by_side_are_the_edges_solved_one_by_one(tmp_path, mon
     one thread and on two: the same timing, the same inputs, bit for bit (each edge's problem is the same whichever
     thread solves it), and the inputs within the limits less the margin on the plan's 1 ms check."""
     crane = two_edge_crane(tmp_path)
-    plans = {}
+    plans, threads = {}, {1: set(), 2: set()}
+    solve_edge = EdgeRetiming._solve_edge
     for workers in (1, 2):
+        def recorded(self, *args, workers=workers, **kwargs):
+            threads[workers].add(threading.current_thread().name)
+            return solve_edge(self, *args, **kwargs)
+
         monkeypatch.setattr(retiming, "usable_cores", lambda workers=workers: workers)
+        monkeypatch.setattr(EdgeRetiming, "_solve_edge", recorded)
         plans[workers] = crane.plan(margin=0.05, intervals=16, certify=False)
+    assert threads[1] == {"MainThread"} and len(threads[2]) == 2 and all(n.startswith("edge") for n in threads[2])
     one, two = plans[1], plans[2]
     assert [s["phases"] for s in one.solves] == [s["phases"] for s in two.solves]
     assert np.array_equal(one.times, two.times) and np.array_equal(one.inputs, two.inputs)
@@ -84,3 +91,69 @@ def test_the_callback_stops_a_solve_when_the_plan_is_cancelled():
     event.set()
     with pytest.raises(KeyboardInterrupt):
         stop(1)
+
+
+def _edge(name: str, status: str = "Solve_Succeeded") -> Edge:
+    return Edge(np.array([1.0]), np.zeros(2), np.zeros(2), status, [{"phases": [0], "status": status, "name": name}],
+                1, None, np.zeros(6), 2)
+
+
+class _Chain(EdgeRetiming):
+    """`carried`'s choices alone: each edge's mend, the backtrack's solve and its check scripted by name."""
+
+    def __init__(self, mends: dict, backtrack: Edge | None, backtrack_excess: float = 0.0):
+        self.mends, self.backtrack, self.backtrack_excess, self.lag, self.smooth = mends, backtrack, \
+            backtrack_excess, None, False
+        self.calls = []
+
+    def _start(self, x, j):
+        return x
+
+    def _mend(self, j, x, edge, counts, end, uniform_duration, verbose):
+        results = self.mends[j]
+        result = results.pop(0) if len(results) > 1 else results[0]
+        self.calls.append(("mend", j, float(x[0])))
+        return result[0], result[1], np.array([x[0] + 1.0])
+
+    def _solve_edge(self, j, *args, tail_s=0.0, **kwargs):
+        self.calls.append(("tail", j, tail_s))
+        return self.backtrack
+
+    def edge_excess(self, x, j, count, edge):
+        return np.array([self.backtrack_excess]), np.array([-1.0]), np.array([x[0] + 10.0])
+
+
+def test_the_edge_before_is_solved_again_with_a_calmer_corner_when_no_timing_holds_from_its_swing():
+    """Edge 2 has no timing within the bounds from the swing edge 1 leaves; edge 1 solved again with its corner's
+    hold bounded (CARRY_TAIL_S) is within them, and edge 2 mended from there holds: both kept, the replaced solve
+    marked so (the plan's status reads the kept one), edge 3 mended from edge 2's end."""
+    e = [_edge(f"e{j}") for j in range(3)]
+    m1, m1_again, m2 = _edge("m1"), _edge("m1 again"), _edge("m2")
+    before = _edge("e0 with its corner held")
+    chain = _Chain({0: [(e[0], -1.0)], 1: [(m1, 0.1), (m1_again, 0.0)], 2: [(m2, 0.0)]}, before)
+    out = chain.carried(np.zeros(1), [2, 2, 2], e, [None] * 3, 1.0, 10, False)
+    assert [x.records[-1]["name"] for x in out] == ["e0 with its corner held", "m1 again", "m2"]
+    assert out[0].records[0]["replaced"] and "replaced" not in e[0].records[0]  # the original left as it was
+    from acroboter.planning.edges import CARRY_TAIL_S
+
+    assert ("tail", 0, CARRY_TAIL_S) in chain.calls
+    assert chain.calls[-2:] == [("mend", 1, 10.0), ("mend", 2, 11.0)]  # edge 2 from the calmer corner, edge 3 after
+
+
+def test_a_calmer_corner_that_does_not_help_is_undone_and_the_mending_stops():
+    """The same, but edge 2 leaves the bounds by more from the calmer corner (0.2 against 0.1): edge 1 as it was,
+    edge 2's first answer, and edge 3 not mended at all (the plan leaves the bounds whatever follows)."""
+    e = [_edge(f"e{j}") for j in range(3)]
+    m1, m1_again = _edge("m1"), _edge("m1 again")
+    chain = _Chain({0: [(e[0], -1.0)], 1: [(m1, 0.1), (m1_again, 0.2)], 2: [(_edge("m2"), 0.0)]},
+                   _edge("e0 with its corner held"))
+    out = chain.carried(np.zeros(1), [2, 2, 2], e, [None] * 3, 1.0, 10, False)
+    assert [x.records[-1]["name"] for x in out] == ["e0", "m1", "e2"]
+    assert not any(c[:2] == ("mend", 2) for c in chain.calls)
+
+
+def test_a_backtrack_that_still_leaves_the_bounds_is_not_kept():
+    e = [_edge(f"e{j}") for j in range(2)]
+    chain = _Chain({0: [(e[0], -1.0)], 1: [(_edge("m1"), 0.1)]}, _edge("e0 held"), backtrack_excess=0.05)
+    out = chain.carried(np.zeros(1), [2, 2], e, [None] * 2, 1.0, 10, False)
+    assert [x.records[-1]["name"] for x in out] == ["e0", "m1"]

@@ -28,7 +28,7 @@ import numpy as np
 from ..runtime.progress import progress_disabled
 from .ideal_motion import PlanningError
 from .limits import CHECK_STEP_S, INPUT_TOLERANCE
-from .retiming import MAX_SLOWDOWN, MIN_PHASE_INTERVALS, REST_TOL, Part, Retiming
+from .retiming import MAX_SLOWDOWN, MIN_PHASE_INTERVALS, OPTIMAL, REST_TOL, Part, Retiming
 from .windows import PHASE_BISECTION, _substeps, _warm, first_serving, phase_factor
 
 # An edge whose inputs leave the bounds once the chain carries the swing into it is solved again from there at
@@ -36,8 +36,8 @@ from .windows import PHASE_BISECTION, _substeps, _warm, first_serving, phase_fac
 CARRY_ROUNDS = 3
 # Each of those solves gets at most this many IPOPT iterations and no second try (from an answer nearby they took
 # 17-25; one that finds no timing would otherwise take minutes to say so). An edge after which no timing of the next
-# one keeps the bounds is solved again with the crane held at its last corner this long within them (s: half the
-# default crane's swing period).
+# one keeps the bounds is solved again with its inputs also bounded over a hold this long at its last corner (s: half
+# the default crane's swing period; a constraint on the swing it leaves, not a pause in the plan).
 CARRY_MAX_ITER = 60
 CARRY_TAIL_S = 1.5
 # The quasi-static motion that finds the configuration at rest at a corner lasts at least this long (s).
@@ -58,6 +58,15 @@ class Edge:
     lag_end: np.ndarray | None
     lag_start: np.ndarray
     substeps: int  # RK4 steps per interval of its solve: the chain integrates it with as many
+
+
+def replacing(old: Edge, new: Edge) -> Edge:
+    """`new`, an edge solved again from where the chain is, carrying `old`'s solve records (marked replaced: the
+    plan's status reads the kept solve's) and iterations."""
+    new.records = [{**record, "replaced": True} for record in old.records] + new.records
+    new.records[-1]["carried_swing"] = True
+    new.iterations += old.iterations
+    return new
 
 
 def node_guess(edge: Edge, smooth: bool) -> np.ndarray:
@@ -126,7 +135,9 @@ class EdgeRetiming(Retiming):
         else:  # independent problems: solved side by side (CasADi releases the GIL while IPOPT runs)
             edges = self._side_by_side(solved, K)
         bar.close()
-        edges = self.carried(x0, counts, edges, ends, uniform_duration, max_iter, verbose)
+        if self.lag is None:  # a plan to a tolerance is judged by its flights (acroboter.planning.tolerance); mending
+            # one edge would leave the next one's lag state stale
+            edges = self.carried(x0, counts, edges, ends, uniform_duration, max_iter, verbose)
         status, iterations, records = "", 0, []
         for edge in edges:
             if not status or status == "Solve_Succeeded":
@@ -142,6 +153,7 @@ class EdgeRetiming(Retiming):
         while they run, or an error in one of them, sets `cancelled`: each running solve stops at its next IPOPT
         iteration, the ones not started never start, and the error is raised once they have."""
         workers = max(1, min(self.workers, K))
+        self.cancelled.clear()  # a Ctrl-C repeated while an earlier plan's solves were stopping may have left it set
         if workers == 1:
             return [solved(j, np.zeros(6)) for j in range(K)]
         pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="edge")
@@ -166,9 +178,11 @@ class EdgeRetiming(Retiming):
         CHECK_STEP_S grid (its solve started at rest, and its time-optimal inputs ride the bounds) is solved again
         from the state the chain reaches there, from its own answer: first with the same bounds, then with them moved
         in by the excess and a fifth, up to CARRY_ROUNDS solves (`_mend`). Where no timing of it keeps the bounds,
-        the edge before is solved again once with the crane held at its corner for CARRY_TAIL_S within the bounds
-        (a calmer corner), and this edge mended from there. An edge that still leaves the bounds ends the mending:
-        the plan then leaves them whatever follows, and planner.solve_within_bounds says where. Measured on the
+        the edge before is solved again once with its inputs also bounded over a CARRY_TAIL_S hold at its corner
+        after it (a constraint on the swing it leaves, for a calmer corner; the plan does not stop there), and this
+        edge mended from there; if that does not help, the edge before is put back. An edge that still leaves the
+        bounds ends the mending: the plan then leaves them whatever follows, and planner.solve_within_bounds says
+        where. A plan to a tolerance is not mended (its edges share the lag model's state). Measured on the
         paper's path at [5, 30] N (2026-12-07): a residual swing of 12 mm and 40 mm/s took tension_1 to 31.34 N
         against bounds of [6.25, 28.75] N; edges 3 and 4 were mended (each 7-10 s of solve), edge 5, the 0.1 m climb
         to the upper square, found no timing from the swing edge 4 leaves, nor after edge 4 with its corner held."""
@@ -176,35 +190,36 @@ class EdgeRetiming(Retiming):
 
         bar = tqdm(total=len(edges), unit="edge", desc="carrying the swing", file=sys.stderr,
                    disable=progress_disabled(), leave=False)
-        starts, out, tailed, mending = [np.asarray(x0, float)], [], set(), True
+        starts, out, tailed, undo = [np.asarray(x0, float)], [], set(), None
         while len(out) < len(edges):
             j = len(out)
-            if not mending:  # an edge before could not be mended: the plan leaves the bounds whatever comes after
-                out.append(edges[j])
-                starts.append(self.edge_excess(starts[j], j, counts[j], edges[j])[2])
-                bar.update()
-                continue
             edge, worst, x_end = self._mend(j, starts[j], edges[j], counts, ends[j], uniform_duration, verbose)
+            if undo is not None and undo[0] == j and worst >= undo[3][1]:
+                # the calmer corner did not help this edge: the edge before as it was, and this edge's first mend
+                _, out[-1], starts[j], (edge, worst, x_end) = undo
+            undo = None
             if worst > INPUT_TOLERANCE and j > 0 and j - 1 not in tailed:
                 # no timing of this edge keeps the bounds from the swing the edge before leaves: that edge again, from
-                # where it starts, with the crane then held at its corner for CARRY_TAIL_S within the bounds
+                # where it starts, its inputs also bounded over a CARRY_TAIL_S hold at its corner after it (a
+                # constraint on the swing it leaves; the plan does not stop there)
                 tailed.add(j - 1)
                 before = self._solve_edge(j - 1, counts, self._start(starts[j - 1], j - 1),
                                           (node_guess(out[-1], self.smooth), out[-1].durations[0]), None, ends[j - 1],
                                           uniform_duration, CARRY_MAX_ITER, verbose, out[-1].lag_start,
                                           tail_s=CARRY_TAIL_S)
-                if before is not None:
+                if before is not None and before.status in OPTIMAL:
                     above, below, x_before = self.edge_excess(starts[j - 1], j - 1, counts[j - 1], before)
                     if max(above.max(initial=-np.inf), below.max(initial=-np.inf)) <= INPUT_TOLERANCE:
-                        before.records = out[-1].records + before.records
-                        before.records[-1]["carried_swing"] = True
-                        out[-1], starts[j] = before, x_before
+                        undo = (j, out[-1], starts[j], (edge, worst, x_end))
+                        out[-1], starts[j] = replacing(out[-1], before), x_before
                         continue  # this edge again, from the calmer corner
-            mending = worst <= INPUT_TOLERANCE
             out.append(edge)
             starts.append(x_end)
             bar.set_postfix_str(f"edge {j + 1}: {float(edge.durations[0]):.3g} s")
             bar.update()
+            if worst > INPUT_TOLERANCE:  # not mended: the plan leaves the bounds whatever comes after
+                out += edges[j + 1:]
+                break
         bar.close()
         return out
 
@@ -240,16 +255,13 @@ class EdgeRetiming(Retiming):
                                          end, uniform_duration, CARRY_MAX_ITER, verbose, edge.lag_start)
             finally:
                 self.lower, self.upper = base
-            if again is None:
+            if again is None or again.status not in OPTIMAL:
                 break
             above_again, below_again, x_again = self.edge_excess(x, j, counts[j], again)
             worst_again = max(above_again.max(initial=-np.inf), below_again.max(initial=-np.inf))
             if worst_again >= worst:
                 break
-            again.records = edge.records + again.records
-            again.records[-1]["carried_swing"] = True
-            again.iterations += edge.iterations
-            edge, above, below, x_end, worst = again, above_again, below_again, x_again, worst_again
+            edge, above, below, x_end, worst = replacing(edge, again), above_again, below_again, x_again, worst_again
         return edge, worst, x_end
 
     def edge_inputs(self, x: np.ndarray, j: int, count: int, edge: Edge) -> np.ndarray:
@@ -305,7 +317,10 @@ class EdgeRetiming(Retiming):
                 needed = _substeps(part.durations, [counts[j]])
                 if needed <= m:
                     break
-                m, guess_a, guess_T = needed, part.tau_dd, float(part.durations[0])
+                guess_T = float(part.durations[0])
+                guess_a = np.append(part.tau_dd, part.tau_dd[-1] + part.tau_ddd[-1] * guess_T / counts[j]) \
+                    if self.smooth else part.tau_dd  # a smooth timing's guess is σ̈ at the nodes (node_guess)
+                m = needed
         except PlanningError as unsolved:
             if fallback is None:
                 return None

@@ -25,7 +25,7 @@ from .edges import EdgeRetiming
 from .geometry import PathGeometry
 from .ideal_motion import IdealDynamics, PlanningError
 from .limits import CHECK_STEP_S, INPUT_TOLERANCE, active_intervals, beyond_bounds, margin_achieved, tightened
-from .retiming import Retiming, Solution
+from .retiming import OPTIMAL, Retiming, Solution
 from .shaping import SHAPED_STATUS, SHAPERS, ShapedRetiming, corner_swing
 from .windows import WindowedRetiming
 
@@ -47,8 +47,6 @@ CORNERS = ("rest", "swing")  # and "shaped", the corners of a shaper's plan (car
 NODE_GAP_S = 1e-6
 # Solves again with the bounds moved in where the inputs leave them between the nodes (solve_within_bounds).
 TIGHTEN_ROUNDS = 2
-# IPOPT's answers that are its optimum; any other (a fallback kept, out of iterations) is reported as not planned.
-OPTIMAL = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 # A bound on the tracked point's speed or acceleration holds on the written samples to this relative tolerance
 # (rounding; the optimiser keeps it retiming.KINEMATIC_SLACK inside at its nodes).
 KINEMATIC_TOLERANCE = 1e-9
@@ -341,14 +339,15 @@ def unmet(solution: Solution, plan: Plan) -> list[str]:
     IPOPT's optimum (its timing a fallback), a max_speed or max_accel the written samples exceed."""
     out = []
     for record in solution.windows:
-        if record.get("status") not in (*OPTIMAL, SHAPED_STATUS):
-            phases = ", ".join(str(j + 1) for j in record.get("phases", []))
-            kept = ("its own timing slowed from rest was kept" if record.get("status") == "quintic_slowdown_kept"
-                    else f"IPOPT stopped with {record.get('status')}")
-            out.append(f"the time-optimal problem of phase(s) {phases} was not solved ({kept}"
-                       + (f": {record['reason']}" if record.get("reason") else "") + "): the timing returned is "
-                       f"not the fastest ({plan.duration:.4g} s; the best uniform slowdown {plan.uniform_duration:.4g} "
-                       "s); try more --intervals or a larger margin")
+        if record.get("replaced") or record.get("status") in (*OPTIMAL, SHAPED_STATUS):
+            continue  # a solve an edge's later one replaced (EdgeRetiming.carried) says nothing of the plan
+        phases = ", ".join(str(j + 1) for j in record.get("phases", []))
+        kept = ("its own timing slowed from rest was kept" if record.get("status") == "quintic_slowdown_kept"
+                else f"IPOPT stopped with {record.get('status')}")
+        out.append(f"the time-optimal problem of phase(s) {phases} was not solved ({kept}"
+                   + (f": {record['reason']}" if record.get("reason") else "") + "): the timing returned is "
+                   f"not the fastest ({plan.duration:.4g} s; the best uniform slowdown {plan.uniform_duration:.4g} "
+                   "s); try more --intervals or a larger margin")
     speed, accel = plan.kinematic_peaks()
     for name, bound, peak, unit in (("max_speed", plan.max_speed, speed, "m/s"),
                                     ("max_accel", plan.max_accel, accel, "m/s²"),
@@ -365,8 +364,8 @@ def solve_within_bounds(problem, intervals: int, low, high, names: list[str], un
     optimiser's bounds were moved in, per input, what is left outside the bounds: a message or None). Where the
     inputs leave the bounds between the optimiser's nodes, the problem is solved again with those bounds moved in
     by the excess and a fifth, at most TIGHTEN_ROUNDS times; not when the bounds moved in leave no room for
-    `needs` (the inputs at rest along the path, places x inputs): no timing could meet them, and the bisection that
-    finds that out took 110 s on the paper's path (measured 2026-12-07)."""
+    `needs` (the inputs at rest along the path, places x inputs: at a corner, where the crane stops, no timing can
+    meet such bounds; the bisection that found that out took 110 s on the paper's path, 2026-12-07)."""
     base_low, base_high = problem.lower.copy(), problem.upper.copy()
     kept = None  # the last solve's (solution, grid times, grid inputs, leak, its bounds)
     for attempt in range(TIGHTEN_ROUNDS + 1):
@@ -374,6 +373,10 @@ def solve_within_bounds(problem, intervals: int, low, high, names: list[str], un
             if attempt and needs is not None:
                 refuse_static(needs, problem.lower, problem.upper, names, units)
             solution = problem.solve(intervals, verbose=verbose)
+        except StaticRefusal as err:
+            solution, times, inputs, leak, problem.lower, problem.upper = kept
+            leak = f"{leak} (not solved again with the bounds moved in by the excess and a fifth: {err})"
+            break
         except PlanningError as err:
             if kept is None:
                 raise
@@ -399,13 +402,17 @@ def solve_within_bounds(problem, intervals: int, low, high, names: list[str], un
     return solution, times, inputs, np.nan_to_num(moved, nan=0.0), leak
 
 
+class StaticRefusal(PlanningError):
+    """Bounds moved in past an input the path needs at rest: no timing that stops there could keep them."""
+
+
 def refuse_static(needs: np.ndarray, low, high, names: list[str], units: list[str]) -> None:
-    """PlanningError when an input at rest somewhere on the path (`needs`, places x inputs) is beyond (low, high)."""
+    """StaticRefusal when an input at rest somewhere on the path (`needs`, places x inputs) is beyond (low, high)."""
     over = beyond_bounds(needs, low, high)
     if over.size and over.max() > 0:
         k, i = np.unravel_index(np.argmax(over), over.shape)
         bound = high[i] if needs[k, i] > high[i] else low[i]
-        raise PlanningError(f"holding the load at rest needs {names[i]} = {needs[k, i]:.6g} {units[i]} somewhere on "
+        raise StaticRefusal(f"holding the load at rest needs {names[i]} = {needs[k, i]:.6g} {units[i]} somewhere on "
                             f"the path, beyond {bound:.6g} {units[i]}")
 
 

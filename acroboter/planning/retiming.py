@@ -49,6 +49,8 @@ BISECTION_RELATIVE = 1e-3
 # error then stalls far from zero while the duration has long converged.
 ACCEPTABLE = {"acceptable_tol": 1e3, "acceptable_iter": 5, "acceptable_constr_viol_tol": 1e-8,
               "acceptable_compl_inf_tol": 1e-6, "acceptable_obj_change_tol": 1e-7}
+# IPOPT's answers that are its optimum; any other (a fallback kept, out of iterations) is reported as not planned.
+OPTIMAL = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 # A solve that fails (Error_In_Step_Computation on the tests' lift at 8 intervals, where IPOPT's monotone barrier
 # update stalled) is tried again with these options: the adaptive barrier solved it (46 iterations, 0.8637 s where
 # the fallback kept 1.164 s; measured 2026-12-06).
