@@ -115,7 +115,7 @@ class _Chain(EdgeRetiming):
         results = self.mends[j]
         result = results.pop(0) if len(results) > 1 else results[0]
         self.calls.append(("mend", j, float(x[0])))
-        return result[0], result[1], np.array([x[0] + 1.0])
+        return result[0], result[1], np.array([x[0] + 1.0]), result[1] > 0.0
 
     def _solve_edge(self, j, *args, tail_s=0.0, **kwargs):
         self.calls.append(("tail", j, tail_s))

@@ -180,12 +180,14 @@ class EdgeRetiming(Retiming):
         in by the excess and a fifth, up to CARRY_ROUNDS solves (`_mend`). Where no timing of it keeps the bounds,
         the edge before is solved again once with its inputs also bounded over a CARRY_TAIL_S hold at its corner
         after it (a constraint on the swing it leaves, for a calmer corner; the plan does not stop there), and this
-        edge mended from there; if that does not help, the edge before is put back. An edge that still leaves the
-        bounds ends the mending: the plan then leaves them whatever follows, and planner.solve_within_bounds says
-        where. A plan to a tolerance is not mended (its edges share the lag model's state). Measured on the
-        paper's path at [5, 30] N (2026-12-07): a residual swing of 12 mm and 40 mm/s took tension_1 to 31.34 N
-        against bounds of [6.25, 28.75] N; edges 3 and 4 were mended (each 7-10 s of solve), edge 5, the 0.1 m climb
-        to the upper square, found no timing from the swing edge 4 leaves, nor after edge 4 with its corner held."""
+        edge mended from there; if that does not help, the edge before is put back. An edge with no timing that
+        keeps the bounds ends the mending: the plan then leaves them whatever follows, and
+        planner.solve_within_bounds says where (a small leak between the optimiser's nodes that a re-solve does not
+        shrink is left to it too). A plan to a tolerance is not mended (its edges share the lag model's state).
+        Measured on the paper's path at [5, 30] N (2026-12-07): a residual swing of 12 mm and 40 mm/s took tension_1
+        to 31.34 N against bounds of [6.25, 28.75] N; edges 3 and 4 were mended (each 7-10 s of solve); edge 5, the
+        0.1 m climb to the upper square, found no timing from the swing edge 4 leaves, nor after edge 4 with its
+        corner's hold bounded."""
         from tqdm import tqdm
 
         bar = tqdm(total=len(edges), unit="edge", desc="carrying the swing", file=sys.stderr,
@@ -193,12 +195,12 @@ class EdgeRetiming(Retiming):
         starts, out, tailed, undo = [np.asarray(x0, float)], [], set(), None
         while len(out) < len(edges):
             j = len(out)
-            edge, worst, x_end = self._mend(j, starts[j], edges[j], counts, ends[j], uniform_duration, verbose)
+            edge, worst, x_end, stuck = self._mend(j, starts[j], edges[j], counts, ends[j], uniform_duration, verbose)
             if undo is not None and undo[0] == j and worst >= undo[3][1]:
                 # the calmer corner did not help this edge: the edge before as it was, and this edge's first mend
-                _, out[-1], starts[j], (edge, worst, x_end) = undo
+                _, out[-1], starts[j], (edge, worst, x_end, stuck) = undo
             undo = None
-            if worst > INPUT_TOLERANCE and j > 0 and j - 1 not in tailed:
+            if stuck and j > 0 and j - 1 not in tailed:
                 # no timing of this edge keeps the bounds from the swing the edge before leaves: that edge again, from
                 # where it starts, its inputs also bounded over a CARRY_TAIL_S hold at its corner after it (a
                 # constraint on the swing it leaves; the plan does not stop there)
@@ -210,14 +212,14 @@ class EdgeRetiming(Retiming):
                 if before is not None and before.status in OPTIMAL:
                     above, below, x_before = self.edge_excess(starts[j - 1], j - 1, counts[j - 1], before)
                     if max(above.max(initial=-np.inf), below.max(initial=-np.inf)) <= INPUT_TOLERANCE:
-                        undo = (j, out[-1], starts[j], (edge, worst, x_end))
+                        undo = (j, out[-1], starts[j], (edge, worst, x_end, stuck))
                         out[-1], starts[j] = replacing(out[-1], before), x_before
                         continue  # this edge again, from the calmer corner
             out.append(edge)
             starts.append(x_end)
             bar.set_postfix_str(f"edge {j + 1}: {float(edge.durations[0]):.3g} s")
             bar.update()
-            if worst > INPUT_TOLERANCE:  # not mended: the plan leaves the bounds whatever comes after
+            if stuck:  # no timing of it holds the bounds: the plan leaves them whatever comes after
                 out += edges[j + 1:]
                 break
         bar.close()
@@ -230,9 +232,12 @@ class EdgeRetiming(Retiming):
         return start
 
     def _mend(self, j: int, x: np.ndarray, edge: Edge, counts: list[int], end: np.ndarray, uniform_duration: float,
-              verbose: bool) -> tuple[Edge, float, np.ndarray]:
+              verbose: bool) -> tuple[Edge, float, np.ndarray, bool]:
         """Edge j flown from the chain's state x, solved again from there while its inputs leave the bounds (see
-        `carried`): (the edge kept, its largest step beyond the bounds as a fraction of the span, its end state)."""
+        `carried`): (the edge kept, its largest step beyond the bounds as a fraction of the span, its end state,
+        whether it is stuck: beyond the bounds, and a solve from there found no timing). An edge whose re-solves
+        have a timing but do not shrink a leak between the optimiser's nodes is not stuck: the whole plan's re-solve
+        with the bounds moved in (planner.solve_within_bounds) is for that."""
         span = np.where(np.isfinite(self.upper - self.lower), self.upper - self.lower, 1.0)
         above, below, x_end = self.edge_excess(x, j, counts[j], edge)
         start = self._start(x, j)
@@ -241,6 +246,7 @@ class EdgeRetiming(Retiming):
         from_here = bool(np.array_equal(start, self.at_rest(j)))
         down, up = np.zeros_like(span), np.zeros_like(span)  # how far this edge's bounds are moved in
         worst = max(above.max(initial=-np.inf), below.max(initial=-np.inf))
+        stuck = False
         for _ in range(CARRY_ROUNDS):
             if worst <= INPUT_TOLERANCE:
                 break
@@ -256,13 +262,14 @@ class EdgeRetiming(Retiming):
             finally:
                 self.lower, self.upper = base
             if again is None or again.status not in OPTIMAL:
+                stuck = True
                 break
             above_again, below_again, x_again = self.edge_excess(x, j, counts[j], again)
             worst_again = max(above_again.max(initial=-np.inf), below_again.max(initial=-np.inf))
             if worst_again >= worst:
                 break
             edge, above, below, x_end, worst = replacing(edge, again), above_again, below_again, x_again, worst_again
-        return edge, worst, x_end
+        return edge, worst, x_end, stuck
 
     def edge_inputs(self, x: np.ndarray, j: int, count: int, edge: Edge) -> np.ndarray:
         """Edge j's inputs from the state x on a CHECK_STEP_S grid (each interval integrated again from its node
