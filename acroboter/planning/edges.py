@@ -27,7 +27,7 @@ import numpy as np
 
 from ..runtime.progress import progress_disabled
 from .ideal_motion import PlanningError
-from .limits import CHECK_STEP_S, INPUT_TOLERANCE
+from .limits import CHECK_STEP_S, INPUT_TOLERANCE, bound_span
 from .retiming import MAX_SLOWDOWN, MIN_PHASE_INTERVALS, OPTIMAL, REST_TOL, Part, Retiming
 from .windows import PHASE_BISECTION, _substeps, _warm, first_serving, phase_factor
 
@@ -69,13 +69,18 @@ def replacing(old: Edge, new: Edge) -> Edge:
     return new
 
 
-def node_guess(edge: Edge, smooth: bool) -> np.ndarray:
-    """An edge's answer as a solve's starting guess: σ̈ per interval, or with a smooth timing at every node (the
-    end's from the last interval's jerk)."""
+def node_guess(answer: Edge | Part, smooth: bool) -> np.ndarray:
+    """An edge's answer (an Edge, or a solve's Part) as a solve's starting guess: σ̈ per interval, or with a smooth
+    timing at every node (the end's from the last interval's jerk)."""
     if not smooth:
-        return edge.tau_dd
-    h = float(edge.durations[0]) / edge.tau_dd.size
-    return np.append(edge.tau_dd, edge.tau_dd[-1] + edge.tau_ddd[-1] * h)
+        return answer.tau_dd
+    h = float(answer.durations[0]) / answer.tau_dd.size
+    return np.append(answer.tau_dd, answer.tau_dd[-1] + answer.tau_ddd[-1] * h)
+
+
+def worst(above: np.ndarray, below: np.ndarray) -> float:
+    """The largest step beyond the bounds on either side (edge_excess's), as a fraction of the span."""
+    return max(above.max(initial=-np.inf), below.max(initial=-np.inf))
 
 
 class EdgeRetiming(Retiming):
@@ -195,10 +200,10 @@ class EdgeRetiming(Retiming):
         starts, out, tailed, undo = [np.asarray(x0, float)], [], set(), None
         while len(out) < len(edges):
             j = len(out)
-            edge, worst, x_end, stuck = self._mend(j, starts[j], edges[j], counts, ends[j], uniform_duration, verbose)
-            if undo is not None and undo[0] == j and worst >= undo[3][1]:
+            edge, beyond, x_end, stuck = self._mend(j, starts[j], edges[j], counts, ends[j], uniform_duration, verbose)
+            if undo is not None and undo[0] == j and beyond >= undo[3][1]:
                 # the calmer corner did not help this edge: the edge before as it was, and this edge's first mend
-                _, out[-1], starts[j], (edge, worst, x_end, stuck) = undo
+                _, out[-1], starts[j], (edge, beyond, x_end, stuck) = undo
             undo = None
             if stuck and j > 0 and j - 1 not in tailed:
                 # no timing of this edge keeps the bounds from the swing the edge before leaves: that edge again, from
@@ -211,8 +216,8 @@ class EdgeRetiming(Retiming):
                                           tail_s=CARRY_TAIL_S)
                 if before is not None and before.status in OPTIMAL:
                     above, below, x_before = self.edge_excess(starts[j - 1], j - 1, counts[j - 1], before)
-                    if max(above.max(initial=-np.inf), below.max(initial=-np.inf)) <= INPUT_TOLERANCE:
-                        undo = (j, out[-1], starts[j], (edge, worst, x_end, stuck))
+                    if worst(above, below) <= INPUT_TOLERANCE:
+                        undo = (j, out[-1], starts[j], (edge, beyond, x_end, stuck))
                         out[-1], starts[j] = replacing(out[-1], before), x_before
                         continue  # this edge again, from the calmer corner
             out.append(edge)
@@ -238,17 +243,17 @@ class EdgeRetiming(Retiming):
         whether it is stuck: beyond the bounds, and a solve from there found no timing). An edge whose re-solves
         have a timing but do not shrink a leak between the optimiser's nodes is not stuck: the whole plan's re-solve
         with the bounds moved in (planner.solve_within_bounds) is for that."""
-        span = np.where(np.isfinite(self.upper - self.lower), self.upper - self.lower, 1.0)
+        span = bound_span(self.lower, self.upper)
         above, below, x_end = self.edge_excess(x, j, counts[j], edge)
         start = self._start(x, j)
         # first with the same bounds (what the swing carried in takes), then, while the inputs still leave them
         # between the optimiser's nodes, with the bounds moved in
         from_here = bool(np.array_equal(start, self.at_rest(j)))
         down, up = np.zeros_like(span), np.zeros_like(span)  # how far this edge's bounds are moved in
-        worst = max(above.max(initial=-np.inf), below.max(initial=-np.inf))
+        beyond = worst(above, below)
         stuck = False
         for _ in range(CARRY_ROUNDS):
-            if worst <= INPUT_TOLERANCE:
+            if beyond <= INPUT_TOLERANCE:
                 break
             if from_here:
                 down += 1.2 * np.maximum(above, 0.0) * span
@@ -265,18 +270,16 @@ class EdgeRetiming(Retiming):
                 stuck = True
                 break
             above_again, below_again, x_again = self.edge_excess(x, j, counts[j], again)
-            worst_again = max(above_again.max(initial=-np.inf), below_again.max(initial=-np.inf))
-            if worst_again >= worst:
+            if worst(above_again, below_again) >= beyond:
                 break
-            edge, above, below, x_end, worst = replacing(edge, again), above_again, below_again, x_again, worst_again
-        return edge, worst, x_end, stuck
+            edge, above, below, x_end = replacing(edge, again), above_again, below_again, x_again
+            beyond = worst(above, below)
+        return edge, beyond, x_end, stuck
 
-    def edge_inputs(self, x: np.ndarray, j: int, count: int, edge: Edge) -> np.ndarray:
-        """Edge j's inputs from the state x on a CHECK_STEP_S grid (each interval integrated again from its node
-        state, as planner.solve_within_bounds checks the plan): samples x l."""
-        T = float(edge.durations[0])
-        states = self._edge_states(x, j, count, edge)
-        h = T / count
+    def edge_inputs(self, states: np.ndarray, count: int, edge: Edge) -> np.ndarray:
+        """An edge's inputs on a CHECK_STEP_S grid from its node `states` (_edge_states; each interval integrated
+        again from its node state, as planner.solve_within_bounds checks the plan): samples x l."""
+        h = float(edge.durations[0]) / count
         m = max(1, int(np.ceil(h / CHECK_STEP_S)))
         key = ("map", count, m)
         if key not in self._check_cache:
@@ -289,19 +292,18 @@ class EdgeRetiming(Retiming):
     def edge_excess(self, x: np.ndarray, j: int, count: int, edge: Edge) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Edge j flown from x: (each input's largest step above its upper bound, and below its lower one, as a
         fraction of the span (≤ 0: within); the state at its end, at the corner exactly, as `chain` continues)."""
-        inputs = self.edge_inputs(x, j, count, edge)
-        span = np.where(np.isfinite(self.upper - self.lower), self.upper - self.lower, 1.0)  # as beyond_bounds
+        states = self._edge_states(x, j, count, edge)
+        inputs = self.edge_inputs(states, count, edge)
+        span = bound_span(self.lower, self.upper)
         above, below = ((inputs - self.upper) / span).max(axis=0), ((self.lower - inputs) / span).max(axis=0)
-        end = self._edge_states(x, j, count, edge)[-1].copy()
+        end = states[-1].copy()
         end[-2:] = self.geo.phases[j][1], 0.0
         return above, below, end
 
     def _edge_states(self, x: np.ndarray, j: int, count: int, edge: Edge) -> np.ndarray:
         """Edge j's node states flown from x (σ at its corner, at rest), as `chain` integrates them."""
-        T = float(edge.durations[0])
-        start = np.asarray(x, float).copy()
-        start[-2:] = self.geo.phases[j][0], 0.0
-        states, _ = self.run_grid(start, edge.tau_dd, T / count, edge.substeps, jerk=edge.tau_ddd)
+        states, _ = self.run_grid(self._start(x, j), edge.tau_dd, float(edge.durations[0]) / count, edge.substeps,
+                                  jerk=edge.tau_ddd)
         return states
 
     def _solve_edge(self, j: int, counts: list[int], start: np.ndarray, guess: tuple, fallback: tuple | None,
@@ -324,10 +326,7 @@ class EdgeRetiming(Retiming):
                 needed = _substeps(part.durations, [counts[j]])
                 if needed <= m:
                     break
-                guess_T = float(part.durations[0])
-                guess_a = np.append(part.tau_dd, part.tau_dd[-1] + part.tau_ddd[-1] * guess_T / counts[j]) \
-                    if self.smooth else part.tau_dd  # a smooth timing's guess is σ̈ at the nodes (node_guess)
-                m = needed
+                m, guess_a, guess_T = needed, node_guess(part, self.smooth), float(part.durations[0])
         except PlanningError as unsolved:
             if fallback is None:
                 return None

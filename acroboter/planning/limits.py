@@ -30,14 +30,30 @@ def tightened(lower: np.ndarray, upper: np.ndarray, margin: float) -> tuple[np.n
     return low, high
 
 
+def bound_span(low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """Each input's span between its bounds, 1 for a bound without a finite span: what a step beyond them is a
+    fraction of."""
+    return np.where(np.isfinite(high - low), high - low, 1.0)
+
+
 def beyond_bounds(inputs: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
     """Each input's step beyond its bounds (low, high), as a fraction of their span (1 for a bound without a finite
     span): ≤ 0 within them, −inf on an unbounded side."""
-    span = np.where(np.isfinite(high - low), high - low, 1.0)
+    span = bound_span(low, high)
     with np.errstate(invalid="ignore"):
         over = np.maximum(inputs - high, low - inputs) / span
     return np.where(np.isnan(over), -np.inf, over)  # inf - inf: an unbounded side
 
+
+
+def worst_beyond(values: np.ndarray, low: np.ndarray, high: np.ndarray, tolerance: float = 0.0):
+    """The sample and input (k, i) of `values` (samples x inputs) furthest beyond (low, high), with the bound it
+    passes, or None when none is beyond them by more than `tolerance` of the span."""
+    over = beyond_bounds(values, low, high)
+    if not over.size or over.max() <= tolerance:
+        return None
+    k, i = np.unravel_index(np.argmax(over), over.shape)
+    return int(k), int(i), float(high[i] if values[k, i] > high[i] else low[i])
 
 def margin_achieved(inputs: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[float, int | None]:
     """(the smallest distance to a limit as a fraction of the span, over the inputs with two finite limits;

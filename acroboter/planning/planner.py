@@ -24,7 +24,7 @@ from .checks import Certificate, certify, check_statics
 from .edges import EdgeRetiming
 from .geometry import PathGeometry
 from .ideal_motion import IdealDynamics, PlanningError
-from .limits import CHECK_STEP_S, INPUT_TOLERANCE, active_intervals, beyond_bounds, margin_achieved, tightened
+from .limits import CHECK_STEP_S, INPUT_TOLERANCE, active_intervals, margin_achieved, tightened, worst_beyond
 from .retiming import OPTIMAL, Retiming, Solution
 from .shaping import SHAPED_STATUS, SHAPERS, ShapedRetiming, corner_swing
 from .windows import WindowedRetiming
@@ -408,10 +408,9 @@ class StaticRefusal(PlanningError):
 
 def refuse_static(needs: np.ndarray, low, high, names: list[str], units: list[str]) -> None:
     """StaticRefusal when an input at rest somewhere on the path (`needs`, places x inputs) is beyond (low, high)."""
-    over = beyond_bounds(needs, low, high)
-    if over.size and over.max() > 0:
-        k, i = np.unravel_index(np.argmax(over), over.shape)
-        bound = high[i] if needs[k, i] > high[i] else low[i]
+    worst = worst_beyond(needs, low, high)
+    if worst is not None:
+        k, i, bound = worst
         raise StaticRefusal(f"holding the load at rest needs {names[i]} = {needs[k, i]:.6g} {units[i]} somewhere on "
                             f"the path, beyond {bound:.6g} {units[i]}")
 
@@ -419,11 +418,10 @@ def refuse_static(needs: np.ndarray, low, high, names: list[str], units: list[st
 def between_nodes(times: np.ndarray, inputs: np.ndarray, low, high, names: list[str], units: list[str]) -> str | None:
     """What to say of planned inputs that leave the bounds (the limits less the margin) between the optimiser's
     nodes by more than INPUT_TOLERANCE of the span (None when they do not)."""
-    over = beyond_bounds(inputs, low, high)
-    if not over.size or over.max() <= INPUT_TOLERANCE:
+    worst = worst_beyond(inputs, low, high, INPUT_TOLERANCE)
+    if worst is None:
         return None
-    k, i = np.unravel_index(np.argmax(over), over.shape)
-    bound = high[i] if inputs[k, i] > high[i] else low[i]
+    k, i, bound = worst
     return (f"the planned inputs leave the bounds between the optimiser's nodes: {names[i]} = {inputs[k, i]:.6g} "
             f"{units[i]} at t = {times[k]:.3f} s against {bound:.6g} {units[i]} (the limits less the margin), on a "
             f"{1e3 * CHECK_STEP_S:g} ms grid; give more --intervals")
