@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed
 # .venv/bin/acroboter finds it by itself, the export only makes it explicit for the tools run here.
 export ACROBOTER_CACHE_DIR := $(CURDIR)/build/cache
 
-.PHONY: run test setup build generate check-generated mutation bench retiming-study shaping-study study sweep robustness plant-fuzz plant-fuzz-cranes docs clean
+.PHONY: run test setup build generate check-generated mutation bench retiming-study shaping-study plan-fuzz study sweep robustness plant-fuzz plant-fuzz-cranes docs clean
 
 $(RUN_STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
@@ -70,6 +70,13 @@ retiming-study: build
 shaping-study: build
 	$(PY) tools/shaping_study.py --cases 0,1,2 & $(PY) tools/shaping_study.py --cases 3,4,5; wait
 	$(PY) tools/shaping_study.py --assemble
+
+# Paths nobody planned (docs/planning.md, "Paths nobody planned"): PATHS two- and three-edge paths drawn on both
+# cranes, winch limits where the statics leave 5-20 % of the span, each planned to 0.1 mm and flown by every method
+# with the limits applied (two processes; minutes per path): results/plan_fuzz/report.md.
+PATHS ?= 20
+plan-fuzz: build
+	$(PY) tools/plan_fuzz.py --paths $(PATHS) --out results/plan_fuzz
 
 study: build
 	$(PY) -m acroboter study
