@@ -79,29 +79,38 @@ def predicted_error(times: np.ndarray, jerk: np.ndarray, kp: float, kd: float, p
     return float(np.linalg.norm(errors, axis=1).max())
 
 
-# The lag model's error is bounded this long after a phase ends too, at this many places (s, count).
-LAG_SETTLE_S = 1.0
-LAG_SETTLE_STEPS = 5
+# The lag model's error is bounded after a phase ends too (an underdamped servo law overshoots after the drive
+# stops; a lag still growing at the end peaks after it), at these times after the end (s): dense at first, where the
+# free response of a critically damped law at kp = 5 1/s peaks (within 1/kp), then to 1 s.
+LAG_SETTLE_TIMES_S = (0.025, 0.05, 0.1, 0.2, 0.4, 0.6, 0.8, 1.0)
 # The fewest RK4 steps of the lag model over each of its settling steps after the path.
 LAG_SUBSTEPS = 4
+# A phase that is not the path's last leaves its free lag response within this share of the bound: the next phase
+# inherits that lag (acroboter.planning.edges carries it), and its own lag adds to it. Measured 2026-12-07 on a drawn
+# three-edge path (tools/plan_fuzz.py, seed 0): with the whole bound, edge 2 ended at e = 0.0987 mm still growing
+# at 0.092 mm/s (its free response peaking at 0.1001 mm, between the old settle samples), and edge 3 had no timing
+# (IPOPT: Infeasible_Problem_Detected) whose lag stayed within 0.1 mm.
+CORNER_LAG_SHARE = 0.5
 
 
-def lag_bounds(opti, lag: tuple, servo_rate, steps, substeps: int, lag_substeps_each: int, z0: np.ndarray):
+def lag_bounds(opti, lag: tuple, servo_rate, steps, substeps: int, lag_substeps_each: int, z0: np.ndarray,
+               corner_share: float = 1.0):
     """The lag model's constraints on a retiming problem (`opti`; `lag` = (bound m, kp, kd, period s)), driven by
     E u̇, the servo-constraint jerk a held input misses (rk4_step's `servo_rate`, one value per RK4 step of the ideal
     motion; `steps`: the problem's interval lengths, `substeps` RK4 steps each), from the lag state z0 (the phase
     before's, on a rest-to-rest path: the lags of a braking and an accelerating edge add up at a corner): its error
-    within the bound at the end of each of its own `lag_substeps_each` RK4 steps per step (lag_substeps) and for
-    LAG_SETTLE_S after the end (an underdamped servo law overshoots after the drive stops). Returns the lag state at
-    the end (the next edge's start)."""
+    within the bound at the end of each of its own `lag_substeps_each` RK4 steps per step (lag_substeps), and its free
+    response after the end within `corner_share` of it at LAG_SETTLE_TIMES_S (CORNER_LAG_SHARE where a phase follows).
+    Returns the lag state at the end (the next edge's start)."""
     bound, kp, kd, period = lag
     dts = ca.horzcat(*[ca.repmat(steps[i] / substeps, 1, substeps) for i in range(steps.shape[1])])
     step = lag_step(kp, kd, period, lag_substeps_each)
     Z, errors = step.mapaccum(servo_rate.shape[1])(ca.DM(z0), servo_rate, dts)
-    h_settle = LAG_SETTLE_S / LAG_SETTLE_STEPS
-    settling = lag_step(kp, kd, period, lag_substeps(h_settle, kp, kd, LAG_SUBSTEPS))
-    _, settle = settling.mapaccum(LAG_SETTLE_STEPS)(Z[:, -1], ca.DM.zeros(3, LAG_SETTLE_STEPS), h_settle)
-    every = ca.horzcat(errors, settle)
-    for k in range(every.shape[1]):  # scaled: bound² (1e-8 m²) is IPOPT's tolerance
-        opti.subject_to(ca.sumsqr(every[:, k] / bound) <= 1.0)
+    after = np.diff(np.concatenate([[0.0], LAG_SETTLE_TIMES_S]))
+    settling = lag_step(kp, kd, period, lag_substeps(float(after.max()), kp, kd, LAG_SUBSTEPS))
+    _, settle = settling.mapaccum(after.size)(Z[:, -1], ca.DM.zeros(3, after.size), ca.DM(after[None, :]))
+    for k in range(errors.shape[1]):  # scaled: bound² (1e-8 m²) is IPOPT's tolerance
+        opti.subject_to(ca.sumsqr(errors[:, k] / bound) <= 1.0)
+    for k in range(settle.shape[1]):
+        opti.subject_to(ca.sumsqr(settle[:, k] / (corner_share * bound)) <= 1.0)
     return Z[:, -1]
