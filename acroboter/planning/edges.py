@@ -278,7 +278,8 @@ class EdgeRetiming(Retiming):
 
     def edge_inputs(self, states: np.ndarray, count: int, edge: Edge) -> np.ndarray:
         """An edge's inputs on a CHECK_STEP_S grid from its node `states` (_edge_states; each interval integrated
-        again from its node state, as planner.solve_within_bounds checks the plan): samples x l."""
+        again from its node state, with the solve's RK4 error in those states; planner.solve_within_bounds checks
+        the whole plan integrated again from its start, Retiming.inputs_on_grid): samples x l."""
         h = float(edge.durations[0]) / count
         m = max(1, int(np.ceil(h / CHECK_STEP_S)))
         key = ("map", count, m)

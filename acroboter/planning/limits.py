@@ -45,7 +45,6 @@ def beyond_bounds(inputs: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.n
     return np.where(np.isnan(over), -np.inf, over)  # inf - inf: an unbounded side
 
 
-
 def worst_beyond(values: np.ndarray, low: np.ndarray, high: np.ndarray, tolerance: float = 0.0):
     """The sample and input (k, i) of `values` (samples x inputs) furthest beyond (low, high), with the bound it
     passes, or None when none is beyond them by more than `tolerance` of the span."""
@@ -54,6 +53,7 @@ def worst_beyond(values: np.ndarray, low: np.ndarray, high: np.ndarray, toleranc
         return None
     k, i = np.unravel_index(np.argmax(over), over.shape)
     return int(k), int(i), float(high[i] if values[k, i] > high[i] else low[i])
+
 
 def margin_achieved(inputs: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[float, int | None]:
     """(the smallest distance to a limit as a fraction of the span, over the inputs with two finite limits;
