@@ -159,3 +159,37 @@ def test_a_backtrack_that_still_leaves_the_bounds_is_not_kept():
     chain = _Chain({0: [(e[0], -1.0)], 1: [(_edge("m1"), 0.1)]}, _edge("e0 held"), backtrack_excess=0.05)
     out = chain.carried(np.zeros(1), [2, 2], e, [None] * 2, 1.0, 10, False)
     assert [x.records[-1]["name"] for x in out] == ["e0", "m1"]
+
+
+def test_the_mendings_input_check_integrates_each_edge_from_its_start_only(tmp_path):
+    """The mending's 1 ms check (EdgeRetiming.edge_inputs) flies an edge's timing again from the edge's start, the
+    whole way, as the plan's own check does (Retiming.inputs_on_grid): not from each node state, which carries the
+    solve's RK4 error (that error put a jerk-bounded lift's input 1.65 mN past the bound the plan kept). Edge 1 of
+    the two-edge lift on its own timing slowed 2x, σ̈ made linear per interval: node states from one RK4 step per
+    interval (a coarse solve's) and from the 1 ms steps give the same inputs, bit for bit, and they are the plan
+    check's."""
+    from acroboter.planning.geometry import PathGeometry
+    from acroboter.planning.ideal_motion import IdealDynamics
+    from acroboter.planning.retiming import Solution
+    from acroboter.planning.windows import _warm
+
+    crane = two_edge_crane(tmp_path)
+    q0 = crane.equilibrium().q
+    low, high, _ = crane.spec.input_limits()
+    problem = EdgeRetiming(IdealDynamics(crane.spec, q0), PathGeometry(crane.desired()), q0, low, high)
+    count = 8
+    acc, duration = _warm(problem, 0, count, 2.0)
+    jerk = np.diff(np.append(acc, 0.0)) / (duration / count)  # σ̈ linear per interval, to 0 at the corner
+    edge = Edge(np.array([duration]), acc, jerk, "Solve_Succeeded", [], 0, None, np.zeros(6), 1)
+    start = problem.at_rest(0)
+    coarse, _ = problem.run_grid(start, acc, duration / count, 1, jerk=jerk)
+    fine, _ = problem.run_grid(start, acc, duration / count, 200, jerk=jerk)
+    assert np.abs(coarse - fine).max() > 1e-9  # the node states differ: the coarse ones carry RK4's error
+    from_coarse, from_fine = problem.edge_inputs(coarse, count, edge), problem.edge_inputs(fine, count, edge)
+    assert np.array_equal(from_coarse, from_fine)
+    times = np.linspace(0.0, duration, count + 1)
+    whole = Solution(duration, times, coarse, acc, times[:-1], from_coarse[:-1], "Solve_Succeeded", 0, 0.0, 1.0,
+                     duration, tau_ddd=jerk)
+    _, checked = problem.inputs_on_grid(whole, 1e-3)
+    assert checked.shape == from_coarse.shape
+    np.testing.assert_allclose(checked[:-1], from_coarse[:-1], rtol=0, atol=1e-12)

@@ -213,3 +213,39 @@ def test_a_warm_start_is_each_phases_nodes_and_duration_or_nothing_on_another_gr
     assert [list(n) for n in nodes] == [[0.0, 0.8, 0.0], [0.0, 0.0, -0.4, 0.2, 0.0]]
     assert durations == [1.0, 2.5]
     assert warm_start(SimpleNamespace(times=times, sdd=sdd), [3, 4], end=2.0) is None
+
+
+def test_a_later_round_that_is_not_solved_leaves_the_last_rounds_plan_and_says_so(monkeypatch):
+    """A narrower bound can leave an edge without a timing (drawn path 0, 2026-12-07: the whole search was lost, the
+    summary said "flown at None mm"). The last round's plan stands: returned in the PlanFailure (the CLI writes it to
+    failed/plan/, exit 3), flown beyond the tolerance, its rounds saying which bound was not solved and why."""
+    from types import SimpleNamespace
+
+    import acroboter.planning.tolerance as tolerance
+    from acroboter.planning.planner import PlanFailure
+
+    rounds = []
+
+    def scripted_plan(model, path, q0, **options):
+        rounds.append(options["lag"][0])
+        plan = SimpleNamespace(duration=2.0 + len(rounds), solve_s=1.0, failures=[], trajectory=None, bounds=None,
+                               certificate=None)
+        if len(rounds) == 2:
+            plan.failures.append("the time-optimal problem of phase(s) 1 was not solved (Infeasible_Problem_Detected)")
+            raise PlanFailure("; ".join(plan.failures), plan)
+        return plan
+
+    monkeypatch.setattr(tolerance, "plan", scripted_plan)
+    monkeypatch.setattr(tolerance, "clock_flights", lambda *args: (1.5e-4, None, {"0": 0.15}))
+    model = SimpleNamespace(spec=SimpleNamespace(controller=SimpleNamespace(kp=5.0, kd=5.0, rate_hz=50.0)))
+    with pytest.raises(PlanFailure) as failed:
+        tolerance.plan_to_tolerance(model, None, None, 1e-4, ("mlm",), compare=False)
+    plan = failed.value.plan
+    assert plan.duration == 3.0  # the first round's
+    record = plan.tolerance
+    assert not record["met"] and record["flown_mm"] == pytest.approx(0.15)
+    assert [r["model_bound_mm"] for r in record["rounds"]] == pytest.approx([0.1, 0.1 * 0.97 / 1.5])
+    assert "Infeasible_Problem_Detected" in record["rounds"][1]["not_solved"]
+    assert record["rounds"][1]["flown_mm"] is None
+    assert any("0.06467 mm was not solved" in f for f in plan.failures)
+    assert any("tolerance was not met" in f for f in plan.failures)

@@ -125,8 +125,9 @@ class EdgeRetiming(Retiming):
             # from rest, not from the state the edge before leaves: the edges are then independent problems, solved
             # side by side; the swing the chain carries over is taken out afterwards (`carried`)
             warm_a, warm_T = _warm(self, j, counts[j], factors[j])
-            guess = (warm_a, warm_T) if self.warm is None else (self.warm[0][j], self.warm[1][j])
-            edge = self._solve_edge(j, counts, self.at_rest(j), guess, (warm_a, warm_T), ends[j], uniform_duration,
+            slowdown = (warm_a, warm_T)
+            guess = slowdown if self.warm is None else (self.warm[0][j], self.warm[1][j])
+            edge = self._solve_edge(j, counts, self.at_rest(j), guess, slowdown, ends[j], uniform_duration,
                                     max_iter, verbose, lag)
             bar.set_postfix_str(f"edge {j + 1}: {float(edge.durations[0]):.3g} s ({edge.status})")
             bar.update()
@@ -277,18 +278,13 @@ class EdgeRetiming(Retiming):
         return edge, beyond, x_end, stuck
 
     def edge_inputs(self, states: np.ndarray, count: int, edge: Edge) -> np.ndarray:
-        """An edge's inputs on a CHECK_STEP_S grid from its node `states` (_edge_states; each interval integrated
-        again from its node state, with the solve's RK4 error in those states; planner.solve_within_bounds checks
-        the whole plan integrated again from its start, Retiming.inputs_on_grid): samples x l."""
+        """An edge's inputs on a CHECK_STEP_S grid, its end's included: its timing integrated again from its start
+        `states[0]` (_edge_states) the whole way in steps that short, as Retiming.inputs_on_grid checks a plan (not
+        from each node state: those carry the solve's RK4 error): samples x l."""
         h = float(edge.durations[0]) / count
-        m = max(1, int(np.ceil(h / CHECK_STEP_S)))
-        key = ("map", count, m)
-        if key not in self._check_cache:
-            self._check_cache[key] = self.stepper(m).map(count)
-        _, us, ds, u_end, d_end, _ = self._check_cache[key](states[:-1].T, edge.tau_dd[None, :],
-                                                            edge.tau_ddd[None, :], h)
-        return self.fit_spare(np.vstack([np.asarray(us).T, np.asarray(u_end)[:, -1:].T]),
-                              np.vstack([np.asarray(ds).T, np.asarray(d_end)[:, -1:].T]))
+        _, inputs = self.run_grid(states[0], edge.tau_dd, h, max(1, int(np.ceil(h / CHECK_STEP_S))), final=True,
+                                  jerk=edge.tau_ddd)
+        return inputs
 
     def edge_excess(self, x: np.ndarray, j: int, count: int, edge: Edge) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Edge j flown from x: (each input's largest step above its upper bound, and below its lower one, as a
@@ -314,28 +310,35 @@ class EdgeRetiming(Retiming):
         interval while the solution's intervals need them), from `guess` (σ̈, duration). An edge IPOPT gives no
         answer for keeps `fallback` (its own timing slowed from rest, feasible and ending at rest by rest_factor),
         and its status says so; None without a fallback."""
-        guess_a, guess_T = guess
-        m = _substeps([guess_T], [counts[j]])
         records, iterations = [], 0
-        try:
-            while True:
-                part = self.solve_phases(start, [j], counts, guess_a, [guess_T], uniform_duration, max_iter,
-                                         verbose, m, rest_at=end, lag_start=lag, tail_s=tail_s,
-                                         retry=fallback is not None)
-                records += part.windows
-                iterations += part.iterations
-                needed = _substeps(part.durations, [counts[j]])
-                if needed <= m:
-                    break
-                m, guess_a, guess_T = needed, node_guess(part, self.smooth), float(part.durations[0])
-        except PlanningError as unsolved:
-            if fallback is None:
-                return None
-            records.append({"phases": [j], "intervals": counts[j], "status": "quintic_slowdown_kept", "iterations": 0,
-                            "reason": str(unsolved)})
-            warm_a, warm_T = fallback
-            return Edge(np.array([warm_T]), warm_a, np.zeros_like(warm_a), "quintic_slowdown_kept", records,
-                        iterations, None, lag, _substeps([warm_T], [counts[j]]))
+        # a warm start (the last tolerance round's timing) that IPOPT finds no way out of is tried again from the
+        # feasible slowdown: a narrowed lag bound can leave the last timing deep outside it (drawn path 0, edge 1:
+        # Infeasible_Problem_Detected after 365 iterations from the warm start)
+        starts = [guess] if fallback is None or guess is fallback else [guess, fallback]
+        for attempt, (guess_a, guess_T) in enumerate(starts):
+            m = _substeps([guess_T], [counts[j]])
+            try:
+                while True:
+                    part = self.solve_phases(start, [j], counts, guess_a, [guess_T], uniform_duration, max_iter,
+                                             verbose, m, rest_at=end, lag_start=lag, tail_s=tail_s,
+                                             retry=fallback is not None)
+                    records += part.windows
+                    iterations += part.iterations
+                    needed = _substeps(part.durations, [counts[j]])
+                    if needed <= m:
+                        break
+                    m, guess_a, guess_T = needed, node_guess(part, self.smooth), float(part.durations[0])
+                break
+            except PlanningError as unsolved:
+                if fallback is None:
+                    return None
+                kept = attempt == len(starts) - 1
+                records.append({"phases": [j], "intervals": counts[j], "iterations": 0, "reason": str(unsolved),
+                                "status": "quintic_slowdown_kept" if kept else "warm_start_failed"})
+                if kept:
+                    warm_a, warm_T = fallback
+                    return Edge(np.array([warm_T]), warm_a, np.zeros_like(warm_a), "quintic_slowdown_kept", records,
+                                iterations, None, lag, _substeps([warm_T], [counts[j]]))
         return Edge(part.durations, part.tau_dd, part.tau_ddd, part.status, records, iterations, part.lag_end, lag, m)
 
     def grid_motion(self, j: int, count: int, factor: float, q: np.ndarray | None = None):
