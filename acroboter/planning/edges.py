@@ -8,8 +8,9 @@ edge by edge with the swing carried over, the next edge can have no feasible tim
 timing slowed a thousand times (measured on the default crane with winch limits [5, 30] N: the first edge's
 optimum left a swing that takes a winch beyond its bounds at rest). A crane operator asks for the other thing
 anyway: at a waypoint the load is at rest. So each edge is planned from the static equilibrium at its first
-corner to within REST_TOL of the static equilibrium at its last corner, at rest: the edges are then independent
-problems, small (one edge's RK4 steps) and solved one after the other.
+corner to within REST_TOL of the static equilibrium at its last corner (closer in a plan to a tolerance:
+REST_TOL_PER_LAG_BOUND), at rest: the edges are then independent problems, small (one edge's RK4 steps) and solved
+one after the other.
 
 What it costs. The time-optimal timing with the swing free at the corners can only be faster; docs/planning.md
 reports the two on a path where both solve. The plan's inputs are not taken from the edges' solves: the whole
@@ -28,7 +29,7 @@ import numpy as np
 from ..runtime.progress import progress_disabled
 from .ideal_motion import PlanningError
 from .limits import CHECK_STEP_S, INPUT_TOLERANCE, bound_span
-from .retiming import MAX_SLOWDOWN, MIN_PHASE_INTERVALS, OPTIMAL, REST_TOL, Part, Retiming
+from .retiming import MAX_SLOWDOWN, MIN_PHASE_INTERVALS, OPTIMAL, Part, Retiming
 from .windows import PHASE_BISECTION, _substeps, _warm, first_serving, phase_factor
 
 # An edge whose inputs leave the bounds once the chain carries the swing into it is solved again from there at
@@ -350,7 +351,7 @@ class EdgeRetiming(Retiming):
 
     def rest_factor(self, j: int, count: int, low: float) -> float:
         """A slowdown of edge j's own timing from rest, at least `low` (the smallest that keeps the inputs within
-        the bounds), that also ends within REST_TOL / 2 of rest on the problem's grid: IPOPT's feasible start.
+        the bounds), that also ends within rest_tol / 2 of rest on the problem's grid: IPOPT's feasible start.
         The residual swing is not monotonic in the factor (it beats with the swing's period): this bisects
         between the last factor found wanting and the first that serves, doubling from `low`."""
         n = self.n
@@ -358,11 +359,11 @@ class EdgeRetiming(Retiming):
         def serves(f):
             x, u = self.grid_motion(j, count, f)
             residual = max(np.abs(x[:n] - self.corner(j + 1, MIN_PHASE_INTERVALS)).max(), np.abs(x[n : 2 * n]).max())
-            return residual <= 0.5 * REST_TOL and self.excess(u) <= 0
+            return residual <= 0.5 * self.rest_tol and self.excess(u) <= 0
 
         return first_serving(serves, low, PHASE_BISECTION,
                              f"edge {j + 1}: no slowdown of its own timing up to {MAX_SLOWDOWN:g}x ends at rest within "
-                             f"{REST_TOL:g} on a grid of {count} intervals: give more --intervals")
+                             f"{self.rest_tol:g} on a grid of {count} intervals: give more --intervals")
 
     def chain(self, x0: np.ndarray, counts: list[int], durations: np.ndarray, tau_dd: np.ndarray, status: str,
               iterations: int, records: list[dict], tau_ddd: np.ndarray, substeps: list[int] | None = None) -> Part:

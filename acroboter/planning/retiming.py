@@ -61,6 +61,12 @@ MAX_STEP_S = 0.1
 # configuration there and every rate within this per second (m and unit vectors: a centimetre, a centimetre per
 # second).
 REST_TOL = 1e-2
+# In a plan to a tolerance the box is at most this many times the lag model's bound: the swing left within the box
+# moves the inputs at the next edge, a drive the lag model of that edge does not see (it starts from rest). Drawn
+# path 0 (tools/plan_fuzz.py, seed 0; three edges, bound 0.1 mm), each edge flown after the one before by MLM:
+# a box of 10 mm flew at 0.0999, 0.138 and 0.176 mm edge by edge; 3 mm at 0.098, 0.103, 0.130 mm; 1 mm at 0.098,
+# 0.098 and 0.108 mm (planned in 71, 79 and 292 s; 9.43, 10.13 and 10.54 s long; 2026-12-07).
+REST_TOL_PER_LAG_BOUND = 10.0
 # max_speed and max_accel are kept at the nodes this fraction inside: IPOPT meets a constraint to its tolerance
 # (sumsqr ≤ bound² to 1e-8, 5e-5 of a 0.01 m/s² bound), and the written samples between nodes must hold it too.
 KINEMATIC_SLACK = 1e-3
@@ -154,6 +160,8 @@ class Retiming:
         self.max_speed, self.max_accel, self.max_jerk = max_speed, max_accel, max_jerk
         # (bound m, kp, kd, period): the sampled controller's lag kept within the bound (acroboter.planning.servo_lag)
         self.lag = lag
+        # the box an edge ends in at rest (REST_TOL; with a tolerance, REST_TOL_PER_LAG_BOUND times its bound)
+        self.rest_tol = REST_TOL if lag is None else min(REST_TOL, REST_TOL_PER_LAG_BOUND * float(lag[0]))
         # with a jerk bound or a lag bound the timing is smooth: τ̈ continuous, linear over each interval, 0 where a
         # phase starts and ends (a sampled controller holds its input between samples: a jump of τ̈ is what it
         # follows worst)
@@ -314,7 +322,7 @@ class Retiming:
         at the start of every RK4 step, and at the end of the last phase. `tail_s` > 0: the path then held at rest
         at its corner for tail_s seconds with the inputs within the bounds too (the swing the phases leave must
         not take an input beyond them while the next phase starts: acroboter.planning.windows). `rest_at` (a
-        configuration q): the last phase ends there at rest, |q − rest_at|∞ ≤ REST_TOL and |q̇|∞ ≤ REST_TOL / s
+        configuration q): the last phase ends there at rest, |q − rest_at|∞ ≤ rest_tol and |q̇|∞ ≤ rest_tol / s
         (acroboter.planning.edges). `lag_start`: the lag model's state at the start (a plan to a tolerance; default
         none: no lag)."""
         n, phases = self.n, self.geo.phases
@@ -366,8 +374,8 @@ class Retiming:
         if rest_at is not None:
             # a box on every coordinate and its rate, not one sum of squares: its gradient vanishes at rest, and
             # IPOPT then crawls
-            opti.subject_to(opti.bounded(-REST_TOL, X[:n, N] - rest_at, REST_TOL))
-            opti.subject_to(opti.bounded(-REST_TOL, X[n : 2 * n, N], REST_TOL))
+            opti.subject_to(opti.bounded(-self.rest_tol, X[:n, N] - rest_at, self.rest_tol))
+            opti.subject_to(opti.bounded(-self.rest_tol, X[n : 2 * n, N], self.rest_tol))
         self._path_bounds(opti, X, nodes_a, J, N)
         if self.lag is not None:
             # each RK4 step of the ideal motion in lag steps short enough for the servo law's poles (twice the guess's
