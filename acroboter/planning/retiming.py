@@ -61,11 +61,9 @@ MAX_STEP_S = 0.1
 # configuration there and every rate within this per second (m and unit vectors: a centimetre, a centimetre per
 # second).
 REST_TOL = 1e-2
-# In a plan to a tolerance the box is at most this many times the lag model's bound: the swing left within the box
-# moves the inputs at the next edge, a drive the lag model of that edge does not see (it starts from rest). Drawn
-# path 0 (tools/plan_fuzz.py, seed 0; three edges, bound 0.1 mm), each edge flown after the one before by MLM:
-# a box of 10 mm flew at 0.0999, 0.138 and 0.176 mm edge by edge; 3 mm at 0.098, 0.103, 0.130 mm; 1 mm at 0.098,
-# 0.098 and 0.108 mm (planned in 71, 79 and 292 s; 9.43, 10.13 and 10.54 s long; 2026-12-07).
+# In a plan to a tolerance the box is at most this many times the lag bound: the swing left in it moves the next
+# edge's inputs, a drive that edge's lag model (from rest) does not see. Drawn path 0 at 0.1 mm, flown edge by edge:
+# a 10 mm box 0.0999 / 0.138 / 0.176 mm, 3 mm 0.098 / 0.103 / 0.130 mm, 1 mm 0.098 / 0.098 / 0.108 mm (2026-12-07).
 REST_TOL_PER_LAG_BOUND = 10.0
 # max_speed and max_accel are kept at the nodes this fraction inside: IPOPT meets a constraint to its tolerance
 # (sumsqr ≤ bound² to 1e-8, 5e-5 of a 0.01 m/s² bound), and the written samples between nodes must hold it too.
