@@ -61,9 +61,8 @@ MAX_STEP_S = 0.1
 # configuration there and every rate within this per second (m and unit vectors: a centimetre, a centimetre per
 # second).
 REST_TOL = 1e-2
-# In a plan to a tolerance the box is at most this many times the lag bound: the swing left in it moves the next
-# edge's inputs, a drive that edge's lag model (from rest) does not see. Drawn path 0 at 0.1 mm, flown edge by edge:
-# a 10 mm box 0.0999 / 0.138 / 0.176 mm, 3 mm 0.098 / 0.103 / 0.130 mm, 1 mm 0.098 / 0.098 / 0.108 mm (2026-12-07).
+# With a tolerance, at most this times the lag bound: a corner's swing drives the next edge's lag unseen (drawn path 0
+# at 0.1 mm flew its third edge at 0.176 mm with a 10 mm box, 0.108 mm with 1 mm: docs/planning.md, 2026-12-07).
 REST_TOL_PER_LAG_BOUND = 10.0
 # max_speed and max_accel are kept at the nodes this fraction inside: IPOPT meets a constraint to its tolerance
 # (sumsqr ≤ bound² to 1e-8, 5e-5 of a 0.01 m/s² bound), and the written samples between nodes must hold it too.
@@ -158,8 +157,7 @@ class Retiming:
         self.max_speed, self.max_accel, self.max_jerk = max_speed, max_accel, max_jerk
         # (bound m, kp, kd, period): the sampled controller's lag kept within the bound (acroboter.planning.servo_lag)
         self.lag = lag
-        # the box an edge ends in at rest (REST_TOL; with a tolerance, REST_TOL_PER_LAG_BOUND times its bound)
-        self.rest_tol = REST_TOL if lag is None else min(REST_TOL, REST_TOL_PER_LAG_BOUND * float(lag[0]))
+        self.rest_tol = REST_TOL if lag is None else min(REST_TOL, REST_TOL_PER_LAG_BOUND * float(lag[0]))  # the box
         # with a jerk bound or a lag bound the timing is smooth: τ̈ continuous, linear over each interval, 0 where a
         # phase starts and ends (a sampled controller holds its input between samples: a jump of τ̈ is what it
         # follows worst)
@@ -445,11 +443,9 @@ class Retiming:
                             "larger margin")
 
     def inputs_on_grid(self, solution: Solution, step_s: float) -> tuple[np.ndarray, np.ndarray]:
-        """The ideal inputs along a solution every `step_s` seconds at most (times, steps x l): its timing integrated
-        again from the start in RK4 steps no longer than step_s, the whole way (not from each node: the optimiser's
-        node states carry its own RK4 steps' error, which on a jerk-bounded lift put an input 1.65 mN, 0.055 % of
-        the span, beyond the bound the solve kept; measured 2026-12-07). The optimiser bounds the inputs only at the
-        start of its own (coarser) RK4 steps: this is what lies between, and what its steps left out."""
+        """The ideal inputs along a solution every `step_s` seconds at most (times, steps x l): what lies between the
+        optimiser's (coarser) RK4 steps, its timing integrated again from the start the whole way (its node states
+        carry its RK4 error: on a jerk-bounded lift an input 1.65 mN past the bound the solve kept, 2026-12-07)."""
         h = np.diff(solution.times)
         m = max(1, int(math.ceil(h.max() / step_s)))
         key = ("chain", h.size, m)
