@@ -91,10 +91,10 @@ def test_drawn_path_0s_third_edge_has_a_timing_once_each_corner_leaves_room_for_
     ended at 0.0987 mm with the lag still growing, and edge 3 had no timing (Infeasible_Problem_Detected: its own
     timing slowed from rest kept, the plan refused as not the fastest). With the free lag response bounded densely
     after each edge's end (servo_lag.LAG_SETTLE_TIMES_S) and within half the bound at a corner (CORNER_LAG_SHARE)
-    every edge is solved: 92 s here. With the whole bound at the corners (the share 1.0, tried) edge 3 is solved
-    too, barely: the test passed in 661 s. Since the corners' box is 10 times the bound (1 mm here, the lag model's
-    blind spot: retiming.REST_TOL_PER_LAG_BOUND) the edges take longer to solve; the whole tolerance search on this
-    path then meets 0.1 mm in two rounds (10.85 s, flown at 0.0877 mm)."""
+    every edge is solved: 92 s here (before the box below). With the whole bound at the corners (the share 1.0,
+    tried) edge 3 is solved too, barely: the test passed in 661 s. Since the corners' box is 10 times the bound
+    (1 mm here, the lag model's blind spot: retiming.REST_TOL_PER_LAG_BOUND) the edges take longer to solve; the
+    whole tolerance search on this path then meets 0.1 mm in two rounds (10.85 s, flown at 0.0877 mm)."""
     from acroboter.model.crane_generator import RandomDraw
     from acroboter.planning.planner import plan
     from acroboter.planning.retiming import OPTIMAL

@@ -142,11 +142,10 @@ def plan_to_tolerance(model, path, q0, tolerance: float, methods: tuple[str, ...
                 raise
             # a narrower bound's solve failed (a fallback timing, not the optimum): the last round's plan stands,
             # flown beyond the tolerance, and the rounds say why the search stopped
+            why = "; ".join(err.plan.failures) or str(err)
             rounds.append({"model_bound_mm": 1e3 * bound, "duration_s": err.plan.duration, "flown_mm": None,
-                           "flown_mm_by_clock_offset": {}, "solve_s": err.plan.solve_s,
-                           "not_solved": "; ".join(err.plan.failures) or str(err)})
-            result.failures.append(f"the round with the model's bound at {1e3 * bound:.4g} mm was not solved: "
-                                   f"{'; '.join(err.plan.failures) or err}")
+                           "flown_mm_by_clock_offset": {}, "solve_s": err.plan.solve_s, "not_solved": why})
+            result.failures.append(f"the round with the model's bound at {1e3 * bound:.4g} mm was not solved: {why}")
             break
         if failure is None:
             flown, failure, by_offset = clock_flights(model, path, result.trajectory, q0, methods, result.bounds,
