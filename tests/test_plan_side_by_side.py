@@ -17,6 +17,7 @@ import pytest
 import acroboter
 import acroboter.planning.retiming as retiming
 from acroboter.planning.edges import Edge, EdgeRetiming
+from acroboter.planning.ideal_motion import PlanningError
 from acroboter.process.locations import example_spec
 
 TWO_EDGES = "waypoints = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.05], [0.0, 0.0, 0.1]]"
@@ -106,7 +107,7 @@ class _Chain(EdgeRetiming):
     def __init__(self, mends: dict, backtrack: Edge | None, backtrack_excess: float = 0.0):
         self.mends, self.backtrack, self.backtrack_excess, self.lag, self.smooth = mends, backtrack, \
             backtrack_excess, None, False
-        self.calls = []
+        self.calls, self.rest_tol = [], 0.01
 
     def _start(self, x, j):
         return x
@@ -115,11 +116,16 @@ class _Chain(EdgeRetiming):
         results = self.mends[j]
         result = results.pop(0) if len(results) > 1 else results[0]
         self.calls.append(("mend", j, float(x[0])))
-        return result[0], result[1], np.array([x[0] + 1.0]), result[1] > 0.0
+        return result[0], result[1], np.array([x[0] + 1.0]), f"scripted for edge {j + 1}" if result[1] > 0 else None
 
     def _solve_edge(self, j, *args, tail_s=0.0, **kwargs):
-        self.calls.append(("tail", j, tail_s))
+        self.calls.append(("tail", j, tail_s, self.rest_tol))
+        if self.backtrack is None:
+            raise PlanningError("Infeasible_Problem_Detected, scripted")
         return self.backtrack
+
+    def swing_at(self, j, x):
+        return 12.5, 13.2, "CC"
 
     def edge_excess(self, x, j, count, edge):
         return np.array([self.backtrack_excess]), np.array([-1.0]), np.array([x[0] + 10.0])
@@ -138,7 +144,8 @@ def test_the_edge_before_is_solved_again_with_a_calmer_corner_when_no_timing_hol
     assert out[0].records[0]["replaced"] and "replaced" not in e[0].records[0]  # the original left as it was
     from acroboter.planning.edges import CARRY_TAIL_S
 
-    assert ("tail", 0, CARRY_TAIL_S) in chain.calls
+    assert ("tail", 0, CARRY_TAIL_S, 0.001) in chain.calls  # its corner held, and ten times closer to rest
+    assert chain.rest_tol == 0.01 and chain.stuck is None
     assert chain.calls[-2:] == [("mend", 1, 10.0), ("mend", 2, 11.0)]  # edge 2 from the calmer corner, edge 3 after
 
 
@@ -152,6 +159,29 @@ def test_a_calmer_corner_that_does_not_help_is_undone_and_the_mending_stops():
     out = chain.carried(np.zeros(1), [2, 2, 2], e, [None] * 3, 1.0, 10, False)
     assert [x.records[-1]["name"] for x in out] == ["e0", "m1", "e2"]
     assert not any(c[:2] == ("mend", 2) for c in chain.calls)
+
+
+def test_a_mending_that_finds_no_timing_says_which_edge_and_what_swing_in_the_plans_failure():
+    """Edge 2 has no timing from edge 1's swing, and edge 1 solved again for a calmer corner has none either: the
+    failed solve is in edge 1's records (marked: the plan's status does not read it), the box is restored, and
+    `stuck` (which the plan's failure quotes instead of "give more --intervals") names the edge, the swing, the
+    solver's reason and the calmer corner tried."""
+    e = [_edge(f"e{j}") for j in range(3)]
+    chain = _Chain({0: [(e[0], -1.0)], 1: [(_edge("m1"), 0.1)], 2: [(_edge("m2"), 0.0)]}, None)
+    out = chain.carried(np.zeros(1), [2, 2, 2], e, [None] * 3, 1.0, 10, False)
+    assert [x.records[-1].get("name") for x in out] == [None, "m1", "e2"]
+    failed = out[0].records[-1]
+    assert failed["status"] == "carried_swing_not_solved" and failed["replaced"] and "scripted" in failed["reason"]
+    assert chain.rest_tol == 0.01
+    assert "edge 2 has no timing that keeps the bounds from the swing edge 1 leaves" in chain.stuck
+    assert "CC 12.5 mm from rest, 13.2 mm/s" in chain.stuck and "scripted for edge 2" in chain.stuck
+    assert "nor after edge 1 was solved again for a calmer corner" in chain.stuck and "--shaper zvd" in chain.stuck
+    from acroboter.planning.planner import between_nodes
+
+    said = between_nodes(np.array([0.0, 9.004]), np.array([[20.0], [31.5866]]), np.array([6.25]),
+                         np.array([28.75]), ["tension_1"], ["N"], chain.stuck)
+    assert "with the swing carried over every corner: tension_1 = 31.5866 N at t = 9.004 s" in said
+    assert "--intervals" not in said and chain.stuck in said
 
 
 def test_a_backtrack_that_still_leaves_the_bounds_is_not_kept():

@@ -41,6 +41,7 @@ CARRY_ROUNDS = 3
 # the default crane's swing period; a constraint on the swing it leaves, not a pause in the plan).
 CARRY_MAX_ITER = 60
 CARRY_TAIL_S = 1.5
+CARRY_CALM = 0.1
 # The quasi-static motion that finds the configuration at rest at a corner lasts at least this long (s).
 QUASI_STATIC_S = 120.0
 
@@ -79,6 +80,14 @@ def node_guess(answer: Edge | Part, smooth: bool) -> np.ndarray:
     return np.append(answer.tau_dd, answer.tau_dd[-1] + answer.tau_ddd[-1] * h)
 
 
+def attempt(j: int, counts: list[int], unsolved: PlanningError) -> dict:
+    """The solve record of an edge solved again from the carried swing that had no timing: the edge kept is the one
+    before it (`replaced` marks it as a solve the plan's status does not read; `stuck`, if it ends the mending, says
+    so in the plan's failures)."""
+    return {"phases": [j], "intervals": counts[j], "iterations": 0, "status": "carried_swing_not_solved",
+            "replaced": True, "carried_swing": True, "reason": str(unsolved)}
+
+
 def worst(above: np.ndarray, below: np.ndarray) -> float:
     """The largest step beyond the bounds on either side (edge_excess's), as a fraction of the span."""
     return max(above.max(initial=-np.inf), below.max(initial=-np.inf))
@@ -92,6 +101,7 @@ class EdgeRetiming(Retiming):
         if not self.geo.edges:
             raise PlanningError("rest-to-rest edges need a waypoint path (a trajectory file is one phase)")
         self.corners = [self.x0[: self.n]]
+        self.stuck: str | None = None  # why the last plan's carried swing left the bounds (`carried`), or None
 
     def corner(self, j: int, count: int) -> np.ndarray:
         """The configuration at rest at corner j: the end of the quasi-static motion from corner j − 1 (edge j − 1's
@@ -200,33 +210,41 @@ class EdgeRetiming(Retiming):
         bar = tqdm(total=len(edges), unit="edge", desc="carrying the swing", file=sys.stderr,
                    disable=progress_disabled(), leave=False)
         starts, out, tailed, undo = [np.asarray(x0, float)], [], set(), None
+        self.stuck = None
         while len(out) < len(edges):
             j = len(out)
-            edge, beyond, x_end, stuck = self._mend(j, starts[j], edges[j], counts, ends[j], uniform_duration, verbose)
+            edge, beyond, x_end, why = self._mend(j, starts[j], edges[j], counts, ends[j], uniform_duration, verbose)
             if undo is not None and undo[0] == j and beyond >= undo[3][1]:
                 # the calmer corner did not help this edge: the edge before as it was, and this edge's first mend
-                _, out[-1], starts[j], (edge, beyond, x_end, stuck) = undo
+                _, out[-1], starts[j], (edge, beyond, x_end, why) = undo
             undo = None
-            if stuck and j > 0 and j - 1 not in tailed:
+            if why is not None and j > 0 and j - 1 not in tailed:
                 # no timing of this edge keeps the bounds from the swing the edge before leaves: that edge again, from
                 # where it starts, its inputs also bounded over a CARRY_TAIL_S hold at its corner after it (a
                 # constraint on the swing it leaves; the plan does not stop there)
                 tailed.add(j - 1)
-                before = self._solve_edge(j - 1, counts, self._start(starts[j - 1], j - 1),
-                                          (node_guess(out[-1], self.smooth), out[-1].durations[0]), None, ends[j - 1],
-                                          uniform_duration, CARRY_MAX_ITER, verbose, out[-1].lag_start,
-                                          tail_s=CARRY_TAIL_S)
-                if before is not None and before.status in OPTIMAL:
+                box, self.rest_tol = self.rest_tol, CARRY_CALM * self.rest_tol
+                try:
+                    before = self._solve_edge(j - 1, counts, self._start(starts[j - 1], j - 1),
+                                              (node_guess(out[-1], self.smooth), out[-1].durations[0]), None,
+                                              ends[j - 1], uniform_duration, CARRY_MAX_ITER, verbose,
+                                              out[-1].lag_start, tail_s=CARRY_TAIL_S)
                     above, below, x_before = self.edge_excess(starts[j - 1], j - 1, counts[j - 1], before)
-                    if worst(above, below) <= INPUT_TOLERANCE:
-                        undo = (j, out[-1], starts[j], (edge, beyond, x_end, stuck))
+                except PlanningError as unsolved:
+                    out[-1].records.append(attempt(j - 1, counts, unsolved))
+                else:
+                    if before.status in OPTIMAL and worst(above, below) <= INPUT_TOLERANCE:
+                        undo = (j, out[-1], starts[j], (edge, beyond, x_end, why))
                         out[-1], starts[j] = replacing(out[-1], before), x_before
                         continue  # this edge again, from the calmer corner
+                finally:
+                    self.rest_tol = box
             out.append(edge)
             starts.append(x_end)
             bar.set_postfix_str(f"edge {j + 1}: {float(edge.durations[0]):.3g} s")
             bar.update()
-            if stuck:  # no timing of it holds the bounds: the plan leaves them whatever comes after
+            if why is not None:  # no timing of it holds the bounds: the plan leaves them whatever comes after
+                self.stuck = self._stuck(j, starts[j], why, j - 1 in tailed)
                 out += edges[j + 1:]
                 break
         bar.close()
@@ -239,12 +257,12 @@ class EdgeRetiming(Retiming):
         return start
 
     def _mend(self, j: int, x: np.ndarray, edge: Edge, counts: list[int], end: np.ndarray, uniform_duration: float,
-              verbose: bool) -> tuple[Edge, float, np.ndarray, bool]:
+              verbose: bool) -> tuple[Edge, float, np.ndarray, str | None]:
         """Edge j flown from the chain's state x, solved again from there while its inputs leave the bounds (see
-        `carried`): (the edge kept, its largest step beyond the bounds as a fraction of the span, its end state,
-        whether it is stuck: beyond the bounds, and a solve from there found no timing). An edge whose re-solves
-        have a timing but do not shrink a leak between the optimiser's nodes is not stuck: the whole plan's re-solve
-        with the bounds moved in (planner.solve_within_bounds) is for that."""
+        `carried`): (the edge kept, its largest step beyond the bounds as a fraction of the span, its end state, why
+        it is stuck or None: stuck is beyond the bounds, and a solve from there found no timing, the reason IPOPT
+        gave). An edge whose re-solves have a timing but do not shrink a leak between the optimiser's nodes is not
+        stuck: the whole plan's re-solve with the bounds moved in (planner.solve_within_bounds) is for that."""
         span = bound_span(self.lower, self.upper)
         above, below, x_end = self.edge_excess(x, j, counts[j], edge)
         start = self._start(x, j)
@@ -253,7 +271,6 @@ class EdgeRetiming(Retiming):
         from_here = bool(np.array_equal(start, self.at_rest(j)))
         down, up = np.zeros_like(span), np.zeros_like(span)  # how far this edge's bounds are moved in
         beyond = worst(above, below)
-        stuck = False
         for _ in range(CARRY_ROUNDS):
             if beyond <= INPUT_TOLERANCE:
                 break
@@ -266,17 +283,40 @@ class EdgeRetiming(Retiming):
             try:
                 again = self._solve_edge(j, counts, start, (node_guess(edge, self.smooth), edge.durations[0]), None,
                                          end, uniform_duration, CARRY_MAX_ITER, verbose, edge.lag_start)
+            except PlanningError as unsolved:
+                edge.records.append(attempt(j, counts, unsolved))
+                return edge, beyond, x_end, edge.records[-1]["reason"]
             finally:
                 self.lower, self.upper = base
-            if again is None or again.status not in OPTIMAL:
-                stuck = True
-                break
             above_again, below_again, x_again = self.edge_excess(x, j, counts[j], again)
             if worst(above_again, below_again) >= beyond:
                 break
             edge, above, below, x_end = replacing(edge, again), above_again, below_again, x_again
             beyond = worst(above, below)
-        return edge, beyond, x_end, stuck
+        return edge, beyond, x_end, None
+
+    def _stuck(self, j: int, x: np.ndarray, why: str, calmed: bool) -> str:
+        """Why the carried swing leaves the bounds: edge j (0-based) had no timing from the chain's state x."""
+        moved, speed, body = self.swing_at(j, x)
+        where = (f"from the swing edge {j} leaves at its corner ({body} {moved:.3g} mm from rest, {speed:.3g} mm/s)"
+                 if j else "from the start")
+        return (f"edge {j + 1} has no timing that keeps the bounds {where} ({why})"
+                + (f", nor after edge {j} was solved again for a calmer corner" if calmed else "")
+                + f"; each rest-to-rest edge ends within {1e3 * self.rest_tol:g} mm and mm/s of rest (REST_TOL), and "
+                "that residual swing adds up along the path: a larger margin, looser limits or an input-shaped plan "
+                "(--shaper zvd), which stops the swing at every corner")
+
+    def swing_at(self, j: int, x: np.ndarray) -> tuple[float, float, str | None]:
+        """The swing in state x against the crane at rest at corner j: (the largest distance of a body's centre from
+        where it rests there, mm; the largest speed of one, mm/s; the body furthest away)."""
+        rest, n = self.corner(j, MIN_PHASE_INTERVALS), self.n
+        moved, speed, body = 0.0, 0.0, None
+        for name, offset in self.dyn.layout.body_offset.items():
+            distance = 1e3 * float(np.linalg.norm(x[offset : offset + 3] - rest[offset : offset + 3]))
+            if distance > moved:
+                moved, body = distance, name
+            speed = max(speed, 1e3 * float(np.linalg.norm(x[n + offset : n + offset + 3])))
+        return moved, speed, body
 
     def edge_inputs(self, states: np.ndarray, count: int, edge: Edge) -> np.ndarray:
         """An edge's inputs on a CHECK_STEP_S grid, its end's included: its timing integrated again from its start
@@ -306,11 +346,11 @@ class EdgeRetiming(Retiming):
 
     def _solve_edge(self, j: int, counts: list[int], start: np.ndarray, guess: tuple, fallback: tuple | None,
                     end: np.ndarray, uniform_duration: float, max_iter: int, verbose: bool,
-                    lag: np.ndarray, tail_s: float = 0.0) -> Edge | None:
+                    lag: np.ndarray, tail_s: float = 0.0) -> Edge:
         """Edge j from the state `start` at its corner to rest at `end` (its solve, again with more RK4 steps per
         interval while the solution's intervals need them), from `guess` (σ̈, duration). An edge IPOPT gives no
         answer for keeps `fallback` (its own timing slowed from rest, feasible and ending at rest by rest_factor),
-        and its status says so; None without a fallback."""
+        and its status says so; without a fallback the PlanningError is raised."""
         records, iterations = [], 0
         # a warm start (the last tolerance round's timing) that IPOPT finds no way out of is tried again from the
         # feasible slowdown: a narrowed lag bound can leave the last timing deep outside it (drawn path 0, edge 1:
@@ -332,7 +372,7 @@ class EdgeRetiming(Retiming):
                 break
             except PlanningError as unsolved:
                 if fallback is None:
-                    return None
+                    raise
                 kept = attempt == len(starts) - 1
                 records.append({"phases": [j], "intervals": counts[j], "iterations": 0, "reason": str(unsolved),
                                 "status": "quintic_slowdown_kept" if kept else "warm_start_failed"})

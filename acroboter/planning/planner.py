@@ -387,7 +387,7 @@ def solve_within_bounds(problem, intervals: int, low, high, names: list[str], un
             break
         # the inputs at every instant (a CHECK_STEP_S grid), not only where the optimiser looks
         times, inputs = problem.inputs_on_grid(solution, CHECK_STEP_S)
-        leak = between_nodes(times, inputs, low, high, names, units)
+        leak = between_nodes(times, inputs, low, high, names, units, getattr(problem, "stuck", None))
         kept = solution, times, inputs, leak, problem.lower.copy(), problem.upper.copy()
         if leak is None or attempt == TIGHTEN_ROUNDS:
             break
@@ -415,16 +415,19 @@ def refuse_static(needs: np.ndarray, low, high, names: list[str], units: list[st
                             f"the path, beyond {bound:.6g} {units[i]}")
 
 
-def between_nodes(times: np.ndarray, inputs: np.ndarray, low, high, names: list[str], units: list[str]) -> str | None:
+def between_nodes(times: np.ndarray, inputs: np.ndarray, low, high, names: list[str], units: list[str],
+                  cause: str | None = None) -> str | None:
     """What to say of planned inputs that leave the bounds (the limits less the margin) between the optimiser's
-    nodes by more than INPUT_TOLERANCE of the span (None when they do not)."""
+    nodes by more than INPUT_TOLERANCE of the span (None when they do not): `cause`, when the planner knows it (the
+    swing rest-to-rest edges carry over, EdgeRetiming.stuck), else more intervals as the fix."""
     worst = worst_beyond(inputs, low, high, INPUT_TOLERANCE)
     if worst is None:
         return None
     k, i, bound = worst
-    return (f"the planned inputs leave the bounds between the optimiser's nodes: {names[i]} = {inputs[k, i]:.6g} "
+    where = "with the swing carried over every corner" if cause else "between the optimiser's nodes"
+    return (f"the planned inputs leave the bounds {where}: {names[i]} = {inputs[k, i]:.6g} "
             f"{units[i]} at t = {times[k]:.3f} s against {bound:.6g} {units[i]} (the limits less the margin), on a "
-            f"{1e3 * CHECK_STEP_S:g} ms grid; give more --intervals")
+            f"{1e3 * CHECK_STEP_S:g} ms grid; " + (cause or "give more --intervals"))
 
 
 def sample(geometry: PathGeometry, solution: Solution, n: int) -> tuple[SampledTrajectory, float]:

@@ -260,16 +260,9 @@ class ShapedRetiming(EdgeRetiming):
 def corner_swing(problem: EdgeRetiming, times: np.ndarray, states: np.ndarray, corner_nodes: list[int]) -> list[dict]:
     """At each corner the timing stops at (node indices into times/states), the swing left: the largest distance of
     a body's centre from where it rests there (mm), and the largest speed of one (mm/s)."""
-    lay, n = problem.dyn.layout, problem.n
     out = []
     for j, k in enumerate(corner_nodes):
-        rest = problem.corner(j + 1, MIN_PHASE_INTERVALS)
-        worst = {"corner": j + 1, "t_s": float(times[k]), "displacement_mm": 0.0, "speed_mm_s": 0.0, "body": None}
-        for body, offset in lay.body_offset.items():
-            moved = 1e3 * float(np.linalg.norm(states[k, offset : offset + 3] - rest[offset : offset + 3]))
-            speed = 1e3 * float(np.linalg.norm(states[k, n + offset : n + offset + 3]))
-            if moved > worst["displacement_mm"]:
-                worst["displacement_mm"], worst["body"] = moved, body
-            worst["speed_mm_s"] = max(worst["speed_mm_s"], speed)
-        out.append(worst)
+        moved, speed, body = problem.swing_at(j + 1, states[k])
+        out.append({"corner": j + 1, "t_s": float(times[k]), "displacement_mm": moved, "speed_mm_s": speed,
+                    "body": body})
     return out
