@@ -20,6 +20,7 @@ the next edge, as the plant will), and those inputs are the plan's, checked agai
 
 from __future__ import annotations
 
+import re
 import sys
 from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
 from dataclasses import dataclass
@@ -41,7 +42,6 @@ CARRY_ROUNDS = 3
 # the default crane's swing period; a constraint on the swing it leaves, not a pause in the plan).
 CARRY_MAX_ITER = 60
 CARRY_TAIL_S = 1.5
-CARRY_CALM = 0.1
 # The quasi-static motion that finds the configuration at rest at a corner lasts at least this long (s).
 QUASI_STATIC_S = 120.0
 
@@ -223,7 +223,6 @@ class EdgeRetiming(Retiming):
                 # where it starts, its inputs also bounded over a CARRY_TAIL_S hold at its corner after it (a
                 # constraint on the swing it leaves; the plan does not stop there)
                 tailed.add(j - 1)
-                box, self.rest_tol = self.rest_tol, CARRY_CALM * self.rest_tol
                 try:
                     before = self._solve_edge(j - 1, counts, self._start(starts[j - 1], j - 1),
                                               (node_guess(out[-1], self.smooth), out[-1].durations[0]), None,
@@ -237,8 +236,6 @@ class EdgeRetiming(Retiming):
                         undo = (j, out[-1], starts[j], (edge, beyond, x_end, why))
                         out[-1], starts[j] = replacing(out[-1], before), x_before
                         continue  # this edge again, from the calmer corner
-                finally:
-                    self.rest_tol = box
             out.append(edge)
             starts.append(x_end)
             bar.set_postfix_str(f"edge {j + 1}: {float(edge.durations[0]):.3g} s")
@@ -285,7 +282,8 @@ class EdgeRetiming(Retiming):
                                          end, uniform_duration, CARRY_MAX_ITER, verbose, edge.lag_start)
             except PlanningError as unsolved:
                 edge.records.append(attempt(j, counts, unsolved))
-                return edge, beyond, x_end, edge.records[-1]["reason"]
+                status = re.search(r"not solved \(([^)]*)\)", str(unsolved))  # IPOPT's status, not the advice after
+                return edge, beyond, x_end, f"IPOPT: {status.group(1)}" if status else str(unsolved)
             finally:
                 self.lower, self.upper = base
             above_again, below_again, x_again = self.edge_excess(x, j, counts[j], again)
@@ -298,13 +296,13 @@ class EdgeRetiming(Retiming):
     def _stuck(self, j: int, x: np.ndarray, why: str, calmed: bool) -> str:
         """Why the carried swing leaves the bounds: edge j (0-based) had no timing from the chain's state x."""
         moved, speed, body = self.swing_at(j, x)
-        where = (f"from the swing edge {j} leaves at its corner ({body} {moved:.3g} mm from rest, {speed:.3g} mm/s)"
-                 if j else "from the start")
-        return (f"edge {j + 1} has no timing that keeps the bounds {where} ({why})"
+        where = (f"from the swing edge {j} leaves at its corner ({body} {moved:.3g} mm from rest, {speed:.3g} mm/s; "
+                 if j else "from the start (")
+        return (f"edge {j + 1} has no timing that keeps the bounds {where}{why})"
                 + (f", nor after edge {j} was solved again for a calmer corner" if calmed else "")
-                + f"; each rest-to-rest edge ends within {1e3 * self.rest_tol:g} mm and mm/s of rest (REST_TOL), and "
-                "that residual swing adds up along the path: a larger margin, looser limits or an input-shaped plan "
-                "(--shaper zvd), which stops the swing at every corner")
+                + f": each rest-to-rest edge ends within {1e3 * self.rest_tol:g} mm and mm/s of rest (REST_TOL), and "
+                "that residual swing adds up along the path; a smaller --margin or looser limits leave it more room, "
+                "an input-shaped plan (--shaper zvd) stops the swing at every corner")
 
     def swing_at(self, j: int, x: np.ndarray) -> tuple[float, float, str | None]:
         """The swing in state x against the crane at rest at corner j: (the largest distance of a body's centre from
