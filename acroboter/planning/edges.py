@@ -301,8 +301,9 @@ class EdgeRetiming(Retiming):
         return (f"edge {j + 1} has no timing that keeps the bounds {where}{why})"
                 + (f", nor after edge {j} was solved again for a calmer corner" if calmed else "")
                 + f": each rest-to-rest edge ends within {1e3 * self.rest_tol:g} mm and mm/s of rest (REST_TOL), and "
-                "that residual swing adds up along the path; a smaller --margin or looser limits leave it more room, "
-                "an input-shaped plan (--shaper zvd) stops the swing at every corner")
+                "that residual swing adds up along the path; looser limits leave it room (a smaller --margin does "
+                "not: the edges then swing more), an input-shaped plan (--shaper zvd) stops the swing at every "
+                "corner")
 
     def swing_at(self, j: int, x: np.ndarray) -> tuple[float, float, str | None]:
         """The swing in state x against the crane at rest at corner j: (the largest distance of a body's centre from
