@@ -183,6 +183,13 @@ def test_a_mending_that_finds_no_timing_says_which_edge_and_what_swing_in_the_pl
     assert "--intervals" not in said and chain.stuck in said
 
 
+def test_a_first_edge_with_no_timing_is_not_blamed_on_a_carried_swing():
+    chain = _Chain({0: [(_edge("m0"), 0.1)], 1: [(_edge("m1"), 0.0)]}, None)
+    chain.carried(np.zeros(1), [2, 2], [_edge("e0"), _edge("e1")], [None] * 2, 1.0, 10, False)
+    assert chain.stuck == "edge 1 solved again with its bounds moved in had no timing (scripted for edge 1); give " \
+        "more --intervals"
+
+
 def test_a_mend_with_no_timing_gives_ipopts_status_not_the_from_rest_advice():
     """_mend's reason is IPOPT's status: the solver's own advice (more intervals, a larger margin) is for a plan
     from rest, not for a swing carried in; the failed solve is kept in the edge's records, the bounds restored."""

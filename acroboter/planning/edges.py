@@ -81,9 +81,9 @@ def node_guess(answer: Edge | Part, smooth: bool) -> np.ndarray:
 
 
 def attempt(j: int, counts: list[int], unsolved: PlanningError) -> dict:
-    """The solve record of an edge solved again from the carried swing that had no timing: the edge kept is the one
-    before it (`replaced` marks it as a solve the plan's status does not read; `stuck`, if it ends the mending, says
-    so in the plan's failures)."""
+    """The record of a re-solve in `carried` (edge j from the carried swing, or for a calmer corner) that found no
+    timing, kept in the records of the answer that stays: `replaced` marks it as a solve the plan's status does not
+    read (EdgeRetiming.stuck says what it means for the plan)."""
     return {"phases": [j], "intervals": counts[j], "iterations": 0, "status": "carried_swing_not_solved",
             "replaced": True, "carried_swing": True, "reason": str(unsolved)}
 
@@ -295,10 +295,11 @@ class EdgeRetiming(Retiming):
 
     def _stuck(self, j: int, x: np.ndarray, why: str, calmed: bool) -> str:
         """Why the carried swing leaves the bounds: edge j (0-based) had no timing from the chain's state x."""
+        if j == 0:  # nothing carried into the first edge: only its bounds moved in by a leak between nodes
+            return f"edge 1 solved again with its bounds moved in had no timing ({why}); give more --intervals"
         moved, speed, body = self.swing_at(j, x)
-        where = (f"from the swing edge {j} leaves at its corner ({body} {moved:.3g} mm from rest, {speed:.3g} mm/s; "
-                 if j else "from the start (")
-        return (f"edge {j + 1} has no timing that keeps the bounds {where}{why})"
+        return (f"edge {j + 1} has no timing that keeps the bounds from the swing edge {j} leaves at its corner "
+                f"({body} {moved:.3g} mm from rest, {speed:.3g} mm/s; {why})"
                 + (f", nor after edge {j} was solved again for a calmer corner" if calmed else "")
                 + f": each rest-to-rest edge ends within {1e3 * self.rest_tol:g} mm and mm/s of rest (REST_TOL), and "
                 "that residual swing adds up along the path; looser limits leave it room (a smaller --margin does "
