@@ -63,3 +63,15 @@ def test_bounds_moved_in_past_the_statics_are_not_solved_again():
     assert problem.solves == 1 and solution == "the first plan"
     assert "holding the load at rest needs tension_1 = 9.5 N" in leak and "beyond 8.8 N" in leak
     assert moved[0] == 0.0 and problem.upper[0] == 10.0
+
+
+def test_a_leak_the_carried_swing_explains_is_said_with_its_cause():
+    """A rest-to-rest plan whose mending found no timing for an edge (EdgeRetiming.stuck) leaks because of the swing
+    carried over its corners, not between the optimiser's nodes: the leak says so and gives that cause, not "give
+    more --intervals"."""
+    problem = LeakingProblem()
+    problem.stuck = "edge 5 (from t = 7.542 s) has no timing that keeps the bounds from the swing edge 4 leaves"
+    _, _, _, _, leak = solve_within_bounds(problem, 8, np.array([0.0]), np.array([10.0]), ["tension_1"], ["N"], False)
+    assert leak.startswith("the planned inputs leave the bounds with the swing carried over every corner: "
+                           "tension_1 = 11 N at t = 0.500 s")
+    assert problem.stuck in leak and "--intervals" not in leak.split("(solved again")[0]

@@ -172,7 +172,7 @@ def test_a_mending_that_finds_no_timing_says_which_edge_and_what_swing_in_the_pl
     assert [x.records[-1].get("name") for x in out] == [None, "m1", "e2"]
     failed = out[0].records[-1]
     assert failed["status"] == "carried_swing_not_solved" and failed["replaced"] and "scripted" in failed["reason"]
-    assert "edge 2 has no timing that keeps the bounds from the swing edge 1 leaves" in chain.stuck
+    assert "edge 2 (from t = 1.000 s) has no timing that keeps the bounds from the swing edge 1 leaves" in chain.stuck
     assert "CC 12.5 mm from rest, 13.2 mm/s; scripted for edge 2)" in chain.stuck
     assert "nor after edge 1 was solved again for a calmer corner" in chain.stuck and "--shaper zvd" in chain.stuck
     from acroboter.planning.planner import between_nodes
@@ -186,8 +186,7 @@ def test_a_mending_that_finds_no_timing_says_which_edge_and_what_swing_in_the_pl
 def test_a_first_edge_with_no_timing_is_not_blamed_on_a_carried_swing():
     chain = _Chain({0: [(_edge("m0"), 0.1)], 1: [(_edge("m1"), 0.0)]}, None)
     chain.carried(np.zeros(1), [2, 2], [_edge("e0"), _edge("e1")], [None] * 2, 1.0, 10, False)
-    assert chain.stuck == "edge 1 solved again with its bounds moved in had no timing (scripted for edge 1); give " \
-        "more --intervals"
+    assert chain.stuck is None  # nothing carried in: the plan's leak between nodes, "give more --intervals"
 
 
 def test_a_mend_with_no_timing_gives_ipopts_status_not_the_from_rest_advice():
@@ -214,6 +213,47 @@ def test_a_mend_with_no_timing_gives_ipopts_status_not_the_from_rest_advice():
     assert kept is edge and beyond == 0.1 and why == "IPOPT: Infeasible_Problem_Detected after 89 iterations"
     assert edge.records[-1]["status"] == "carried_swing_not_solved" and "--intervals" in edge.records[-1]["reason"]
     assert chain.lower[0] == 6.25 and chain.upper[0] == 28.75
+
+
+def test_a_mend_out_of_iterations_is_no_timing_and_says_so():
+    """IPOPT out of iterations at a feasible point returns that point (Retiming._solved), status not optimal: the
+    mend is stuck, as a failed solve is, the status and iterations its reason, the attempt recorded."""
+
+    class Mend(_Chain):
+        def __init__(self):
+            super().__init__({}, None)
+            self.lower, self.upper = np.array([6.25]), np.array([28.75])
+
+        def at_rest(self, j, q=None):
+            return np.ones(1)
+
+        def edge_excess(self, x, j, count, edge):
+            return np.array([0.1]), np.array([-1.0]), np.array([x[0] + 1.0])
+
+        def _solve_edge(self, j, *args, **kwargs):
+            return _edge("out of iterations", "Maximum_Iterations_Exceeded")
+
+    edge = _edge("e1")
+    kept, _, _, why = EdgeRetiming._mend(Mend(), 1, np.zeros(1), edge, [2, 2], None, 1.0, False)
+    assert kept is edge and why == "IPOPT: Maximum_Iterations_Exceeded after 1 iterations"
+    assert edge.records[-1]["status"] == "carried_swing_not_solved" and edge.records[-1]["replaced"]
+
+
+def test_an_edge_solve_without_a_fallback_raises_what_ipopt_said():
+    """_solve_edge with no fallback (the mending's re-solves) raises the solve's PlanningError for the caller to
+    record, where one with a fallback keeps that timing (quintic_slowdown_kept)."""
+
+    class Failing(_Chain):
+        def solve_phases(self, *args, **kwargs):
+            raise PlanningError("the time-optimal problem was not solved (Infeasible_Problem_Detected after 7 "
+                                "iterations)")
+
+    chain = Failing({}, None)
+    args = (0, [2], np.zeros(1), (np.zeros(2), 1.0))
+    with pytest.raises(PlanningError, match="Infeasible_Problem_Detected"):
+        EdgeRetiming._solve_edge(chain, *args, None, None, 1.0, 10, False, np.zeros(6))
+    kept = EdgeRetiming._solve_edge(chain, *args, (np.zeros(2), 2.0), None, 1.0, 10, False, np.zeros(6))
+    assert kept.status == "quintic_slowdown_kept" and float(kept.durations[0]) == 2.0
 
 
 def test_a_backtrack_that_still_leaves_the_bounds_is_not_kept():

@@ -80,7 +80,7 @@ def node_guess(answer: Edge | Part, smooth: bool) -> np.ndarray:
     return np.append(answer.tau_dd, answer.tau_dd[-1] + answer.tau_ddd[-1] * h)
 
 
-def attempt(j: int, counts: list[int], unsolved: PlanningError) -> dict:
+def unsolved_record(j: int, counts: list[int], unsolved: PlanningError | str) -> dict:
     """The record of a re-solve in `carried` (edge j from the carried swing, or for a calmer corner) that found no
     timing, kept in the records of the answer that stays: `replaced` marks it as a solve the plan's status does not
     read (EdgeRetiming.stuck says what it means for the plan)."""
@@ -228,10 +228,10 @@ class EdgeRetiming(Retiming):
                                               (node_guess(out[-1], self.smooth), out[-1].durations[0]), None,
                                               ends[j - 1], uniform_duration, CARRY_MAX_ITER, verbose,
                                               out[-1].lag_start, tail_s=CARRY_TAIL_S)
-                    above, below, x_before = self.edge_excess(starts[j - 1], j - 1, counts[j - 1], before)
                 except PlanningError as unsolved:
-                    out[-1].records.append(attempt(j - 1, counts, unsolved))
+                    out[-1].records.append(unsolved_record(j - 1, counts, unsolved))
                 else:
+                    above, below, x_before = self.edge_excess(starts[j - 1], j - 1, counts[j - 1], before)
                     if before.status in OPTIMAL and worst(above, below) <= INPUT_TOLERANCE:
                         undo = (j, out[-1], starts[j], (edge, beyond, x_end, why))
                         out[-1], starts[j] = replacing(out[-1], before), x_before
@@ -241,7 +241,8 @@ class EdgeRetiming(Retiming):
             bar.set_postfix_str(f"edge {j + 1}: {float(edge.durations[0]):.3g} s")
             bar.update()
             if why is not None:  # no timing of it holds the bounds: the plan leaves them whatever comes after
-                self.stuck = self._stuck(j, starts[j], why, j - 1 in tailed)
+                since = float(sum(float(e.durations[0]) for e in out[:j]))
+                self.stuck = self._stuck(j, starts[j], why, j - 1 in tailed, since)
                 out += edges[j + 1:]
                 break
         bar.close()
@@ -281,11 +282,15 @@ class EdgeRetiming(Retiming):
                 again = self._solve_edge(j, counts, start, (node_guess(edge, self.smooth), edge.durations[0]), None,
                                          end, uniform_duration, CARRY_MAX_ITER, verbose, edge.lag_start)
             except PlanningError as unsolved:
-                edge.records.append(attempt(j, counts, unsolved))
+                edge.records.append(unsolved_record(j, counts, unsolved))
                 status = re.search(r"not solved \(([^)]*)\)", str(unsolved))  # IPOPT's status, not the advice after
                 return edge, beyond, x_end, f"IPOPT: {status.group(1)}" if status else str(unsolved)
             finally:
                 self.lower, self.upper = base
+            if again.status not in OPTIMAL:  # out of iterations at a feasible point: no timing found from here
+                why = f"IPOPT: {again.status} after {again.iterations} iterations"
+                edge.records.append(unsolved_record(j, counts, why))
+                return edge, beyond, x_end, why
             above_again, below_again, x_again = self.edge_excess(x, j, counts[j], again)
             if worst(above_again, below_again) >= beyond:
                 break
@@ -293,18 +298,21 @@ class EdgeRetiming(Retiming):
             beyond = worst(above, below)
         return edge, beyond, x_end, None
 
-    def _stuck(self, j: int, x: np.ndarray, why: str, calmed: bool) -> str:
-        """Why the carried swing leaves the bounds: edge j (0-based) had no timing from the chain's state x."""
-        if j == 0:  # nothing carried into the first edge: only its bounds moved in by a leak between nodes
-            return f"edge 1 solved again with its bounds moved in had no timing ({why}); give more --intervals"
+    def _stuck(self, j: int, x: np.ndarray, why: str, calmed: bool, since: float) -> str | None:
+        """Why the carried swing leaves the bounds: edge j (0-based, starting `since` s into the plan) had no timing
+        from the chain's state x. None for the first edge: nothing is carried into it (its bounds were moved in by a
+        leak between the optimiser's nodes, and the plan's message says so)."""
+        if j == 0:
+            return None
         moved, speed, body = self.swing_at(j, x)
-        return (f"edge {j + 1} has no timing that keeps the bounds from the swing edge {j} leaves at its corner "
-                f"({body} {moved:.3g} mm from rest, {speed:.3g} mm/s; {why})"
+        return (f"edge {j + 1} (from t = {since:.3f} s) has no timing that keeps the bounds from the swing edge {j} "
+                f"leaves at its corner ({body} {moved:.3g} mm from rest, {speed:.3g} mm/s; {why})"
                 + (f", nor after edge {j} was solved again for a calmer corner" if calmed else "")
-                + f": each rest-to-rest edge ends within {1e3 * self.rest_tol:g} mm and mm/s of rest (REST_TOL), and "
-                "that residual swing adds up along the path; looser limits leave it room (a smaller --margin does "
-                "not: the edges then swing more), an input-shaped plan (--shaper zvd) stops the swing at every "
-                "corner")
+                + f": each rest-to-rest edge ends with every coordinate within {1e3 * self.rest_tol:g} mm (and mm/s) "
+                "of rest (REST_TOL), and that residual swing adds up along the path; limits with more room above "
+                "what the path needs at rest leave it room (a smaller --margin alone may not: the faster edges then "
+                "swing more), and an input-shaped plan (--shaper zvd) slows each edge from the swing it inherits "
+                "and cancels the crane's swing modes")
 
     def swing_at(self, j: int, x: np.ndarray) -> tuple[float, float, str | None]:
         """The swing in state x against the crane at rest at corner j: (the largest distance of a body's centre from
