@@ -189,26 +189,32 @@ def test_a_first_edge_with_no_timing_is_not_blamed_on_a_carried_swing():
     assert chain.stuck is None  # nothing carried in: the plan's leak between nodes, "give more --intervals"
 
 
+class _Mend(_Chain):
+    """`_mend` alone: an edge 0.1 of the span beyond its bounds wherever it starts, re-solved by `answer` (a
+    PlanningError to raise or an Edge to return)."""
+
+    def __init__(self, answer):
+        super().__init__({}, None)
+        self.answer, self.lower, self.upper = answer, np.array([6.25]), np.array([28.75])
+
+    def at_rest(self, j, q=None):
+        return np.ones(1)
+
+    def edge_excess(self, x, j, count, edge):
+        return np.array([0.1]), np.array([-1.0]), np.array([x[0] + 1.0])
+
+    def _solve_edge(self, j, *args, **kwargs):
+        if isinstance(self.answer, Exception):
+            raise self.answer
+        return self.answer
+
+
 def test_a_mend_with_no_timing_gives_ipopts_status_not_the_from_rest_advice():
     """_mend's reason is IPOPT's status: the solver's own advice (more intervals, a larger margin) is for a plan
     from rest, not for a swing carried in; the failed solve is kept in the edge's records, the bounds restored."""
-
-    class Mend(_Chain):
-        def __init__(self):
-            super().__init__({}, None)
-            self.lower, self.upper = np.array([6.25]), np.array([28.75])
-
-        def at_rest(self, j, q=None):
-            return np.ones(1)
-
-        def edge_excess(self, x, j, count, edge):
-            return np.array([0.1]), np.array([-1.0]), np.array([x[0] + 1.0])
-
-        def _solve_edge(self, j, *args, **kwargs):
-            raise PlanningError("the time-optimal problem was not solved (Infeasible_Problem_Detected after 89 "
-                                "iterations); the best uniform slowdown (38.91 s) is feasible: try more --intervals")
-
-    chain, edge = Mend(), _edge("e1")
+    chain, edge = _Mend(PlanningError("the time-optimal problem was not solved (Infeasible_Problem_Detected after 89 "
+                                      "iterations); the best uniform slowdown (38.91 s) is feasible: try more "
+                                      "--intervals")), _edge("e1")
     kept, beyond, _, why = EdgeRetiming._mend(chain, 1, np.zeros(1), edge, [2, 2], None, 1.0, False)
     assert kept is edge and beyond == 0.1 and why == "IPOPT: Infeasible_Problem_Detected after 89 iterations"
     assert edge.records[-1]["status"] == "carried_swing_not_solved" and "--intervals" in edge.records[-1]["reason"]
@@ -218,23 +224,9 @@ def test_a_mend_with_no_timing_gives_ipopts_status_not_the_from_rest_advice():
 def test_a_mend_out_of_iterations_is_no_timing_and_says_so():
     """IPOPT out of iterations at a feasible point returns that point (Retiming._solved), status not optimal: the
     mend is stuck, as a failed solve is, the status and iterations its reason, the attempt recorded."""
-
-    class Mend(_Chain):
-        def __init__(self):
-            super().__init__({}, None)
-            self.lower, self.upper = np.array([6.25]), np.array([28.75])
-
-        def at_rest(self, j, q=None):
-            return np.ones(1)
-
-        def edge_excess(self, x, j, count, edge):
-            return np.array([0.1]), np.array([-1.0]), np.array([x[0] + 1.0])
-
-        def _solve_edge(self, j, *args, **kwargs):
-            return _edge("out of iterations", "Maximum_Iterations_Exceeded")
-
     edge = _edge("e1")
-    kept, _, _, why = EdgeRetiming._mend(Mend(), 1, np.zeros(1), edge, [2, 2], None, 1.0, False)
+    chain = _Mend(_edge("out of iterations", "Maximum_Iterations_Exceeded"))
+    kept, _, _, why = EdgeRetiming._mend(chain, 1, np.zeros(1), edge, [2, 2], None, 1.0, False)
     assert kept is edge and why == "IPOPT: Maximum_Iterations_Exceeded after 1 iterations"
     assert edge.records[-1]["status"] == "carried_swing_not_solved" and edge.records[-1]["replaced"]
 
