@@ -17,7 +17,7 @@ import pytest
 import acroboter
 import acroboter.planning.retiming as retiming
 from acroboter.planning.edges import Edge, EdgeRetiming
-from acroboter.planning.ideal_motion import PlanningError
+from acroboter.planning.ideal_motion import PlanningError, SolveFailed
 from acroboter.process.locations import example_spec
 
 TWO_EDGES = "waypoints = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.05], [0.0, 0.0, 0.1]]"
@@ -212,9 +212,7 @@ class _Mend(_Chain):
 def test_a_mend_with_no_timing_gives_ipopts_status_not_the_from_rest_advice():
     """_mend's reason is IPOPT's status: the solver's own advice (more intervals, a larger margin) is for a plan
     from rest, not for a swing carried in; the failed solve is kept in the edge's records, the bounds restored."""
-    chain, edge = _Mend(PlanningError("the time-optimal problem was not solved (Infeasible_Problem_Detected after 89 "
-                                      "iterations); the best uniform slowdown (38.91 s) is feasible: try more "
-                                      "--intervals")), _edge("e1")
+    chain, edge = _Mend(SolveFailed("Infeasible_Problem_Detected after 89 iterations", 38.91)), _edge("e1")
     kept, beyond, _, why = EdgeRetiming._mend(chain, 1, np.zeros(1), edge, [2, 2], None, 1.0, False)
     assert kept is edge and beyond == 0.1 and why == "IPOPT: Infeasible_Problem_Detected after 89 iterations"
     assert edge.records[-1]["status"] == "carried_swing_not_solved" and "--intervals" in edge.records[-1]["reason"]

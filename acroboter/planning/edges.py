@@ -20,7 +20,6 @@ the next edge, as the plant will), and those inputs are the plan's, checked agai
 
 from __future__ import annotations
 
-import re
 import sys
 from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
 from dataclasses import dataclass
@@ -28,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..runtime.progress import progress_disabled
-from .ideal_motion import PlanningError
+from .ideal_motion import PlanningError, SolveFailed
 from .limits import CHECK_STEP_S, INPUT_TOLERANCE, bound_span
 from .retiming import MAX_SLOWDOWN, MIN_PHASE_INTERVALS, OPTIMAL, Part, Retiming
 from .windows import PHASE_BISECTION, _substeps, _warm, first_serving, phase_factor
@@ -283,8 +282,9 @@ class EdgeRetiming(Retiming):
                                          end, uniform_duration, CARRY_MAX_ITER, verbose, edge.lag_start)
             except PlanningError as unsolved:
                 edge.records.append(unsolved_record(j, counts, unsolved))
-                status = re.search(r"not solved \(([^)]*)\)", str(unsolved))  # IPOPT's status, not the advice after
-                return edge, beyond, x_end, f"IPOPT: {status.group(1)}" if status else str(unsolved)
+                # IPOPT's status, not the message's advice (for a plan from rest)
+                return edge, beyond, x_end, f"IPOPT: {unsolved.status}" if isinstance(unsolved, SolveFailed) \
+                    else str(unsolved)
             finally:
                 self.lower, self.upper = base
             if again.status not in OPTIMAL:  # out of iterations at a feasible point: no timing found from here

@@ -39,6 +39,16 @@ class PlanningError(ValueError):
     """A retiming that cannot be set up or has no solution: the message names the cause and what to change."""
 
 
+class SolveFailed(PlanningError):
+    """IPOPT found no timing: `status` is what it said (its status and iterations). The message's advice is for a
+    plan from rest; a re-solve from a carried swing (acroboter.planning.edges) quotes the status alone."""
+
+    def __init__(self, status: str, uniform_duration: float):
+        super().__init__(f"the time-optimal problem was not solved ({status}); the best uniform slowdown "
+                         f"({uniform_duration:.4g} s) is feasible: try more --intervals or a larger margin")
+        self.status = status
+
+
 class IdealDynamics:
     """`function(q, qd, s, sd, sdd, spare) -> (qdd, u)`: the ideal motion's accelerations and inputs
     (casadi.Function); `spare` (l − k values, empty for a square system) are the inputs `spare_index` names."""

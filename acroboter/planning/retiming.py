@@ -33,7 +33,7 @@ import numpy as np
 from ..process.cores import usable_cores
 from ..process.interrupts import interrupt_pending
 from .geometry import PathGeometry, point_jerk
-from .ideal_motion import IdealDynamics, PlanningError, inputs_at, rk4_step
+from .ideal_motion import IdealDynamics, PlanningError, SolveFailed, inputs_at, rk4_step
 from .limits import best_spare, beyond_bounds, spare_constraints
 from .servo_lag import CORNER_LAG_SHARE, lag_bounds, lag_substeps
 
@@ -437,10 +437,7 @@ class Retiming:
                         stats["iterations"]["inf_pr"][-1] < 1e-7:
                     return opti.debug.value
                 failed = f"{stats.get('return_status', err)} after {stats.get('iter_count', '?')} iterations"
-        tried = f", also with {RETRY}" if retry else ""
-        raise PlanningError(f"the time-optimal problem was not solved ({failed}{tried}); the best "
-                            f"uniform slowdown ({uniform_duration:.4g} s) is feasible: try more --intervals or a "
-                            "larger margin")
+        raise SolveFailed(failed + (f", also with {RETRY}" if retry else ""), uniform_duration)
 
     def inputs_on_grid(self, solution: Solution, step_s: float) -> tuple[np.ndarray, np.ndarray]:
         """The ideal inputs along a solution every `step_s` seconds at most (times, steps x l): what lies between the
