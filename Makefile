@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed
 # .venv/bin/acroboter finds it by itself, the export only makes it explicit for the tools run here.
 export ACROBOTER_CACHE_DIR := $(CURDIR)/build/cache
 
-.PHONY: run test setup build generate check-generated mutation bench retiming-study shaping-study plan-fuzz study sweep robustness plant-fuzz plant-fuzz-cranes docs clean
+.PHONY: run test test-long setup build generate check-generated mutation bench retiming-study shaping-study plan-fuzz study sweep robustness plant-fuzz plant-fuzz-cranes docs clean
 
 $(RUN_STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
@@ -53,7 +53,11 @@ run: $(RUN_STAMP)
 
 test: $(STAMP) build
 	$(PY) -m ruff check acroboter tests tools setup.py
-	$(PY) -m pytest -q -n auto --dist loadfile
+	$(PY) -m pytest -q -n auto --dist loadfile -m "not long"
+
+# The tests make test leaves out (tests/long_tests.txt: minutes each; make test keeps a sample of each kind).
+test-long: $(STAMP) build
+	$(PY) -m pytest -q -n auto --dist loadfile -m long
 
 bench: build
 	$(PY) -m acroboter bench

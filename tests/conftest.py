@@ -59,10 +59,24 @@ def missing_extra_reason(item) -> str | None:
     return None
 
 
+def long_tests() -> dict[str, str]:
+    """tests/long_tests.txt: node id (from the repository's root) -> what `make test` keeps in its place."""
+    listed = {}
+    for line in (REPO / "tests" / "long_tests.txt").read_text().splitlines():
+        node, _, sample = line.partition("#")
+        if node.strip():
+            listed[node.strip()] = sample.strip()
+    return listed
+
+
 def pytest_collection_modifyitems(config, items):
+    long = long_tests()
     for item in items:
         if (reason := missing_extra_reason(item)) is not None:
             item.add_marker(pytest.mark.skip(reason=reason))
+        node = item.nodeid if item.nodeid.startswith("tests/") else f"tests/{item.nodeid}"
+        if node in long or node.split("[")[0] in long:  # `make test` deselects them (-m "not long")
+            item.add_marker(pytest.mark.long)
 SPEC_DIR = REPO / "model_spec"
 SHIPPED_SPECS = sorted(SPEC_DIR.glob("*.toml"))
 SHIPPED_NAMES = [p.stem for p in SHIPPED_SPECS]

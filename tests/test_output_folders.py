@@ -34,14 +34,17 @@ STUDY = {f"{s}/{n}" for s in ("redundant", "noncollocated") for n in ("table.md"
 SWEEP = ["--alphas", "1e3", "--omegas", "10", "--iterations", "1", "--duration", "0.2", "--workers", "1", "-q"]
 ROBUST = ["--samples", "1", "--workers", "0", "--duration", "0.2", "--methods", "penalty", "-q"]
 ANIMATE = ["--fps", "2", "--size", "160x120", "--renderer", "matplotlib", "-q"]  # one frame of a 0.2 s run
+# bench on the default and four-cable cranes with a 2.5 s path (its own, 55 s, took 70-170 s per call here)
+BENCH = ["--spec", "{short}", "--limits-spec", "{short_4cable}", "--repeats", "1", "--casadi-states", "1",
+         "--mc-samples", "0"]
+SHORT = {"{short}": "acroboter", "{short_4cable}": "acroboter_4cable"}
 
 # command: (module, wide arguments, what they write, narrower arguments, what those write)
 COMMANDS = {
     "run": ("run", ["--duration", "0.2", "--method", "mlm,penalty", "-q"],
             {"mlm.csv", "penalty.csv", "summary.json"} | RUN_FIGURES,
             ["--duration", "0.2", "--method", "penalty", "--no-plots", "-q"], {"penalty.csv", "summary.json"}),
-    "bench": ("bench", ["--methods", "penalty,mlm", "--repeats", "1", "--casadi-states", "1", "--mc-samples", "0"],
-              {"bench.json"}, ["--methods", "penalty", "--repeats", "1", "--casadi-states", "1", "--mc-samples", "0"],
+    "bench": ("bench", [*BENCH, "--methods", "penalty,mlm"], {"bench.json"}, [*BENCH, "--methods", "penalty"],
               {"bench.json"}),
     "study": ("study", ["all", "--duration", "0.1"], STUDY,
               ["redundant", "--duration", "0.1"], {n for n in STUDY if n.startswith("redundant/")}),
@@ -80,6 +83,24 @@ LOOKALIKES = ["mlm.csv", "penalty.csv", "iterative-3.csv", "inputs.png", "summar
               ".hidden", "lab_crane.xml", "lab_crane_mlm_step.c", "animation_mlm.mp4"]
 _RUN: list[Path] = []
 _LIFT: list = []
+_SHORT: dict[str, Path] = {}
+
+
+def short_spec(name: str) -> Path:
+    """The example `name` with its path one 10 cm edge (2.5 s: more than the 101 control instants bench needs),
+    written once."""
+    if not _SHORT:
+        import re
+
+        folder = Path(tempfile.mkdtemp(prefix="acroboter-short-"))
+        atexit.register(shutil.rmtree, folder, True)
+        for example in ("acroboter", "acroboter_4cable"):
+            text = (REPO / "model_spec" / f"{example}.toml").read_text()
+            short = re.sub(r"waypoints = \[.*?\n\]", "waypoints = [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]]", text, flags=re.S)
+            assert short != text
+            (folder / f"{example}.toml").write_text(short)
+            _SHORT[example] = folder / f"{example}.toml"
+    return _SHORT[name]
 
 
 def lift_plan():
@@ -131,6 +152,7 @@ def call(command: str, args: list[str]) -> int:
     main = getattr(importlib.import_module(f"acroboter.cli.{module}"), function or "main")
     args = [str(animated_run()) if a == "{run}" else a for a in args]
     args = [str(lift_plan()[0]) if a == "{lift}" else a for a in args]
+    args = [str(short_spec(SHORT[a])) if a in SHORT else a for a in args]
     try:
         return main(args)
     except SystemExit as stop:

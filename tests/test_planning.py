@@ -114,7 +114,8 @@ def test_a_vertical_lift_is_as_fast_as_the_bang_bang_oracle(tmp_path):
     crane = acroboter.Crane.from_toml(lift_spec(tmp_path, 24.0, 29.0))
     plan = crane.plan(margin=0.05, intervals=24, certify=False)
     expected = fastest_lift(24.25, 28.75)
-    assert plan.duration == pytest.approx(expected, rel=0.01)
+    assert plan.duration == pytest.approx(expected, rel=2e-3)  # the issue's 0.2 %; measured 0.095 % (2026-12-07)
+    assert [r["hessian"] for r in plan.solves] == ["limited-memory"]  # L-BFGS reached it (retiming.LBFGS)
     winches = plan.inputs[:, :3]
     assert winches.max() <= 28.75 + 1e-6 and winches.min() >= 24.25 - 1e-6
     # bang-bang: the upper bound is active first, the lower one last
@@ -125,6 +126,23 @@ def test_a_vertical_lift_is_as_fast_as_the_bang_bang_oracle(tmp_path):
     rise = plan.positions - plan.positions[0]
     assert np.abs(rise[:, :2]).max() < 1e-12 and rise[-1, 2] == pytest.approx(LIFT, abs=1e-9)
     assert np.abs(plan.velocities[[0, -1]]).max() < 1e-9
+
+
+def test_a_solve_l_bfgs_does_not_finish_is_solved_with_the_exact_hessian(tmp_path, monkeypatch):
+    """L-BFGS given 30 iterations stops at a feasible point short of its optimum (infeasibility 7.8e-9, measured
+    2026-12-07): that is not kept as a timing; the exact Hessian solves the problem from the same start, to the
+    duration L-BFGS finds given its iterations (measured 2.3e-5 apart: both stop when the duration changes by less
+    than 1e-7 over 5 iterations)."""
+    from acroboter.planning import retiming
+
+    crane = acroboter.Crane.from_toml(lift_spec(tmp_path, 24.0, 29.0))
+    fast = crane.plan(margin=0.05, intervals=8, certify=False)
+    monkeypatch.setattr(retiming, "LBFGS", {**retiming.LBFGS, "max_iter": 30})
+    exact = crane.plan(margin=0.05, intervals=8, certify=False)
+    assert [r["hessian"] for r in fast.solves] == ["limited-memory"] and fast.solves[0]["status"] in retiming.OPTIMAL
+    assert [r["hessian"] for r in exact.solves] == ["exact"] and exact.solves[0]["status"] in retiming.OPTIMAL
+    assert exact.duration == pytest.approx(fast.duration, rel=1e-4)
+    assert exact.duration == pytest.approx(fastest_lift(24.25, 28.75), rel=0.015)  # 8 intervals: 0.99 % above
 
 
 def test_the_receding_window_on_a_lift_in_two_edges_is_the_sum_of_the_half_lifts_oracles(tmp_path):

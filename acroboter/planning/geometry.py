@@ -22,11 +22,36 @@ from ..control.path import DesiredPath, TrajectoryPath, quintic_array
 
 # Samples of a user trajectory's geometry per second of its own time for the spline (at least 400).
 SPLINE_RATE_HZ = 20.0
+# max_speed and max_accel are kept at the nodes this fraction inside: IPOPT meets a constraint to its tolerance
+# (sumsqr ≤ bound² to 1e-8, 5e-5 of a 0.01 m/s² bound), and the written samples between nodes must hold it too.
+KINEMATIC_SLACK = 1e-3
 
 
 def point_jerk(d1, d2, d3, tau_d, tau_dd, tau_ddd):
     """The tracked point's jerk g‴σ̇³ + 3g″σ̇σ̈ + g′σ⃛ from the point rows of g′, g″, g‴ (CasADi or numpy, broadcast)."""
     return d3 * tau_d**3 + 3 * d2 * tau_d * tau_dd + d1 * tau_ddd
+
+
+def point_bounds(opti, geometry, tau, tau_d, tau_dd, jerks, bounds) -> None:
+    """The tracked point's speed, acceleration (at every node k: tau[k], tau_d[k] and σ̈ there, tau_dd[k]) and jerk
+    (at both ends of every interval, its σ⃛ jerks[i]: g‴σ̇³ + 3g″σ̇σ̈ + g′σ⃛, constant over an interval on a straight
+    edge) within `bounds` (max_speed, max_accel, max_jerk; None: unbounded) as constraints of the casadi.Opti."""
+    max_speed, max_accel, max_jerk = bounds
+    if max_speed is None and max_accel is None and max_jerk is None:
+        return
+    rows, N = geometry.point_rows, len(tau_dd) - 1
+    for k in range(N + 1):
+        _, d1, d2 = geometry.function(tau[k])
+        if max_speed is not None and k > 0:  # the start's speed is given (x_start), no variable of the problem
+            opti.subject_to(ca.sumsqr(d1[rows] * tau_d[k]) <= (max_speed * (1.0 - KINEMATIC_SLACK)) ** 2)
+        if max_accel is not None:
+            acc = d2[rows] * tau_d[k] ** 2 + d1[rows] * tau_dd[k]
+            opti.subject_to(ca.sumsqr(acc) <= (max_accel * (1.0 - KINEMATIC_SLACK)) ** 2)
+        if max_jerk is not None:
+            d3 = geometry.third(tau[k])[rows]
+            for i in {max(k - 1, 0), min(k, N - 1)}:  # the intervals that meet at node k
+                jerk = point_jerk(d1[rows], d2[rows], d3, tau_d[k], tau_dd[k], jerks[i])
+                opti.subject_to(ca.sumsqr(jerk) <= (max_jerk * (1.0 - KINEMATIC_SLACK)) ** 2)
 
 
 def _quintic(x):

@@ -48,7 +48,7 @@ NODE_GAP_S = 1e-6
 # Solves again with the bounds moved in where the inputs leave them between the nodes (solve_within_bounds).
 TIGHTEN_ROUNDS = 2
 # A bound on the tracked point's speed or acceleration holds on the written samples to this relative tolerance
-# (rounding; the optimiser keeps it retiming.KINEMATIC_SLACK inside at its nodes).
+# (rounding; the optimiser keeps it geometry.KINEMATIC_SLACK inside at its nodes).
 KINEMATIC_TOLERANCE = 1e-9
 
 

@@ -1,20 +1,20 @@
-"""The fastest timing of a path under the input limits: a time-optimal control problem over the path
-parameter σ (acroboter.planning.geometry), solved by direct shooting with IPOPT (casadi.Opti, exact Hessian).
+"""The fastest timing of a path under the input limits: a time-optimal control problem over the path parameter σ
+(acroboter.planning.geometry), solved by direct shooting with IPOPT (casadi.Opti; L-BFGS, else the exact Hessian).
 
-Decision variables: the duration T_j of each phase (each edge of a waypoint path; a user trajectory is one
-phase) and, on a grid of intervals of T_j / N_j per phase, the path acceleration σ̈ held over each interval.
-The state x = (q, q̇, σ, σ̇) is the integration of the ideal motion's dynamics from the static start
+Decision variables: the duration T_j of each phase (each edge of a waypoint path; a user trajectory is one phase)
+and, on a grid of intervals of T_j / N_j per phase, the path acceleration σ̈ held over each interval (or, smooth,
+linear). The state x = (q, q̇, σ, σ̇) is the integration of the ideal motion's dynamics from the static start
 (acroboter.planning.ideal_motion: σ ≡ 0 for the servo-constraints, so the connector's swing is integrated as the
-internal dynamics it is, not assumed at rest; RK4, `substeps` steps per interval). Single shooting: the
-internal dynamics are stable and damped, and with the redundant natural coordinates as variables (multiple
-shooting) IPOPT wandered. Constraints:
+internal dynamics it is, not assumed at rest; RK4, `substeps` steps per interval). Single shooting: the internal
+dynamics are stable and damped, and with the redundant natural coordinates as variables (multiple shooting)
+IPOPT wandered. Constraints:
 
 - each phase ends where it should (σ = its end) and, at a corner of a waypoint path, at rest (σ̇ = 0);
   the path ends at rest (σ̇ = 0) unless the path itself is at rest there (g' = 0);
 - σ̇ ≥ 0 (the path is not run backwards);
 - every input with a finite limit within its limits tightened by the margin (acroboter.planning.limits),
-  at the start of every RK4 step and at the end;
-- optionally the tracked point's speed ≤ max_speed and acceleration ≤ max_accel at every node.
+  at the start and the end of every RK4 step;
+- optionally the tracked point's speed, acceleration and jerk bounded at every node.
 
 Objective: T. The uniform slowdown of the path's own timing that is just feasible (a bisection with the
 same dynamics) is the starting guess: it is feasible, so the solution can only be faster.
@@ -32,7 +32,7 @@ import numpy as np
 
 from ..process.cores import usable_cores
 from ..process.interrupts import interrupt_pending
-from .geometry import PathGeometry, point_jerk
+from .geometry import PathGeometry, point_bounds
 from .ideal_motion import IdealDynamics, PlanningError, SolveFailed, inputs_at, rk4_step
 from .limits import best_spare, beyond_bounds, spare_constraints
 from .servo_lag import CORNER_LAG_SHARE, lag_bounds, lag_substeps
@@ -55,6 +55,12 @@ OPTIMAL = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 # update stalled) is tried again with these options: the adaptive barrier solved it (46 iterations, 0.8637 s where
 # the fallback kept 1.164 s; measured 2026-12-06).
 RETRY = {"mu_strategy": "adaptive"}
+# A solve is first tried with L-BFGS: an iteration then costs no exact Hessian of the single-shooting chain (3/4 of
+# a solve's time). The lift at 8, 24, 48 intervals: 6.9, 16, 136 s against 13, 157, 805 s, the durations 2.3e-5,
+# 3e-7, 6e-7 apart. The paper's path at [5, 60] N: 7 of 10 edges in 10-694 iterations, no faster in all (2026-12-07).
+# Not solved in LBFGS_ITER_FACTOR times the iterations given, at most LBFGS_MAX_ITER: the exact Hessian, then RETRY.
+LBFGS = {"hessian_approximation": "limited-memory"}
+LBFGS_ITER_FACTOR, LBFGS_MAX_ITER = 3, 250
 # The longest RK4 step of the problem's integration (s).
 MAX_STEP_S = 0.1
 # An edge planned to end at rest (acroboter.planning.edges) ends with every coordinate within this of the static
@@ -64,9 +70,6 @@ REST_TOL = 1e-2
 # With a tolerance, at most this times the lag bound: a corner's swing drives the next edge's lag unseen (drawn path 0
 # at 0.1 mm flew its third edge at 0.176 mm with a 10 mm box, 0.108 mm with 1 mm: docs/planning.md, 2026-12-07).
 REST_TOL_PER_LAG_BOUND = 10.0
-# max_speed and max_accel are kept at the nodes this fraction inside: IPOPT meets a constraint to its tolerance
-# (sumsqr ≤ bound² to 1e-8, 5e-5 of a 0.01 m/s² bound), and the written samples between nodes must hold it too.
-KINEMATIC_SLACK = 1e-3
 # The fewest intervals a phase (an edge of a waypoint path) gets.
 MIN_PHASE_INTERVALS = 6
 
@@ -171,7 +174,7 @@ class Retiming:
         self._check_cache: dict[tuple[int, int], ca.Function] = {}  # (intervals, RK4 steps each) -> mapaccum
         self._steps: dict[int, ca.Function] = {}
         self.phase_slowdown: tuple[list[float], float] | None = None  # set by a windowed solve
-        self.ipopt: dict = {}  # extra IPOPT options (exact Hessian: L-BFGS stalls short of the bang-bang optimum)
+        self.ipopt: dict = {}  # extra IPOPT options
         # a smooth timing's starting guess from an earlier solve on the same grid (planner.warm_start): σ̈ at each
         # phase's nodes and each phase's duration
         self.warm: tuple[list[np.ndarray], list[float]] | None = None
@@ -372,7 +375,8 @@ class Retiming:
             # IPOPT then crawls
             opti.subject_to(opti.bounded(-self.rest_tol, X[:n, N] - rest_at, self.rest_tol))
             opti.subject_to(opti.bounded(-self.rest_tol, X[n : 2 * n, N], self.rest_tol))
-        self._path_bounds(opti, X, nodes_a, J, N)
+        point_bounds(opti, self.geo, X[2 * n, :], X[2 * n + 1, :], nodes_a, J,
+                     (self.max_speed, self.max_accel, self.max_jerk))
         if self.lag is not None:
             # each RK4 step of the ideal motion in lag steps short enough for the servo law's poles (twice the guess's
             # length: room for the solve to slow down)
@@ -385,11 +389,11 @@ class Retiming:
         opti.minimize(total)
         opti.set_initial(durations, list(guess_T))
         started = time.perf_counter()
-        value = self._solved(opti, max_iter, verbose, uniform_duration, retry)
+        value, hessian = self._solved(opti, max_iter, verbose, uniform_duration, retry)
         stats = opti.stats()
         record = {"phases": [int(j) for j in which], "intervals": N, "rk4_steps": N * substeps, "substeps": substeps,
                   "iterations": int(stats["iter_count"]), "solve_s": time.perf_counter() - started,
-                  "status": stats.get("return_status", "")}
+                  "status": stats.get("return_status", ""), "hessian": hessian}
         chosen = self.fit_spare(np.asarray(value(u_all)).T, np.asarray(value(d_all)).T)
         jerk = np.asarray(value(J)).ravel() if self.smooth else np.zeros(N)
         return Part(np.asarray(value(durations)).ravel(), np.asarray(value(A)).ravel(), np.asarray(value(X)).T,
@@ -418,24 +422,25 @@ class Retiming:
 
     def _solved(self, opti: ca.Opti, max_iter: int, verbose: bool, uniform_duration: float, retry: bool = True):
         """IPOPT on the problem, with its stopping rule (ACCEPTABLE) and the Ctrl-C poll: `value` of the answer.
-        A solve that fails is tried again once from the same start with RETRY's options (the adaptive barrier),
-        unless `retry` is False;
-        out of iterations at a point that meets the constraints is a feasible timing (reported as not optimal by
-        its status); anything else is a PlanningError."""
-        for attempt in ({}, RETRY) if retry else ({},):
+        Tried with L-BFGS (LBFGS) first; what that does not solve, with the exact Hessian from the same start, then
+        once more with RETRY's options (the adaptive barrier) unless `retry` is False; with the Hessian that answered.
+        Out of iterations at a point that meets the constraints (exact Hessian) is a feasible timing
+        (reported as not optimal by its status); anything else is a PlanningError."""
+        for attempt in (LBFGS, {}, RETRY) if retry else (LBFGS, {}):
             opti.callback(_stopper(self.cancelled))  # Ctrl-C within an iteration, not at the solve's end
+            iterations = min(LBFGS_ITER_FACTOR * max_iter, LBFGS_MAX_ITER) if attempt is LBFGS else max_iter
             opti.solver("ipopt", {"print_time": False},
-                        {"print_level": 5 if verbose else 0, "max_iter": max_iter, "tol": 1e-8, "sb": "yes",
+                        {"print_level": 5 if verbose else 0, "max_iter": iterations, "tol": 1e-8, "sb": "yes",
                          "constr_viol_tol": 1e-9, **ACCEPTABLE, **self.ipopt, **attempt})
             try:
-                return opti.solve().value
+                return opti.solve().value, "limited-memory" if attempt is LBFGS else "exact"
             except RuntimeError as err:
                 if self.cancelled.is_set():
                     raise SolveCancelled("the plan was stopped") from None
                 stats = opti.stats()
-                if stats.get("return_status") == "Maximum_Iterations_Exceeded" and \
+                if attempt is not LBFGS and stats.get("return_status") == "Maximum_Iterations_Exceeded" and \
                         stats["iterations"]["inf_pr"][-1] < 1e-7:
-                    return opti.debug.value
+                    return opti.debug.value, "exact"
                 failed = f"{stats.get('return_status', err)} after {stats.get('iter_count', '?')} iterations"
         raise SolveFailed(failed + (f", also with {RETRY}" if retry else ""), uniform_duration)
 
@@ -474,24 +479,3 @@ class Retiming:
             x = np.asarray(self.step(x, a, 0.0, h)[0]).ravel()
             rows.append(x)
         return np.array(rows), acc
-
-    def _path_bounds(self, opti, X, nodes_a, J, N):
-        """max_speed, max_accel at every node (σ̈ there: `nodes_a`), max_jerk at both ends of every interval (its
-        jerk J[i]): the tracked point's j = g'''σ̇³ + 3g''σ̇σ̈ + g'σ⃛, constant over an interval on a straight edge."""
-        if self.max_speed is None and self.max_accel is None and self.max_jerk is None:
-            return
-        n, rows = self.n, self.geo.point_rows
-        for k in range(N + 1):
-            tau, tau_d, a = X[2 * n, k], X[2 * n + 1, k], nodes_a[k]
-            _, d1, d2 = self.geo.function(tau)
-            if self.max_speed is not None and k > 0:  # the start's speed is given (x_start), no variable of the problem
-                v = d1[rows] * tau_d
-                opti.subject_to(ca.sumsqr(v) <= (self.max_speed * (1.0 - KINEMATIC_SLACK)) ** 2)
-            if self.max_accel is not None:
-                acc = d2[rows] * tau_d**2 + d1[rows] * a
-                opti.subject_to(ca.sumsqr(acc) <= (self.max_accel * (1.0 - KINEMATIC_SLACK)) ** 2)
-            if self.max_jerk is not None:
-                d3 = self.geo.third(tau)[rows]
-                for i in {max(k - 1, 0), min(k, N - 1)}:  # the intervals that meet at node k
-                    jerk = point_jerk(d1[rows], d2[rows], d3, tau_d, a, J[i])
-                    opti.subject_to(ca.sumsqr(jerk) <= (self.max_jerk * (1.0 - KINEMATIC_SLACK)) ** 2)
