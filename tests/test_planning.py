@@ -141,6 +141,8 @@ def test_a_solve_l_bfgs_does_not_finish_is_solved_with_the_exact_hessian(tmp_pat
     exact = crane.plan(margin=0.05, intervals=8, certify=False)
     assert [r["hessian"] for r in fast.solves] == ["limited-memory"] and fast.solves[0]["status"] in retiming.OPTIMAL
     assert [r["hessian"] for r in exact.solves] == ["exact"] and exact.solves[0]["status"] in retiming.OPTIMAL
+    assert [(t["hessian"], t["iterations"]) for t in exact.solves[0]["tried"]] == [("limited-memory", 30)]
+    assert fast.solves[0]["tried"] == []
     assert exact.duration == pytest.approx(fast.duration, rel=1e-4)
     assert exact.duration == pytest.approx(fastest_lift(24.25, 28.75), rel=0.015)  # 8 intervals: 0.99 % above
 

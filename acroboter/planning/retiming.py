@@ -389,11 +389,11 @@ class Retiming:
         opti.minimize(total)
         opti.set_initial(durations, list(guess_T))
         started = time.perf_counter()
-        value, hessian = self._solved(opti, max_iter, verbose, uniform_duration, retry)
+        value, hessian, tried = self._solved(opti, max_iter, verbose, uniform_duration, retry)
         stats = opti.stats()
         record = {"phases": [int(j) for j in which], "intervals": N, "rk4_steps": N * substeps, "substeps": substeps,
                   "iterations": int(stats["iter_count"]), "solve_s": time.perf_counter() - started,
-                  "status": stats.get("return_status", ""), "hessian": hessian}
+                  "status": stats.get("return_status", ""), "hessian": hessian, "tried": tried}
         chosen = self.fit_spare(np.asarray(value(u_all)).T, np.asarray(value(d_all)).T)
         jerk = np.asarray(value(J)).ravel() if self.smooth else np.zeros(N)
         return Part(np.asarray(value(durations)).ravel(), np.asarray(value(A)).ravel(), np.asarray(value(X)).T,
@@ -423,9 +423,11 @@ class Retiming:
     def _solved(self, opti: ca.Opti, max_iter: int, verbose: bool, uniform_duration: float, retry: bool = True):
         """IPOPT on the problem, with its stopping rule (ACCEPTABLE) and the Ctrl-C poll: `value` of the answer.
         Tried with L-BFGS (LBFGS) first; what that does not solve, with the exact Hessian from the same start, then
-        once more with RETRY's options (the adaptive barrier) unless `retry` is False; with the Hessian that answered.
-        Out of iterations at a point that meets the constraints (exact Hessian) is a feasible timing
-        (reported as not optimal by its status); anything else is a PlanningError."""
+        once more with RETRY's options (the adaptive barrier) unless `retry` is False. Returns the answer, the Hessian
+        that gave it and the attempts before it (Hessian, status, iterations: their time is in the solve's). Out of
+        iterations at a point that meets the constraints (exact Hessian) is a feasible timing (reported as not
+        optimal by its status); anything else is a PlanningError."""
+        tried: list[dict] = []
         for attempt in (LBFGS, {}, RETRY) if retry else (LBFGS, {}):
             opti.callback(_stopper(self.cancelled))  # Ctrl-C within an iteration, not at the solve's end
             iterations = min(LBFGS_ITER_FACTOR * max_iter, LBFGS_MAX_ITER) if attempt is LBFGS else max_iter
@@ -433,16 +435,20 @@ class Retiming:
                         {"print_level": 5 if verbose else 0, "max_iter": iterations, "tol": 1e-8, "sb": "yes",
                          "constr_viol_tol": 1e-9, **ACCEPTABLE, **self.ipopt, **attempt})
             try:
-                return opti.solve().value, "limited-memory" if attempt is LBFGS else "exact"
+                return opti.solve().value, "limited-memory" if attempt is LBFGS else "exact", tried
             except RuntimeError as err:
                 if self.cancelled.is_set():
                     raise SolveCancelled("the plan was stopped") from None
                 stats = opti.stats()
                 if attempt is not LBFGS and stats.get("return_status") == "Maximum_Iterations_Exceeded" and \
                         stats["iterations"]["inf_pr"][-1] < 1e-7:
-                    return opti.debug.value, "exact"
-                failed = f"{stats.get('return_status', err)} after {stats.get('iter_count', '?')} iterations"
-        raise SolveFailed(failed + (f", also with {RETRY}" if retry else ""), uniform_duration)
+                    return opti.debug.value, "exact", tried
+                tried.append({"hessian": "limited-memory" if attempt is LBFGS else "exact",
+                              "status": str(stats.get("return_status", err)), "iterations": stats.get("iter_count")})
+        first, last = tried[0], tried[-1]
+        raise SolveFailed(f"{last['status']} after {last['iterations']} iterations" +
+                          (f", also with {RETRY}" if retry else "") +
+                          f"; L-BFGS first: {first['status']} after {first['iterations']}", uniform_duration)
 
     def inputs_on_grid(self, solution: Solution, step_s: float) -> tuple[np.ndarray, np.ndarray]:
         """The ideal inputs along a solution every `step_s` seconds at most (times, steps x l): what lies between the
