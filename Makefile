@@ -55,7 +55,7 @@ test: $(STAMP) build
 	$(PY) -m ruff check acroboter tests tools setup.py
 	$(PY) -m pytest -q -n auto --dist loadfile -m "not long" --durations=30
 
-# The tests make test leaves out (tests/long_tests.txt: 15 s or more of a core each; make test keeps a sample of
+# The tests make test leaves out (tests/long_tests.txt: 10 s or more of a core each; make test keeps a sample of
 # each kind).
 test-long: $(STAMP) build
 	$(PY) -m pytest -q -n auto --dist loadfile -m long --durations=30

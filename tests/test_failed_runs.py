@@ -168,16 +168,16 @@ def failing_plan():
     its task on them (saturated 0.16 s from t = 0.42 s, measured 2026-12-06; without the limits its inputs went
     5.21 % of the span beyond them), so the certificate fails. Planned once (25 s)."""
     if not _FAILING_PLAN:
-        import re
         import tempfile
 
         import acroboter
+        from acroboter.model.spec_edits import with_path, with_winch_limits
         from acroboter.planning.planner import CertificateError
 
-        text = re.sub(r'(cable = "L\d")', r"\1\nlimits = [24.0, 29.0]", SPEC.read_text())
-        text = re.sub(r"waypoints = \[.*?\n\]", "waypoints = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.1]]", text, flags=re.S)
+        text = with_winch_limits(SPEC.read_text(), 29.0, 24.0)
+        text = with_path(text, [[0.0, 0.0, 0.0], [0.0, 0.0, 0.1]], yaw_deg=0.0)
         spec = Path(tempfile.mkdtemp(prefix="acroboter-failing-plan-")) / "lift.toml"
-        spec.write_text(text.replace("yaw_deg = 90.0", "yaw_deg = 0.0"))
+        spec.write_text(text)
         with pytest.raises(CertificateError) as caught:
             acroboter.Crane.from_toml(spec).plan(margin=0.05, intervals=24)
         _FAILING_PLAN.extend([spec, caught.value])

@@ -18,8 +18,8 @@ from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
 from acroboter.control.trajectory_file import read_trajectory_csv
+from acroboter.model.spec_edits import with_winch_limits
 from acroboter.studies import generated_paths as gp
-from acroboter.studies.saturation import limited_spec_text
 
 PATH_EXAMPLES = int(os.environ.get("ACROBOTER_PATH_EXAMPLES", "1"))
 STATIC_TENSION_N = 26.7538714  # the default crane's winches at rest at its start (tests/test_planning.py's oracle)
@@ -54,7 +54,7 @@ def test_drawn_limits_leave_the_drawn_room_above_the_statics(path, tmp_path):
     assert lower == gp.LOWER_N
     assert (upper - largest) / (upper - lower) == pytest.approx(path.static_room, rel=1e-9)
     assert least - 1e-6 <= STATIC_TENSION_N <= largest + 1e-6
-    crane = gp.crane_of(limited_spec_text(path.spec_text(), upper, lower), tmp_path / "limited.toml")
+    crane = gp.crane_of(with_winch_limits(path.spec_text(), upper, lower), tmp_path / "limited.toml")
     limits = crane.input_limits()
     assert all(limits[f"tension_{i}"][:2] == (lower, upper) for i in (1, 2, 3))
 
@@ -102,7 +102,7 @@ def test_drawn_path_0s_third_edge_has_a_timing_once_each_corner_leaves_room_for_
     path = gp.drawn_path(RandomDraw(0), "acroboter")
     assert path.edges == 3
     lower, upper, _, _ = gp.winch_limits(path, tmp_path)
-    crane = gp.crane_of(limited_spec_text(path.spec_text(), upper, lower), tmp_path / "spec.toml")
+    crane = gp.crane_of(with_winch_limits(path.spec_text(), upper, lower), tmp_path / "spec.toml")
     c = crane.spec.controller
     result = plan(crane.model.data(), crane.desired(), crane.equilibrium().q, margin=gp.MARGIN,
                   intervals=gp.INTERVALS, certify_plan=False, lag=(gp.TOLERANCE_M, c.kp, c.kd, 1.0 / c.rate_hz))

@@ -90,14 +90,13 @@ def short_spec(name: str) -> Path:
     """The example `name` with its path one 10 cm edge (2.5 s: more than the 101 control instants bench needs),
     written once."""
     if not _SHORT:
-        import re
+        from acroboter.model.spec_edits import with_path
 
         folder = Path(tempfile.mkdtemp(prefix="acroboter-short-"))
         atexit.register(shutil.rmtree, folder, True)
         for example in ("acroboter", "acroboter_4cable"):
             text = (REPO / "model_spec" / f"{example}.toml").read_text()
-            short = re.sub(r"waypoints = \[.*?\n\]", "waypoints = [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]]", text, flags=re.S)
-            assert short != text
+            short = with_path(text, [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]])
             (folder / f"{example}.toml").write_text(short)
             _SHORT[example] = folder / f"{example}.toml"
     return _SHORT[name]
@@ -107,16 +106,14 @@ def lift_plan():
     """A spec whose path is one short vertical lift with winch limits, and its plan, made once: the folder tests
     replace Crane.plan by this answer (the planner itself: tests/test_planning.py)."""
     if not _LIFT:
-        import re
-
         import acroboter
+        from acroboter.model.spec_edits import with_path, with_winch_limits
 
         folder = Path(tempfile.mkdtemp(prefix="acroboter-plan-source-"))
         atexit.register(shutil.rmtree, folder, True)
         text = (REPO / "model_spec" / "acroboter.toml").read_text()
-        text = re.sub(r'(cable = "L\d")', r"\1\nlimits = [24.0, 29.0]", text)
-        text = re.sub(r"waypoints = \[.*?\n\]", "waypoints = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.1]]", text, flags=re.S)
-        (folder / "lift.toml").write_text(text.replace("yaw_deg = 90.0", "yaw_deg = 0.0"))
+        text = with_winch_limits(text, 29.0, 24.0)
+        (folder / "lift.toml").write_text(with_path(text, [[0.0, 0.0, 0.0], [0.0, 0.0, 0.1]], yaw_deg=0.0))
         plan = acroboter.Crane.from_toml(folder / "lift.toml").plan(margin=0.2, intervals=8)
         _LIFT.extend([folder / "lift.toml", plan])
     return _LIFT

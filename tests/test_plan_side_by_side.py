@@ -8,7 +8,6 @@ edges: the paper's path, where it acts, takes 9 minutes to plan."""
 
 from __future__ import annotations
 
-import re
 import threading
 
 import numpy as np
@@ -16,18 +15,18 @@ import pytest
 
 import acroboter
 import acroboter.planning.retiming as retiming
+from acroboter.model.spec_edits import with_path, with_winch_limits
 from acroboter.planning.edges import Edge, EdgeRetiming
 from acroboter.planning.ideal_motion import PlanningError, SolveFailed
 from acroboter.process.locations import example_spec
 
-TWO_EDGES = "waypoints = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.05], [0.0, 0.0, 0.1]]"
+TWO_EDGES = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.05], [0.0, 0.0, 0.1]]
 
 
 def two_edge_crane(tmp_path):
-    text = re.sub(r'(cable = "L\d")', r"\1\nlimits = [24.0, 29.0]", example_spec("acroboter").read_text())
-    text = re.sub(r"waypoints = \[.*?\n\]", TWO_EDGES, text, flags=re.S)
+    text = with_winch_limits(example_spec("acroboter").read_text(), 29.0, 24.0)
     path = tmp_path / "two.toml"
-    path.write_text(text.replace("yaw_deg = 90.0", "yaw_deg = 0.0"))
+    path.write_text(with_path(text, TWO_EDGES, yaw_deg=0.0))
     return acroboter.Crane.from_toml(path)
 
 

@@ -31,8 +31,8 @@ from acroboter.control.underactuation import Underactuation
 from acroboter.model.settings import UNDERACTUATION_RANK_TOLERANCE
 from acroboter.model.spec import SpecError, parse_spec
 from acroboter.model.spec_checks import task_components
+from acroboter.model.spec_edits import with_winch_limits
 from acroboter.sim.simulation import setup_default, simulate
-from acroboter.studies.saturation import limited_spec_text
 
 COMPONENTS = {"horizontal": [0, 1], "height": [2], "yaw": [3], "level": [4, 5]}
 PRIORITY = ("horizontal", "level", "height", "yaw")
@@ -206,7 +206,7 @@ def test_limits_never_reached_bit_for_bit(name, methods):
 def limited(tmp_path_factory):
     from acroboter.model.spec import load_spec
 
-    text = limited_spec_text((REPO / "model_spec" / "acroboter.toml").read_text(), 26.9, 0.0)
+    text = with_winch_limits((REPO / "model_spec" / "acroboter.toml").read_text(), 26.9, 0.0)
     path = tmp_path_factory.mktemp("limited") / "limited.toml"
     path.write_text(text)
     spec = load_spec(path)

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import math
-import re
 
 import numpy as np
 import pytest
@@ -148,13 +147,11 @@ def test_the_swing_modes_are_the_free_swing(default_dynamics):
 
 def _two_edges(tmp_path):
     import acroboter
-    from acroboter.studies.planned_flights import limited_spec_text
+    from acroboter.model.spec_edits import with_path, with_winch_limits
 
-    text = limited_spec_text(acroboter.example_spec("acroboter").read_text(), 30.0, 5.0)
-    text = re.sub(r"waypoints = \[.*?\n\]", "waypoints = [[0.0, 0.0, 0.0], [0.25, 0.0, 0.0], [0.25, 0.25, 0.0]]",
-                  text, flags=re.S)
+    text = with_winch_limits(acroboter.example_spec("acroboter").read_text(), 30.0, 5.0)
     path = tmp_path / "two.toml"
-    path.write_text(text.replace("yaw_deg = 90.0", "yaw_deg = 0.0"))
+    path.write_text(with_path(text, [[0.0, 0.0, 0.0], [0.25, 0.0, 0.0], [0.25, 0.25, 0.0]], yaw_deg=0.0))
     return path
 
 

@@ -35,16 +35,17 @@ def main(argv=None) -> int:
     parser.add_argument("--assemble", action="store_true", help="only gather the case files already in --out")
     args = parser.parse_args(argv)
     from acroboter.api.crane import Crane
+    from acroboter.model.spec_edits import with_winch_limits
     from acroboter.planning.ideal_motion import PlanningError
     from acroboter.process.locations import example_spec
-    from acroboter.studies.planned_flights import CASES, limited_spec_text
+    from acroboter.studies.planned_flights import CASES
 
     chosen = [] if args.assemble else ([CASES[int(i)] for i in args.cases.split(",") if i.strip()] or list(CASES))
     args.out.mkdir(parents=True, exist_ok=True)
     specs = Path(tempfile.mkdtemp(prefix="shaping-specs-"))
     for case in chosen:  # each case into its own file: cases can run in parallel processes (--cases)
         spec_path = specs / f"{case.spec}_{case.lower:g}_{case.upper:g}.toml"
-        spec_path.write_text(limited_spec_text(example_spec(case.spec).read_text(), case.upper, case.lower))
+        spec_path.write_text(with_winch_limits(example_spec(case.spec).read_text(), case.upper, case.lower))
         crane = Crane.from_toml(spec_path)
         rows = []
         for kind in SHAPED:

@@ -20,7 +20,7 @@ import numpy as np
 from ..control.path import DesiredPath, SampledTrajectory, TrajectoryError, TrajectoryPath, motion_time_scale
 from ..control.trajectory_file import write_trajectory_csv
 from ..model.spec import MAX_CONTROL_STEPS
-from .checks import Certificate, certify, check_statics
+from .checks import SETTLE_AFTER_END_S, Certificate, certify, check_statics
 from .edges import EdgeRetiming
 from .geometry import PathGeometry
 from .ideal_motion import IdealDynamics, PlanningError
@@ -199,7 +199,8 @@ class Plan:
         out["corner_swing"] = self.corner_swing
         if self.certificate is not None:
             c = self.certificate
-            out["certificate"] = {"method": f"{', '.join(c.flights) or 'mlm'}, own plant, limits applied",
+            out["certificate"] = {"method": f"{', '.join(c.flights) or 'mlm'}, own plant, limits applied, "
+                                            f"held {SETTLE_AFTER_END_S:g} s past the end",
                                   "passed": c.failure is None, "failure": c.failure, "flights": c.flights,
                                   "max_position_error_mm": c.max_position_error_mm,
                                   "margin_achieved": finite(c.margin_achieved), "margin_input": c.margin_input,

@@ -23,7 +23,6 @@ in the tests (tests/test_generated_paths.py draws through the same function, so 
 from __future__ import annotations
 
 import math
-import re
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -31,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from ..model.crane_generator import Draw
-from .saturation import limited_spec_text
+from ..model.spec_edits import with_path, with_winch_limits
 
 SPECS = ("acroboter", "acroboter_4cable")
 EDGES = (2, 3)
@@ -64,14 +63,7 @@ class DrawnPath:
         """The shipped spec's TOML with this path's waypoints and yaw (its limits as shipped)."""
         from ..process.locations import example_spec
 
-        text = example_spec(self.spec).read_text()
-        points = ", ".join("[" + ", ".join(repr(float(c)) for c in p) + "]" for p in self.waypoints)
-        text, found = re.subn(r"^waypoints\s*=\s*\[.*?\n\]", f"waypoints = [{points}]", text, count=1,
-                              flags=re.S | re.M)
-        text, turned = re.subn(r"^yaw_deg\s*=.*$", f"yaw_deg = {float(self.yaw_deg)!r}", text, count=1, flags=re.M)
-        if not (found and turned):
-            raise ValueError(f"{self.spec}: no multi-line waypoints = [...] and yaw_deg = ... to replace")
-        return text
+        return with_path(example_spec(self.spec).read_text(), self.waypoints, self.yaw_deg)
 
 
 def drawn_path(draw: Draw, spec: str) -> DrawnPath:
@@ -155,7 +147,7 @@ def run_path(path: DrawnPath, name: str, folder: Path, tolerance: float = TOLERA
     from ..planning.planner import PlanFailure
 
     lower, upper, least, largest = winch_limits(path, folder)
-    text = limited_spec_text(path.spec_text(), upper, lower)
+    text = with_winch_limits(path.spec_text(), upper, lower)
     result = PathResult(name, path.spec, path.edges, [list(p) for p in path.waypoints], path.yaw_deg,
                         path.static_room, [lower, upper], [least, largest], "not planned")
     crane = crane_of(text, folder / "spec.toml")

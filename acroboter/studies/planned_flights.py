@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .saturation import limited_spec_text, measure
+from ..model.spec_edits import with_winch_limits
+from .saturation import measure
 
 METHODS = ("mlm", "penalty", "iterative-3")
 
@@ -67,7 +68,7 @@ def run_case(case: Case, folder: Path, margin: float = 0.05, intervals: int = 12
 
     folder.mkdir(parents=True, exist_ok=True)
     spec_path = folder / f"{case.spec}_{case.lower:g}_{case.upper:g}.toml"
-    spec_path.write_text(limited_spec_text(example_spec(case.spec).read_text(), case.upper, case.lower))
+    spec_path.write_text(with_winch_limits(example_spec(case.spec).read_text(), case.upper, case.lower))
     crane = Crane.from_toml(spec_path)
     started = time.perf_counter()
     plan = crane.plan(margin=margin, intervals=intervals)  # every edge rest to rest (acroboter.planning.edges)
