@@ -96,3 +96,40 @@ def test_a_remembered_interrupt_is_raised_at_once_outside_casadi_and_once_casadi
             reached.append("never")
             interrupt.check()
     assert reached == ["casadi went on"]
+
+
+def _tiny_sources(folder, answer: int):
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "answer.h").write_text(f"#define ANSWER {answer}\n")
+    (folder / "answer.c").write_text('#include "answer.h"\nint answer(void) { return ANSWER; }\n')
+    return [folder / "answer.c"]
+
+
+def test_exported_code_compiled_once_is_copied_from_the_cache_and_a_damaged_copy_is_compiled_again(tmp_path,
+                                                                                                     monkeypatch):
+    """runtime.exported.compile_shared keeps what it compiled (bench compiled the same controllers on every call,
+    18 of its 23 s): the same sources again are not compiled, each load gets a copy of its own, another header is
+    another library, and a kept library whose bytes its checksum does not name is compiled again, not loaded."""
+    import subprocess
+
+    from acroboter.runtime import exported
+
+    cache, compiles = tmp_path / "cache", []
+    real_run = subprocess.run
+
+    def counted(cmd, *args, **kwargs):
+        compiles.append(cmd)
+        return real_run(cmd, *args, **kwargs)
+
+    monkeypatch.setattr(exported.subprocess, "run", counted)
+    first = exported.compile_shared(_tiny_sources(tmp_path / "a", 42), tmp_path / "a" / "libanswer.so", "a", cache)
+    second = exported.compile_shared(_tiny_sources(tmp_path / "b", 42), tmp_path / "b" / "libanswer.so", "b", cache)
+    assert first.answer() == second.answer() == 42 and len(compiles) == 1
+    assert (tmp_path / "b" / "libanswer.so").read_bytes() == (tmp_path / "a" / "libanswer.so").read_bytes()
+    other = exported.compile_shared(_tiny_sources(tmp_path / "c", 7), tmp_path / "c" / "libanswer.so", "c", cache)
+    assert other.answer() == 7 and len(compiles) == 2  # the header is part of what was compiled
+    (entry,) = [p for p in (cache / "exported").rglob("libanswer.so")
+                if exported.compiled_key(_tiny_sources(tmp_path / "a", 42))[:16] in p.parent.name]
+    entry.write_bytes(entry.read_bytes()[:-1] + b"\x01")  # one byte changed
+    again = exported.compile_shared(_tiny_sources(tmp_path / "d", 42), tmp_path / "d" / "libanswer.so", "d", cache)
+    assert again.answer() == 42 and len(compiles) == 3

@@ -2,14 +2,20 @@
 the bench and the tests that feed it what a Python run recorded: `load_exported_controller(folder, name)`.
 
 `compile_shared` compiles C sources with the project's flags (acroboter.runtime.compile_library.CFLAGS: -O2 -fPIC, never
-fast-math) into a shared library and loads it.
+fast-math) into a shared library and loads it. What it compiled is kept in the cache (<cache>/exported/<name>-<hash>/,
+the hash of the compiler, the flags, the sources and every header of their folder, with the SHA-256 of the library
+beside it): the same sources again (a second bench, another test of the same controller) are copied from there, after
+their checksum is checked, instead of compiled again. Each caller still loads its own copy at its own path, so two
+loads never share the C's static data.
 """
 
 from __future__ import annotations
 
 import ctypes
+import hashlib
 import os
 import subprocess
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -19,16 +25,64 @@ from ..model.c_templates import render
 __all__ = ["ExportedController", "compile_shared", "load_exported_controller"]
 
 
-def compile_shared(sources: list[Path], lib_path: Path, what: str) -> ctypes.CDLL:
-    """`sources` compiled into the shared library `lib_path` (the project's flags: -O2 -fPIC, no fast-math; headers
-    from the sources' folder), loaded."""
+def compiled_key(sources: list[Path]) -> str:
+    """What a library compiled from `sources` depends on, hashed: the compiler's name, the flags, the sources in their
+    order and every header of their folder (what they include)."""
     from .compile_library import CFLAGS
 
+    h = hashlib.sha256(f"{os.environ.get('CC', 'cc')} {' '.join(CFLAGS)} -shared -lm".encode())
+    folder = sources[0].parent
+    for path in [*sources, *sorted(p for p in folder.iterdir() if p.suffix == ".h" and p.is_file())]:
+        h.update(path.name.encode() + b"\n" + path.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def _cached(entry: Path) -> bytes | None:
+    """The library kept at `entry`, if its bytes are those its checksum sidecar names (else None: compile again)."""
+    digest = entry.with_name(entry.name + ".sha256")
+    try:
+        data, recorded = entry.read_bytes(), digest.read_text(encoding="ascii").strip()
+    except (OSError, UnicodeDecodeError):
+        return None
+    return data if hashlib.sha256(data).hexdigest() == recorded else None
+
+
+def _write_atomically(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.partial.")
+    try:
+        with os.fdopen(fd, "wb") as out:
+            out.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def compile_shared(sources: list[Path], lib_path: Path, what: str, cache: Path | None = None) -> ctypes.CDLL:
+    """`sources` compiled into the shared library `lib_path` (the project's flags: -O2 -fPIC, no fast-math; headers
+    from the sources' folder), loaded; taken from the cache (`cache`: default acroboter.cache_dir()) when the same
+    sources were compiled before (see the module)."""
+    from ..process.locations import cache_dir
+    from .compile_library import CFLAGS
+
+    key = compiled_key(sources)
+    entry = (cache_dir() if cache is None else Path(cache)) / "exported" / f"{lib_path.stem}-{key[:16]}" / lib_path.name
+    data = _cached(entry)
+    if data is not None:
+        _write_atomically(lib_path, data)
+        return ctypes.CDLL(str(lib_path))
     include = str(sources[0].parent)
     done = subprocess.run([os.environ.get("CC", "cc"), *CFLAGS, "-shared", "-I", include, *map(str, sources), "-o",
                            str(lib_path), "-lm"], capture_output=True, text=True)
     if done.returncode != 0:
         raise RuntimeError(f"compiling {what} failed:\n{done.stderr}")
+    data = lib_path.read_bytes()
+    try:  # the library first, its checksum last: a reader never takes a half-written entry for a whole one
+        _write_atomically(entry, data)
+        _write_atomically(entry.with_name(entry.name + ".sha256"), hashlib.sha256(data).hexdigest().encode())
+    except OSError:  # a cache that cannot be written (read-only, full) only costs the next compile
+        pass
     return ctypes.CDLL(str(lib_path))
 
 
