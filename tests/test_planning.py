@@ -340,3 +340,30 @@ def test_the_certificate_flies_every_method_asked_for_with_the_limits_applied(tm
         assert figures["max_position_error_mm"] == pytest.approx(error.max(), rel=1e-6)
         assert figures["max_position_error_after_end_mm"] == pytest.approx(error[after].max(), rel=1e-6)
         assert figures["max_position_error_after_end_mm"] > 0.5  # the time-optimal stop leaves the point 1.2 mm off
+
+
+def test_a_plan_that_saturates_after_its_end_fails_its_certificate_and_says_so(tmp_path):
+    """The certificate flies 1 s past the trajectory's end, the point held. The saturation study's two-edge plan
+    (swing corners, [5, 30] N, 5 %; kept in docs/saturation/) stops the tracked point at 1.675 s but leaves the
+    connector swinging, and holding the point then takes a winch to its limit from 1.92 s: the certificate that
+    flew to the end passed it; flown past it, the plan fails, and the failure says it came after the end."""
+    from acroboter.control.path import TrajectoryPath
+    from acroboter.planning.checks import certify
+    from acroboter.planning.limits import tightened
+    from acroboter.studies.saturation import PLAN_MARGIN, SCENARIOS, plan_key, scenario_spec_text
+
+    (scenario,) = [s for s in SCENARIOS if s.waypoints is not None and s.speedup == 1.0]
+    text = scenario_spec_text(scenario)
+    (tmp_path / "two.toml").write_text(text)
+    crane = acroboter.Crane.from_toml(tmp_path / "two.toml")
+    trajectory = read_trajectory_csv(REPO / "docs" / "saturation" / f"plan-{plan_key(text)}.csv")
+    model, end = crane.model.data(), trajectory.duration
+    lower, upper, _ = crane.spec.input_limits()
+    low, high = tightened(lower, upper, PLAN_MARGIN)
+    path = TrajectoryPath(crane.spec, crane.layout, trajectory, end, float(crane.desired().start_yaw))
+    q0 = crane.equilibrium().q
+    to_the_end = certify(model, path, q0, end, lower, upper, low, high, settle_s=0.0)
+    assert to_the_end.failure is None and to_the_end.times[-1] < end + 0.03  # to the control instant at its end
+    past = certify(model, path, q0, end, lower, upper, low, high)
+    assert past.failure is not None and "(after the trajectory ends, the point held)" in past.failure
+    assert past.flights["mlm"]["saturated_s"] > 0.1 and past.times[-1] == pytest.approx(end + 1.0, abs=0.02)
