@@ -109,7 +109,8 @@ def test_exported_code_compiled_once_is_copied_from_the_cache_and_a_damaged_copy
                                                                                                      monkeypatch):
     """runtime.exported.compile_shared keeps what it compiled (bench compiled the same controllers on every call,
     18 of its 23 s): the same sources again are not compiled, each load gets a copy of its own, another header is
-    another library, and a kept library whose bytes its checksum does not name is compiled again, not loaded."""
+    another library, as is another compiler version, and a kept library whose bytes its checksum does not name is
+    compiled again, not loaded."""
     import subprocess
 
     from acroboter.runtime import exported
@@ -118,7 +119,8 @@ def test_exported_code_compiled_once_is_copied_from_the_cache_and_a_damaged_copy
     real_run = subprocess.run
 
     def counted(cmd, *args, **kwargs):
-        compiles.append(cmd)
+        if "-shared" in cmd:
+            compiles.append(cmd)
         return real_run(cmd, *args, **kwargs)
 
     monkeypatch.setattr(exported.subprocess, "run", counted)
@@ -133,3 +135,7 @@ def test_exported_code_compiled_once_is_copied_from_the_cache_and_a_damaged_copy
     entry.write_bytes(entry.read_bytes()[:-1] + b"\x01")  # one byte changed
     again = exported.compile_shared(_tiny_sources(tmp_path / "d", 42), tmp_path / "d" / "libanswer.so", "d", cache)
     assert again.answer() == 42 and len(compiles) == 3
+    assert os.stat(tmp_path / "d" / "libanswer.so").st_mode & 0o700 == 0o700  # a library, as cc leaves it
+    key = exported.compiled_key(_tiny_sources(tmp_path / "a", 42))
+    monkeypatch.setattr(exported, "_compiler_identity", lambda compiler: f"{compiler}\ngcc (another) 99.1")
+    assert exported.compiled_key(_tiny_sources(tmp_path / "a", 42)) != key  # another compiler's version

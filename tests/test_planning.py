@@ -186,8 +186,7 @@ def test_rest_to_rest_edges_on_a_lift_in_two_edges_are_the_sum_of_the_half_lifts
 def test_limits_that_cannot_hold_the_load_at_rest_are_found_before_any_solve(tmp_path):
     """The default crane with max = 26.9 N per winch: the lifted half of the path needs 26.965 N at rest (shorter,
     more slanted cables), so no timing can help; the message names the place and the input."""
-    text = re.sub(r'(cable = "L\d")', r"\1\nlimits = [0.0, 26.9]", DEFAULT.read_text())
-    (tmp_path / "limited.toml").write_text(text)
+    (tmp_path / "limited.toml").write_text(with_winch_limits(DEFAULT.read_text(), 26.9, 0.0))
     crane = acroboter.Crane.from_toml(tmp_path / "limited.toml")
     with pytest.raises(StaticLimitError, match=r"no timing can help: at s = 0\.\d+ of the path \(x, y, z = .* m\) "
                                                r"holding the load at rest needs tension_\d = 26\.9\d* N, beyond its "

@@ -67,3 +67,21 @@ def test_a_text_without_the_entry_is_refused_not_returned_unchanged():
         with_path("[path]\nwaypoints = [\n  [0, 0, 0],\n]\n", [[0, 0, 0], [0.1, 0, 0]], yaw_deg=10.0)
     with pytest.raises(ValueError, match="winch_tension"):
         with_winch_limits("[[actuators]]\nkind = \"joint_torque\"\n", 30.0)
+    two = '[[actuators]]\nkind = "winch_tension"\ncable = "L1"\n[[actuators]]\nkind = "winch_tension"\nname = "w"\n'
+    with pytest.raises(ValueError, match="1 of 2 winch actuators have no cable"):  # not one winch of two edited
+        with_winch_limits(two, 30.0)
+    with pytest.raises(ValueError, match="spans lines"):
+        with_winch_limits('[[actuators]]\nkind = "winch_tension"\ncable = "L1"\nlimits = [\n  5.0, 30.0]\n', 40.0)
+    with pytest.raises(ValueError, match="no closing"):
+        with_path("[path]\nwaypoints = [\n  [0, 0, 0],\n", [[0, 0, 0], [0.1, 0, 0]])
+
+
+def test_an_edited_text_can_be_edited_again():
+    text = example_spec("acroboter").read_text()
+    lift = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.1]]
+    once = with_path(with_winch_limits(text, 29.0, 24.0), [[0.0, 0.0, 0.0], [0.25, 0.0, 0.0]])
+    twice = with_path(with_winch_limits(once, 29.0, 24.0), lift)
+    assert twice == with_path(with_winch_limits(text, 29.0, 24.0), lift)
+    end = 'cable = "L1"'  # a file whose last line is a winch's cable, without a newline
+    edited = with_winch_limits(f'[[actuators]]\nkind = "winch_tension"\n{end}', 3.0)
+    assert edited.endswith(f"{end}\nlimits = [0.0, 3.0]\n")

@@ -123,6 +123,9 @@ def certify(model, path: DesiredPath, q0: np.ndarray, duration: float, lower, up
     spec, lay = model.spec, model.layout
     rows = Scenario.from_model(model).position_rows
     first, failure, flights = None, None, {}
+    def after_end(t):  # the control instant at the end is not after it (k / rate may be an ulp above the duration)
+        return t > duration + 1e-9 * max(1.0, duration)
+
     for method in methods:
         controller = make_controller(method, model, path, Gains.from_spec(spec), limits=spec.input_limits())
         run = simulate(model, path, controller, setup_default(model, path), q0, duration + settle_s,
@@ -136,7 +139,7 @@ def certify(model, path: DesiredPath, q0: np.ndarray, duration: float, lower, up
             on = [lay.inputs[i] for i in np.flatnonzero(run.limit_state[held[0]] != 0)]
             why = (f"the certificate failed: flown by {method} with the limits applied, the limits did not let the "
                    f"controller meet its task at t = {run.t[held[0]]:.3f} s"
-                   f"{' (after the trajectory ends, the point held)' if run.t[held[0]] > duration else ''} "
+                   f"{' (after the trajectory ends, the point held)' if after_end(run.t[held[0]]) else ''} "
                    f"(on a limit: {', '.join(on) or 'none'}; "
                    f"{len(held) / spec.controller.rate_hz:.3g} s in all); give a larger --margin (the closed loop's "
                    "deviations from the ideal inputs need it)")
@@ -144,7 +147,7 @@ def certify(model, path: DesiredPath, q0: np.ndarray, duration: float, lower, up
         over = beyond_bounds(run.u, low, high)
         errors = np.linalg.norm(run.sigma[:, rows], axis=1)
         error = 1e3 * float(np.nanmax(errors))
-        after = run.t > duration
+        after = after_end(run.t)
         error_after = 1e3 * float(np.nanmax(errors[after])) if after.any() else None
         flight = Certificate(run.t, run.u, error, achieved, None if i is None else lay.inputs[i],
                              float(over.max()), why)

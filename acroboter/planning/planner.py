@@ -463,11 +463,13 @@ def sample(geometry: PathGeometry, solution: Solution, n: int) -> tuple[SampledT
 
 def check_plannable(path, rate_hz: float) -> None:
     """TrajectoryError for a path `plan` cannot retime: longer than a run may be (the plan is sampled and certified
-    like a run: a 163-byte file ending at t = 1e6 s took 10 GB), or one whose tracked point never moves."""
-    steps = path.duration * rate_hz
+    like a run, SETTLE_AFTER_END_S past its end: a 163-byte file ending at t = 1e6 s took 10 GB), or one whose
+    tracked point never moves."""
+    steps = (path.duration + SETTLE_AFTER_END_S) * rate_hz
     if steps > MAX_CONTROL_STEPS:
-        raise TrajectoryError(f"the path lasts {path.duration:g} s, {steps:,.0f} control steps at {rate_hz:g} Hz, more "
-                              f"than the {MAX_CONTROL_STEPS:,} a run may have: plan a shorter path")
+        raise TrajectoryError(f"the path lasts {path.duration:g} s, {steps:,.0f} control steps at {rate_hz:g} Hz with "
+                              f"the {SETTLE_AFTER_END_S:g} s the certificate flies after it, more than the "
+                              f"{MAX_CONTROL_STEPS:,} a run may have: plan a shorter path")
     if motion_time_scale(path, path.duration) == float("inf"):
         raise TrajectoryError("the path's tracked point never moves: nothing to retime (the yaw alone is not "
                               "planned)")

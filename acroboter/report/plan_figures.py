@@ -28,9 +28,10 @@ def plan_figure(plan, path: str | Path) -> Path:
     for ax, i in zip(axes[1:], bounded, strict=True):
         name, unit = plan.input_names[i], plan.input_units[i]
         ax.plot(s_inputs, plan.inputs[:, i], label=f"{name}, planned (ideal)")
-        if plan.certificate is not None:
-            flown_s = np.interp(plan.certificate.times, plan.input_times, s_inputs)
-            ax.plot(flown_s, plan.certificate.inputs[:, i], lw=0.8, alpha=0.8, label=f"{name}, flown (MLM)")
+        if plan.certificate is not None:  # on the path (the certificate flies on past its end, the point held)
+            on = plan.certificate.times <= plan.input_times[-1] + 1e-9
+            flown_s = np.interp(plan.certificate.times[on], plan.input_times, s_inputs)
+            ax.plot(flown_s, plan.certificate.inputs[on, i], lw=0.8, alpha=0.8, label=f"{name}, flown (MLM)")
         for value, style, label in ((upper[i], "-", "limit"), (lower[i], "-", None), (high[i], "--", "less the margin"),
                                     (low[i], "--", None)):
             if np.isfinite(value):

@@ -1,17 +1,18 @@
 """The exported stateful controller (acroboter.codegen.controller_c) compiled and bound in-process with ctypes, for
 the bench and the tests that feed it what a Python run recorded: `load_exported_controller(folder, name)`.
 
-`compile_shared` compiles C sources with the project's flags (acroboter.runtime.compile_library.CFLAGS: -O2 -fPIC, never
-fast-math) into a shared library and loads it. What it compiled is kept in the cache (<cache>/exported/<name>-<hash>/,
-the hash of the compiler, the flags, the sources and every header of their folder, with the SHA-256 of the library
-beside it): the same sources again (a second bench, another test of the same controller) are copied from there, after
-their checksum is checked, instead of compiled again. Each caller still loads its own copy at its own path, so two
-loads never share the C's static data.
+`compile_shared` compiles C sources with the project's flags (acroboter.runtime.compile_library.CFLAGS: -O2 -fPIC,
+never fast-math) into a shared library and loads it. What it compiled is kept in the cache
+(<cache>/exported/<name>-<hash>/: the hash of the compiler and its version, the flags, the sources and the other C files
+and headers of their folder; the SHA-256 of the library beside it): the same sources again (a second bench, another
+test of the same controller) are copied from there, after their checksum is checked, instead of compiled again. Each
+caller still loads its own copy at its own path, so two loads never share the C's static data.
 """
 
 from __future__ import annotations
 
 import ctypes
+import functools
 import hashlib
 import os
 import subprocess
@@ -25,14 +26,29 @@ from ..model.c_templates import render
 __all__ = ["ExportedController", "compile_shared", "load_exported_controller"]
 
 
+@functools.cache
+def _compiler_identity(compiler: str) -> str:
+    """The compiler's name and its own account of its version (`cc --version`): another gcc is another key."""
+    try:
+        done = subprocess.run([compiler, "--version"], capture_output=True, text=True, timeout=30)
+        return f"{compiler}\n{done.stdout}"
+    except (OSError, subprocess.SubprocessError):
+        return compiler  # no compiler: nothing compiles, and a kept library is still found
+
+
 def compiled_key(sources: list[Path]) -> str:
-    """What a library compiled from `sources` depends on, hashed: the compiler's name, the flags, the sources in their
-    order and every header of their folder (what they include)."""
+    """What a library compiled from `sources` (one folder's files) depends on, hashed: the compiler and its version,
+    the flags, the sources in their order and every other file of their folder (the headers they include)."""
     from .compile_library import CFLAGS
 
-    h = hashlib.sha256(f"{os.environ.get('CC', 'cc')} {' '.join(CFLAGS)} -shared -lm".encode())
     folder = sources[0].parent
-    for path in [*sources, *sorted(p for p in folder.iterdir() if p.suffix == ".h" and p.is_file())]:
+    if any(p.parent != folder for p in sources):
+        raise ValueError("compile_shared: the sources must be in one folder (it is their include path)")
+    compiler = os.environ.get("CC", "cc")
+    h = hashlib.sha256(f"{_compiler_identity(compiler)} {' '.join(CFLAGS)} -shared -lm".encode())
+    others = sorted(p for p in folder.iterdir()
+                    if p.is_file() and p.suffix in (".h", ".inc", ".c") and p not in sources)
+    for path in [*sources, *others]:
         h.update(path.name.encode() + b"\n" + path.read_bytes() + b"\0")
     return h.hexdigest()
 
@@ -47,12 +63,24 @@ def _cached(entry: Path) -> bytes | None:
     return data if hashlib.sha256(data).hexdigest() == recorded else None
 
 
+def _umask() -> int:
+    """The process's umask, read without setting it (os.umask would change it for every thread meanwhile)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    return 0o022
+
+
 def _write_atomically(path: Path, data: bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.partial.")
     try:
         with os.fdopen(fd, "wb") as out:
             out.write(data)
+        os.chmod(tmp, 0o755 & ~_umask())  # as the compiler leaves a library (mkstemp's file is the owner's alone)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
