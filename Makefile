@@ -53,12 +53,12 @@ run: $(RUN_STAMP)
 
 test: $(STAMP) build
 	$(PY) -m ruff check acroboter tests tools setup.py
-	$(PY) -m pytest -q -n auto --dist loadfile -m "not long" --durations=30 --no-loadscope-reorder
+	$(PY) -m pytest -q -n auto --dist loadfile -m "not long" --durations=30
 
 # The tests make test leaves out (tests/long_tests.txt: 10 s or more of a core each; make test keeps a sample of
 # each kind).
 test-long: $(STAMP) build
-	$(PY) -m pytest -q -n auto --dist loadfile -m long --durations=30 --no-loadscope-reorder
+	$(PY) -m pytest -q -n auto --dist loadfile -m long --durations=30
 
 bench: build
 	$(PY) -m acroboter bench

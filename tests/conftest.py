@@ -69,14 +69,6 @@ def long_tests() -> dict[str, str]:
     return listed
 
 
-# The files that take longest in `make test` (its --durations, 2026-12-07: 100-125 s of a core each), run first:
-# pytest-xdist's loadfile gives each worker the next file in the collection's order (the Makefile turns off its
-# reordering by test count), so a long file started last would leave one core idle while it ends.
-HEAVY_FILES_FIRST = ("test_fail_safe.py", "test_export_step.py", "test_install.py", "test_plan_tolerance.py",
-                     "test_output_folders.py", "test_freshness.py", "test_export_controller.py", "test_mujoco.py",
-                     "test_plant_fuzz.py", "test_planning.py")
-
-
 def pytest_collection_modifyitems(config, items):
     long = long_tests()
     for item in items:
@@ -85,8 +77,6 @@ def pytest_collection_modifyitems(config, items):
         node = item.nodeid if item.nodeid.startswith("tests/") else f"tests/{item.nodeid}"
         if node in long or node.split("[")[0] in long:  # `make test` deselects them (-m "not long")
             item.add_marker(pytest.mark.long)
-    rank = {name: k for k, name in enumerate(HEAVY_FILES_FIRST)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: the order within a file is kept
 SPEC_DIR = REPO / "model_spec"
 SHIPPED_SPECS = sorted(SPEC_DIR.glob("*.toml"))
 SHIPPED_NAMES = [p.stem for p in SHIPPED_SPECS]
