@@ -97,6 +97,7 @@ def short_spec(name: str) -> Path:
         for example in ("acroboter", "acroboter_4cable"):
             text = (REPO / "model_spec" / f"{example}.toml").read_text()
             short = with_path(text, [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]])
+            assert short != text
             (folder / f"{example}.toml").write_text(short)
             _SHORT[example] = folder / f"{example}.toml"
     return _SHORT[name]
