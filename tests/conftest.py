@@ -106,6 +106,28 @@ def numeric_environment() -> dict:
             "scipy": scipy.__version__, "casadi": casadi.__version__, "cpu": f"{vendor} {simd}".strip()}
 
 
+# The tests' short lift: the default crane's path one edge LIFT_HEIGHT_M straight up (no yaw turn), its winches held
+# to [24, 29] N, where the load hangs on them at about 26.9 N: the statics leave the plan room, the ideal motion's
+# peaks do not. Planned in seconds (tests/test_planning.py, test_output_folders, test_failed_runs, test_interrupts).
+LIFT_HEIGHT_M = 0.1
+LIFT_LIMITS_N = (24.0, 29.0)
+
+
+def lift_spec_text(low: float = LIFT_LIMITS_N[0], high: float = LIFT_LIMITS_N[1], stops: tuple[float, ...] = ()) -> str:
+    """The lift's spec text; `stops`: heights of corners on the way up (each edge then runs rest to rest)."""
+    from acroboter.model.spec_edits import with_path, with_winch_limits
+
+    text = with_winch_limits((SPEC_DIR / "acroboter.toml").read_text(), high, low)
+    return with_path(text, [[0.0, 0.0, z] for z in (0.0, *stops, LIFT_HEIGHT_M)], yaw_deg=0.0)
+
+
+def write_lift_spec(folder: Path, **edits) -> Path:
+    """`lift_spec_text(**edits)` written to folder/lift.toml; its path."""
+    path = Path(folder) / "lift.toml"
+    path.write_text(lift_spec_text(**edits))
+    return path
+
+
 def raw_spec(name: str = "acroboter") -> dict:
     """A fresh (deep-copied) dict of a shipped spec's TOML, to mutate in a test."""
     return copy.deepcopy(_raw_cache(name))

@@ -5,7 +5,6 @@ failure.txt saying why; the next good run removes that record (docs/errors.md)."
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import pytest
 from conftest import REPO
@@ -170,14 +169,12 @@ def failing_plan():
     if not _FAILING_PLAN:
         import tempfile
 
+        from conftest import write_lift_spec
+
         import acroboter
-        from acroboter.model.spec_edits import with_path, with_winch_limits
         from acroboter.planning.planner import CertificateError
 
-        text = with_winch_limits(SPEC.read_text(), 29.0, 24.0)
-        text = with_path(text, [[0.0, 0.0, 0.0], [0.0, 0.0, 0.1]], yaw_deg=0.0)
-        spec = Path(tempfile.mkdtemp(prefix="acroboter-failing-plan-")) / "lift.toml"
-        spec.write_text(text)
+        spec = write_lift_spec(tempfile.mkdtemp(prefix="acroboter-failing-plan-"))
         with pytest.raises(CertificateError) as caught:
             acroboter.Crane.from_toml(spec).plan(margin=0.05, intervals=24)
         _FAILING_PLAN.extend([spec, caught.value])

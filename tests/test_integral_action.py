@@ -31,6 +31,7 @@ from acroboter.cli import run
 from acroboter.codegen.export_step import ExportError, build_step
 from acroboter.control.controllers import make_controller
 from acroboter.control.path import TrajectoryPath
+from acroboter.model import spec_edits
 from acroboter.model.settings import Gains
 from acroboter.model.spec import SpecError, load_spec
 from acroboter.runtime.cache import load_model
@@ -124,8 +125,8 @@ def closed_loop_comparable(spec: str, kind: str, key=None) -> bool:
 
 
 def with_winch_limits(tmp: Path, high: float, name: str | None = None) -> Path:
-    text = re.sub(r'(kind = "winch_tension".*\ncable = "L\d")(\nlimits = .*)?',
-                  lambda m: f"{m.group(1)}\nlimits = [0.0, {high}]", DEFAULT.read_text())
+    """The default crane with its winches held to [0, high] N, written to tmp/limited.toml (named `name`)."""
+    text = spec_edits.with_winch_limits(DEFAULT.read_text(), high, 0.0)
     if name is not None:
         text = text.replace('name = "acroboter"', f'name = "{name}"', 1)
     path = tmp / "limited.toml"

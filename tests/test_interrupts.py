@@ -372,10 +372,9 @@ def test_ctrl_c_stops_the_plans_solve_within_an_iteration(tmp_path):
     """Issue 34 item 5: Ctrl-C took 8-11 s to stop a plan, IPOPT going on to the end of its solve (no Python runs
     inside it). Its iteration callback now polls the signal and ends the solve: IPOPT's own status says it was
     stopped (User_Requested_Stop), not that it finished, and the command exits 130 with nothing written."""
-    from acroboter.model.spec_edits import with_path, with_winch_limits
+    from conftest import write_lift_spec
 
-    spec_text = with_winch_limits((SPEC_DIR / "acroboter.toml").read_text(), 29.0, 24.0)
-    (tmp_path / "lift.toml").write_text(with_path(spec_text, [[0.0, 0.0, 0.0], [0.0, 0.0, 0.1]], yaw_deg=0.0))
+    write_lift_spec(tmp_path)
     status = tmp_path / "ipopt-status"
     record = f"""
 import casadi

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import math
-import re
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +17,7 @@ from conftest import load_with_start
 
 from acroboter.cli import run
 from acroboter.control.controllers import Gains, make_controller, unbounded
+from acroboter.model.spec_edits import with_winch_limits
 from acroboter.runtime.cache import load_model
 from acroboter.sim.records import Scenario, summarize
 from acroboter.sim.simulation import setup_default, simulate
@@ -119,11 +119,8 @@ def test_limits_that_are_never_reached_change_nothing():
 
 def spec_with_winch_limits(tmp_path: Path, source: Path, low: float, high: float) -> Path:
     """The spec file with `limits = [low, high]` on every winch (limits need no regeneration)."""
-    text = re.sub(r'(kind = "winch_tension".*\ncable = "L\d")(\nlimits = .*)?',
-                  lambda m: f"{m.group(1)}\nlimits = [{low}, {high}]", source.read_text())
     path = tmp_path / source.name
-    path.write_text(text)
-    assert text.count("limits = ") == text.count('kind = "winch_tension"')
+    path.write_text(with_winch_limits(source.read_text(), high, low))
     return path
 
 

@@ -107,16 +107,14 @@ def lift_plan():
     """A spec whose path is one short vertical lift with winch limits, and its plan, made once: the folder tests
     replace Crane.plan by this answer (the planner itself: tests/test_planning.py)."""
     if not _LIFT:
+        from conftest import write_lift_spec
+
         import acroboter
-        from acroboter.model.spec_edits import with_path, with_winch_limits
 
         folder = Path(tempfile.mkdtemp(prefix="acroboter-plan-source-"))
         atexit.register(shutil.rmtree, folder, True)
-        text = (REPO / "model_spec" / "acroboter.toml").read_text()
-        text = with_winch_limits(text, 29.0, 24.0)
-        (folder / "lift.toml").write_text(with_path(text, [[0.0, 0.0, 0.0], [0.0, 0.0, 0.1]], yaw_deg=0.0))
-        plan = acroboter.Crane.from_toml(folder / "lift.toml").plan(margin=0.2, intervals=8)
-        _LIFT.extend([folder / "lift.toml", plan])
+        spec = write_lift_spec(folder)
+        _LIFT.extend([spec, acroboter.Crane.from_toml(spec).plan(margin=0.2, intervals=8)])
     return _LIFT
 
 

@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import LIFT_HEIGHT_M, write_lift_spec
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.integrate import solve_ivp
@@ -47,7 +48,7 @@ from acroboter.planning.checks import StaticLimitError
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT = REPO / "model_spec" / "acroboter.toml"
 MASS, GRAVITY, DAMPING, DRUM = 8.0, 9.81, 0.5, 0.05
-REACH, DROP, LIFT = 0.15, 0.70, 0.1
+REACH, DROP, LIFT = 0.15, 0.70, LIFT_HEIGHT_M
 
 
 def lift_coefficients(z: float, v: float) -> tuple[float, float]:
@@ -93,12 +94,9 @@ def fastest_lift(lo: float, hi: float, z0: float = 0.0, z1: float = LIFT) -> flo
 
 
 def lift_spec(tmp_path: Path, low: float, high: float, stops: tuple[float, ...] = ()) -> Path:
-    """The lift; `stops`: heights of corners on the way up (each edge then runs rest to rest)."""
-    text = with_winch_limits(DEFAULT.read_text(), high, low)
-    text = with_path(text, [[0.0, 0.0, z] for z in (0.0, *stops, LIFT)], yaw_deg=0.0)
-    path = tmp_path / "lift.toml"
-    path.write_text(text)
-    return path
+    """The lift (conftest.lift_spec_text) at [low, high] N; `stops`: heights of corners on the way up (each edge
+    then runs rest to rest)."""
+    return write_lift_spec(tmp_path, low=low, high=high, stops=stops)
 
 
 def test_the_lift_oracle_holds_the_static_load():

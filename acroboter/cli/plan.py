@@ -159,7 +159,7 @@ def _plan(args: argparse.Namespace, folder) -> int:
     from ..control.path import TrajectoryError
     from ..control.trajectory_file import read_trajectory_csv
     from ..model.spec import SpecError
-    from ..planning.checks import SETTLE_AFTER_END_S, StaticLimitError
+    from ..planning.checks import StaticLimitError
     from ..planning.ideal_motion import PlanningError
     from ..planning.planner import PlanFailure
     from ..runtime.compiled import StaleModelError
@@ -215,7 +215,7 @@ def _plan(args: argparse.Namespace, folder) -> int:
           f"s, its best uniform slowdown {plan.uniform_duration:.4g} s); margin {100 * plan.margin:.3g} %, achieved "
           f"{100 * plan.margin_achieved:.3g} % planned" + (
               f", {100 * plan.certificate.margin_achieved:.3g} % flown (limits applied, and held "
-              f"{SETTLE_AFTER_END_S:g} s past the end; max position error "
+              f"{plan.certificate.settle_s:g} s past the end; max position error "
               + ", ".join(f"{m} {f['max_position_error_mm']:.3g} mm" for m, f in plan.certificate.flights.items())
               + ")" if plan.certificate is not None else "")
           + f"; limits active: {', '.join(active) or 'none'}; solved in {plan.solve_s:.3g} s")

@@ -21,6 +21,11 @@ from .limits import beyond_bounds, margin_achieved
 
 # Places along the path where the statics are checked (besides every waypoint of a spec path).
 STATIC_SAMPLES = 101
+# The static needs of this many (model, path) pairs are kept: a plan to a tolerance plans the same path three times
+# or more, and each check took 5 s of equilibrium solves (the lift, 2026-12-07). Keyed by the model's hash and
+# the path's samples, so a changed crane or path is solved again.
+NEEDS_KEPT = 8
+_NEEDS: dict[tuple[str, bytes], np.ndarray] = {}
 
 
 class StaticLimitError(PlanningError):
@@ -43,14 +48,20 @@ def static_needs(model, geometry: PathGeometry) -> tuple[np.ndarray, np.ndarray,
     taus = np.linspace(0.0, geometry.end, STATIC_SAMPLES)
     if geometry.edges:  # every corner
         taus = np.unique(np.concatenate([taus, np.arange(geometry.end + 1)]))
-    needs = []
-    for tau in taus:
-        try:
-            needs.append(solve_equilibrium(model, _AtRest(geometry, float(tau))).inputs)
-        except EquilibriumError as err:
-            raise StaticLimitError(f"no static equilibrium at {geometry.place(float(tau))}: {err}") from None
     g, _, _ = geometry.evaluate(taus)
-    return taus, g[:, geometry.point_rows], np.array(needs)
+    key = (model.spec.model_hash(), g.tobytes())
+    if key not in _NEEDS:
+        needs, last = [], None
+        for tau in taus:
+            try:  # each place from the one before (a continuation: a few iterations each, the same branch)
+                last = solve_equilibrium(model, _AtRest(geometry, float(tau)), near=last)
+            except EquilibriumError as err:
+                raise StaticLimitError(f"no static equilibrium at {geometry.place(float(tau))}: {err}") from None
+            needs.append(last.inputs)
+        if len(_NEEDS) >= NEEDS_KEPT:
+            _NEEDS.pop(next(iter(_NEEDS)))
+        _NEEDS[key] = np.array(needs)
+    return taus, g[:, geometry.point_rows], _NEEDS[key].copy()
 
 
 def check_statics(model, geometry: PathGeometry, lower, upper, low, high, margin: float) -> np.ndarray:
@@ -114,6 +125,7 @@ class Certificate:
     beyond_margin: float  # the largest excess beyond the tightened limits, fraction of the span (≤ 0: none)
     failure: str | None = None  # why the certificate failed (diverged, saturated, beyond a limit), None if it held
     flights: dict = field(default_factory=dict)  # method -> {max_position_error_mm, margin_achieved, saturated_s, …}
+    settle_s: float = SETTLE_AFTER_END_S  # how long every flight went on past the trajectory's end (s)
 
 
 def certify(model, path: DesiredPath, q0: np.ndarray, duration: float, lower, upper, low, high,
@@ -158,5 +170,5 @@ def certify(model, path: DesiredPath, q0: np.ndarray, duration: float, lower, up
                            "failure": why}
         first = first or flight
         failure = failure or why
-    first.failure, first.flights = failure, flights
+    first.failure, first.flights, first.settle_s = failure, flights, float(settle_s)
     return first

@@ -200,7 +200,7 @@ class Plan:
         if self.certificate is not None:
             c = self.certificate
             out["certificate"] = {"method": f"{', '.join(c.flights) or 'mlm'}, own plant, limits applied, "
-                                            f"held {SETTLE_AFTER_END_S:g} s past the end",
+                                            f"held {c.settle_s:g} s past the end",
                                   "passed": c.failure is None, "failure": c.failure, "flights": c.flights,
                                   "max_position_error_mm": c.max_position_error_mm,
                                   "margin_achieved": finite(c.margin_achieved), "margin_input": c.margin_input,

@@ -63,25 +63,36 @@ def delayed(trajectory: SampledTrajectory, delay: float) -> SampledTrajectory:
 
 
 def clock_flights(model, path, trajectory: SampledTrajectory, q0, methods, bounds,
-                  certificate=None) -> tuple[float, str | None, dict]:
+                  certificate=None, stop_above: float | None = None) -> tuple[float, str | None, dict]:
     """The trajectory flown by each method at each of CLOCK_OFFSETS (the limits applied, as the certificate flies):
     the worst position error (m), the first failure (None: none), and each offset's worst error (mm).
     `certificate`: the plan's own (planner.certify's flights of the same trajectory with the same methods), which
-    is the flight at offset 0 and is not flown again."""
+    is the flight at offset 0 and is not flown again. `stop_above` (m): stop at the first flight that fails or errs
+    beyond it (a yes-or-no question: the figures then cover the flights flown so far)."""
     spec = model.spec
     lower, upper, _ = spec.input_limits()
     period = 1.0 / spec.controller.rate_hz
     worst, failure, by_offset = 0.0, None, {}
     for fraction in CLOCK_OFFSETS:
         if fraction == 0.0 and certificate is not None:
-            c = certificate
+            flights = [certificate]
         else:
             shifted = delayed(trajectory, fraction * period)
             flown = TrajectoryPath(spec, model.layout, shifted, shifted.duration, float(path.start_yaw))
-            c = certify(model, flown, q0, shifted.duration, lower, upper, *bounds, tuple(methods))
-        error = max(v["max_position_error_mm"] for v in c.flights.values())
+            # one method at a time when a miss ends the question: the flights after it are not flown
+            groups = [(m,) for m in methods] if stop_above is not None else [tuple(methods)]
+            flights = []
+            for group in groups:
+                flights.append(certify(model, flown, q0, shifted.duration, lower, upper, *bounds, group))
+                if stop_above is not None and (flights[-1].failure is not None or
+                                               flights[-1].max_position_error_mm > 1e3 * stop_above):
+                    break
+        error = max(v["max_position_error_mm"] for c in flights for v in c.flights.values())
         by_offset[f"{fraction:g}"] = error
-        worst, failure = max(worst, 1e-3 * error), failure or c.failure
+        worst = max(worst, 1e-3 * error)
+        failure = failure or next((c.failure for c in flights if c.failure is not None), None)
+        if stop_above is not None and (failure is not None or worst > stop_above):
+            break
     return worst, failure, by_offset
 
 
@@ -197,7 +208,7 @@ def uniform_factor(model, path, optimal: Plan, q0, tolerance: float, methods) ->
     no step saturated; None if none up to UNIFORM_MAX does."""
     def meets(f: float) -> bool:
         worst, failure, _ = clock_flights(model, path, sped_up(optimal.trajectory, 1.0 / f), q0, methods,
-                                          optimal.bounds)
+                                          optimal.bounds, stop_above=tolerance)
         return failure is None and worst <= tolerance
 
     bad, good = None, 1.0

@@ -30,6 +30,8 @@ class EquilibriumError(RuntimeError):
 # rejected generated crane_211, whose solve takes 187,064 evaluations (4.5 s), on a loaded machine and accepted it
 # on an idle one; the same spec now gets the same answer everywhere.
 EQUILIBRIUM_EVALUATIONS = 250_000
+# From a neighbouring equilibrium (solve_equilibrium's `near`): a few Levenberg–Marquardt steps' worth.
+NEAR_EVALUATIONS = 2_000
 
 
 class _OutOfEvaluations(Exception):
@@ -65,7 +67,11 @@ def desired_path(model: CompiledModel) -> DesiredPath:
     return DesiredPath(model.spec, model.layout, start_point, start_yaw)
 
 
-def solve_equilibrium(model: CompiledModel, path: DesiredPath, tol: float = 1e-14) -> Equilibrium:
+def solve_equilibrium(model: CompiledModel, path: DesiredPath, tol: float = 1e-14,
+                      near: Equilibrium | None = None) -> Equilibrium:
+    """The static equilibrium at the start of `path` (see Equilibrium); `near`: one at a neighbouring place to
+    start from (a continuation along a path: a few iterations where the nominal configuration takes a dozen, and
+    the same branch of the yaw's servo-constraint, which holds at ψ and at ψ + π, as the neighbour's)."""
     lay = model.layout
     n, m, l = lay.n, lay.m, lay.l
     s0, sd0, sdd0 = path.signal_arrays(0.0)
@@ -85,26 +91,40 @@ def solve_equilibrium(model: CompiledModel, path: DesiredPath, tol: float = 1e-1
         balance = out["bias_forces"] + out["phi_q"].T @ lam - out["input_matrix"] @ u
         return np.concatenate([balance, out["phi"], out["sigma"]])
 
-    q0 = nominal_coordinates(model.spec, lay)
-    # Multipliers and inputs that best balance the nominal configuration: a good first guess.
-    model.set_inputs(q0, zero, s0, sd0, sdd0)
-    terms.call()
-    reactions = np.hstack([out["phi_q"].T, -out["input_matrix"]])
-    guess = np.linalg.lstsq(reactions, -out["bias_forces"], rcond=None)[0]
-    z0 = np.concatenate([q0, guess])
-    if np.abs(residual(z0)).max() > tol:
-        budget[0] = EQUILIBRIUM_EVALUATIONS
+    def nominal_start() -> np.ndarray:
+        q0 = nominal_coordinates(model.spec, lay)
+        # Multipliers and inputs that best balance the nominal configuration: a good first guess.
+        model.set_inputs(q0, zero, s0, sd0, sdd0)
+        terms.call()
+        reactions = np.hstack([out["phi_q"].T, -out["input_matrix"]])
+        return np.concatenate([q0, np.linalg.lstsq(reactions, -out["bias_forces"], rcond=None)[0]])
+
+    def solved_from(z0: np.ndarray, evaluations: int) -> np.ndarray | None:
+        if np.abs(residual(z0)).max() <= tol:
+            return z0
+        budget[0] = evaluations
         try:
             sol = least_squares(residual, z0, method="lm" if n + m + lay.k >= n + m + l else "trf",
                                 xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200 * z0.size)
         except _OutOfEvaluations:
-            raise EquilibriumError(
-                f"no static equilibrium found at the start of the path for spec '{model.spec.name}' within "
-                f"{EQUILIBRIUM_EVALUATIONS:,} evaluations of its residual: check the initial positions, cable lengths "
-                "and the task"
-            ) from None
-        z0 = sol.x
-        budget[0] = math.inf
+            return None
+        finally:
+            budget[0] = math.inf
+        return sol.x
+
+    z0 = None
+    if near is not None:  # a neighbour's equilibrium, given a few iterations' worth of evaluations (else: nominal)
+        z0 = solved_from(np.concatenate([near.q, near.multipliers, near.inputs]), NEAR_EVALUATIONS)
+        if z0 is not None and not np.abs(residual(z0)).max() <= 1e-8:
+            z0 = None  # (the redundant-constraint crane's multipliers stalled LM from its neighbour at s = 0.13)
+    if z0 is None:
+        z0 = solved_from(nominal_start(), EQUILIBRIUM_EVALUATIONS)
+    if z0 is None:
+        raise EquilibriumError(
+            f"no static equilibrium found at the start of the path for spec '{model.spec.name}' within "
+            f"{EQUILIBRIUM_EVALUATIONS:,} evaluations of its residual: check the initial positions, cable lengths "
+            "and the task"
+        )
     if lay.l > lay.k:  # more inputs than servo-constraints: the internal forces as the distribution sets them
         z0 = _nearest_preferred(residual, z0, n + m, np.asarray(model.spec.input_limits()[2], dtype=float))
     r = np.abs(residual(z0)).max()
