@@ -140,6 +140,18 @@ def modified_spec(tmp_path_factory):
     return load_spec(path)
 
 
+@pytest.fixture(scope="module")
+def loaded(spec, modified_spec, tmp_path_factory):
+    """label -> (model, cache): the shipped spec and the modified one loaded into empty caches, so built there (the
+    modified one generated there too), once for the module (a build is 10 s of a core); a test that changes a
+    cache works on a copy."""
+    out = {}
+    for label, which in (("spec", spec), ("modified", modified_spec)):
+        cache = tmp_path_factory.mktemp(label) / "cache"
+        out[label] = load_model(which, cache_dir=cache), cache
+    return out
+
+
 def test_generated_code_of_another_spec_version_is_stale(spec, modified_spec, tmp_path):
     generate(modified_spec, tmp_path / "gen")
     with pytest.raises(StaleModelError, match="make generate") as info:
@@ -170,19 +182,19 @@ def _lib(gen, cache):
     return library_path("acroboter", gen / "acroboter", cache)
 
 
-def test_missing_library_is_built_and_loads(spec, tmp_path):
-    cache = tmp_path / "cache"
-    model = load_model(spec, cache_dir=cache)
+def test_missing_library_is_built_and_loads(spec, loaded):
+    model, cache = loaded["spec"]
     assert model.library_path.is_file() and model.library_path.is_relative_to(cache)
     assert model.source_dir == GENERATED_DIR / "acroboter"  # the checked-in C, not a copy
     i = model.layout.body_offset["SU"]
     assert model.term("mass_matrix", q=np.zeros(model.layout.n))[i, i] == spec.body("SU").mass
 
 
-def test_stale_library_is_rebuilt(spec, modified_spec, tmp_path):
-    gen, cache = tmp_path / "gen", tmp_path / "cache"
-    generate(modified_spec, gen)
-    old = build("acroboter", gen / "acroboter", cache).read_bytes()
+def test_stale_library_is_rebuilt(spec, loaded, tmp_path):
+    cache = tmp_path / "cache"
+    shutil.copytree(loaded["modified"][1], cache)  # the modified spec's C and its library
+    gen = cache / loaded["modified"][0].source_dir.parent.relative_to(loaded["modified"][1])
+    old = _lib(gen, cache).read_bytes()
     generate(spec, gen)  # generated/ moves on; the library in the cache is now older than it
     model = load_model(spec, generated_dir=gen, cache_dir=cache)
     assert _lib(gen, cache).read_bytes() != old
@@ -214,14 +226,15 @@ def test_library_built_from_other_code_is_refused(spec, modified_spec, tmp_path)
     assert model.term("mass_matrix", q=np.zeros(model.layout.n))[su, su] == 8.0  # b's spec, not a's 8.5
 
 
-def test_library_whose_hashes_disagree_is_refused(spec, tmp_path):
+def test_library_whose_hashes_disagree_is_refused(spec, loaded, tmp_path):
     """A library that passes the file check but embeds other hashes (its sidecar rewritten too): the message
     says what rebuilds it (`acroboter build` alone would find its name, checksum and build key current)."""
     import hashlib
 
-    gen = tmp_path / "gen"
-    generate(spec, gen)
-    lib = build("acroboter", gen / "acroboter", tmp_path / "cache")
+    gen = GENERATED_DIR  # the checked-in C, read only
+    shutil.copytree(loaded["spec"][1], tmp_path / "cache")  # its library, built
+    lib = _lib(gen, tmp_path / "cache")
+    assert lib.is_file()
     text = lib.read_bytes().replace(spec.model_hash().encode(), b"0" * 64)
     lib.write_bytes(text)
     lib.with_name(lib.name + ".sha256").write_text(hashlib.sha256(text).hexdigest() + "\n")
@@ -230,11 +243,10 @@ def test_library_whose_hashes_disagree_is_refused(spec, tmp_path):
     assert f"delete the folder {lib.parent}: the next run compiles it again" in str(info.value)
 
 
-def test_a_changed_spec_is_generated_into_the_cache(modified_spec, tmp_path):
+def test_a_changed_spec_is_generated_into_the_cache(modified_spec, loaded):
     """A spec that is not a shipped example as generated (here: the SU 0.5 kg heavier, same name) gets
     C of its own in the cache, keyed by its content; generated/ is not touched."""
-    cache = tmp_path / "cache"
-    model = load_model(modified_spec, cache_dir=cache)
+    model, cache = loaded["modified"]
     assert model.source_dir.is_relative_to(cache / "generated")
     i = model.layout.body_offset["SU"]
     assert model.term("mass_matrix", q=np.zeros(model.layout.n))[i, i] == 8.5
