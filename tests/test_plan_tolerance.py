@@ -250,3 +250,25 @@ def test_a_later_round_that_is_not_solved_leaves_the_last_rounds_plan_and_says_s
     assert record["rounds"][1]["flown_mm"] is None
     assert any("0.06467 mm was not solved" in f for f in plan.failures)
     assert any("tolerance was not met" in f for f in plan.failures)
+
+
+def test_the_clock_flights_stop_at_the_first_miss_only_when_asked(lift_crane, monkeypatch):
+    """The uniform slowdown's search asks of each factor a yes or no (tolerance.uniform_factor): its flights stop at
+    the first that misses. Without `stop_above`, or with one nothing misses, the figures are those of every flight."""
+    from acroboter.planning import tolerance
+
+    calls = []
+    real = tolerance.certify
+    monkeypatch.setattr(tolerance, "certify", lambda *a, **k: calls.append(a[-1]) or real(*a, **k))
+    lift = quintic_lift(1.5)
+    model, q0 = lift_crane.model, lift_crane.equilibrium(trajectory=lift, duration=lift.duration).q
+    lower, upper, _ = model.spec.input_limits()
+    args = (model, lift_crane.desired(), lift, q0, ("mlm", "penalty"), (lower, upper))
+    full = tolerance.clock_flights(*args)
+    assert calls == [("mlm", "penalty")] * len(tolerance.CLOCK_OFFSETS) and full[1] is None
+    calls.clear()
+    loose = tolerance.clock_flights(*args, stop_above=1.0)
+    assert len(calls) == 2 * len(tolerance.CLOCK_OFFSETS) and loose == full
+    calls.clear()
+    worst, failure, by_offset = tolerance.clock_flights(*args, stop_above=1e-9)
+    assert calls == [("mlm",)] and list(by_offset) == ["0"] and worst == by_offset["0"] * 1e-3 > 1e-9
