@@ -6,6 +6,7 @@ flies it: it fails where a flight diverges or the limits do not let a controller
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -25,7 +26,8 @@ STATIC_SAMPLES = 101
 # or more, and each check took 5 s of equilibrium solves (the lift, 2026-12-07). Keyed by the model's hash and
 # the path's samples, so a changed crane or path is solved again.
 NEEDS_KEPT = 8
-_NEEDS: dict[tuple[str, bytes], np.ndarray] = {}
+_NEEDS: dict[tuple[str, bytes, bytes], np.ndarray] = {}
+_NEEDS_LOCK = threading.Lock()
 
 
 class StaticLimitError(PlanningError):
@@ -49,8 +51,12 @@ def static_needs(model, geometry: PathGeometry) -> tuple[np.ndarray, np.ndarray,
     if geometry.edges:  # every corner
         taus = np.unique(np.concatenate([taus, np.arange(geometry.end + 1)]))
     g, _, _ = geometry.evaluate(taus)
-    key = (model.spec.model_hash(), g.tobytes())
-    if key not in _NEEDS:
+    # the model's hash leaves out the run-time settings; of those, the preferred inputs choose a redundant crane's
+    # internal force at rest (solve_equilibrium)
+    key = (model.spec.model_hash(), np.asarray(model.spec.input_limits()[2], float).tobytes(), g.tobytes())
+    with _NEEDS_LOCK:
+        kept = _NEEDS.get(key)
+    if kept is None:
         needs, last = [], None
         for tau in taus:
             try:  # each place from the one before (a continuation: a few iterations each, the same branch)
@@ -58,10 +64,12 @@ def static_needs(model, geometry: PathGeometry) -> tuple[np.ndarray, np.ndarray,
             except EquilibriumError as err:
                 raise StaticLimitError(f"no static equilibrium at {geometry.place(float(tau))}: {err}") from None
             needs.append(last.inputs)
-        if len(_NEEDS) >= NEEDS_KEPT:
-            _NEEDS.pop(next(iter(_NEEDS)))
-        _NEEDS[key] = np.array(needs)
-    return taus, g[:, geometry.point_rows], _NEEDS[key].copy()
+        kept = np.array(needs)
+        with _NEEDS_LOCK:  # plans in two threads
+            if len(_NEEDS) >= NEEDS_KEPT:
+                _NEEDS.pop(next(iter(_NEEDS)))
+            _NEEDS[key] = kept
+    return taus, g[:, geometry.point_rows], kept.copy()
 
 
 def check_statics(model, geometry: PathGeometry, lower, upper, low, high, margin: float) -> np.ndarray:
