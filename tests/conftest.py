@@ -200,6 +200,16 @@ def _package_log_level():
     logger.setLevel(level)
 
 
+@pytest.fixture(autouse=True)
+def _forget_static_needs():
+    """The planner keeps the statics it solved along a path for the process (acroboter.planning.checks): a test that
+    changes what they depend on (a solver's budget, say) must not see another test's answer."""
+    yield
+    from acroboter.planning.checks import clear_static_needs
+
+    clear_static_needs()
+
+
 @pytest.fixture(scope="session")
 def compiled_cranes() -> dict[str, Crane]:
     """Every shipped spec's Crane, built once per session (lazily, see `crane`)."""

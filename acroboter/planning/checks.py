@@ -22,9 +22,10 @@ from .limits import beyond_bounds, margin_achieved
 
 # Places along the path where the statics are checked (besides every waypoint of a spec path).
 STATIC_SAMPLES = 101
-# The static needs of this many (model, path) pairs are kept: a plan to a tolerance plans the same path three times
-# or more, and each check took 5 s of equilibrium solves (the lift, 2026-12-07). Keyed by the model's hash and
-# the path's samples, so a changed crane or path is solved again.
+# The static needs of this many (crane, path) pairs are kept for the process: a plan to a tolerance plans the same
+# path three times or more, and each check took 5 s of equilibrium solves (the lift, 2026-12-07). Keyed by the
+# model's hash, a redundant crane's preferred inputs and the path's samples, so a changed crane or path is solved
+# again (clear_static_needs forgets them all).
 NEEDS_KEPT = 8
 _NEEDS: dict[tuple[str, bytes, bytes], np.ndarray] = {}
 _NEEDS_LOCK = threading.Lock()
@@ -51,9 +52,11 @@ def static_needs(model, geometry: PathGeometry) -> tuple[np.ndarray, np.ndarray,
     if geometry.edges:  # every corner
         taus = np.unique(np.concatenate([taus, np.arange(geometry.end + 1)]))
     g, _, _ = geometry.evaluate(taus)
-    # the model's hash leaves out the run-time settings; of those, the preferred inputs choose a redundant crane's
-    # internal force at rest (solve_equilibrium)
-    key = (model.spec.model_hash(), np.asarray(model.spec.input_limits()[2], float).tobytes(), g.tobytes())
+    # the model's hash leaves out the run-time settings; of those, the preferred inputs choose the internal force at
+    # rest of a crane with more inputs than servo-constraints (solve_equilibrium), and only there
+    lay = model.layout
+    preferred = np.asarray(model.spec.input_limits()[2], float).tobytes() if lay.l > lay.k else b""
+    key = (model.spec.model_hash(), preferred, g.tobytes())
     with _NEEDS_LOCK:
         kept = _NEEDS.get(key)
     if kept is None:
@@ -65,11 +68,18 @@ def static_needs(model, geometry: PathGeometry) -> tuple[np.ndarray, np.ndarray,
                 raise StaticLimitError(f"no static equilibrium at {geometry.place(float(tau))}: {err}") from None
             needs.append(last.inputs)
         kept = np.array(needs)
-        with _NEEDS_LOCK:  # plans in two threads
-            if len(_NEEDS) >= NEEDS_KEPT:
+        with _NEEDS_LOCK:  # the dict is the process's (two cranes planned in two threads); two threads may both
+            # solve one key: the same answer, kept once
+            if key not in _NEEDS and len(_NEEDS) >= NEEDS_KEPT:
                 _NEEDS.pop(next(iter(_NEEDS)))
             _NEEDS[key] = kept
     return taus, g[:, geometry.point_rows], kept.copy()
+
+
+def clear_static_needs() -> None:
+    """Forget every kept static need (static_needs): the next check solves its path again."""
+    with _NEEDS_LOCK:
+        _NEEDS.clear()
 
 
 def check_statics(model, geometry: PathGeometry, lower, upper, low, high, margin: float) -> np.ndarray:

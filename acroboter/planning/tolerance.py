@@ -85,8 +85,8 @@ def clock_flights(model, path, trajectory: SampledTrajectory, q0, methods, bound
             for group in groups:
                 flights.append(certify(model, flown, q0, shifted.duration, lower, upper, *bounds, group))
                 if stop_above is not None and (flights[-1].failure is not None or
-                                               flights[-1].max_position_error_mm > 1e3 * stop_above):
-                    break
+                                               1e-3 * flights[-1].max_position_error_mm > stop_above):
+                    break  # (the test below, in the same units: both stop on the same flight)
         error = max(v["max_position_error_mm"] for c in flights for v in c.flights.values())
         by_offset[f"{fraction:g}"] = error
         worst = max(worst, 1e-3 * error)
