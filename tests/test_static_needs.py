@@ -99,8 +99,9 @@ def test_a_redundant_cranes_preferred_tensions_are_part_of_what_is_kept(monkeypa
 def test_the_redundant_task_crane_has_its_statics_where_the_nominal_start_found_none():
     """Shrunk from a review: the redundant-task crane (the default crane's mechanics, the task with a redundant
     servo-constraint) has no equilibrium from the nominal configuration at its corner s = 0.7 within the solve's
-    250,000 evaluations, so `plan` refused its path ("no static equilibrium at s = 0.700") until the statics were
-    continued along it. There it needs what the default crane needs at the same place, solved from nominal."""
+    250,000 evaluations, so `plan` refused its path ("no static equilibrium at s = 0.700", not its real reason: 6
+    inputs for 7 servo-constraints) until the statics were continued along it. There it needs what the default
+    crane needs at the same place, solved from nominal."""
     default = acroboter.Crane.from_example("acroboter")
     redundant = acroboter.Crane.from_example("acroboter_redundant_task")
     taus, _, needs = checks.static_needs(redundant.model, PathGeometry(redundant.desired()))
