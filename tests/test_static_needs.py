@@ -108,3 +108,15 @@ def test_the_redundant_task_crane_has_its_statics_where_the_nominal_start_found_
     corner = int(np.flatnonzero(taus == 7.0)[0])
     oracle = solve_equilibrium(default.model, checks._AtRest(PathGeometry(default.desired()), 7.0)).inputs
     assert np.abs(needs[corner] - oracle).max() <= 1e-9 * np.abs(oracle).max()
+
+
+def test_a_crane_the_retiming_cannot_take_is_refused_before_its_statics(counted):
+    """The redundant-task crane has no ideal motion (6 inputs for 7 servo-constraints): `plan` says so before it
+    solves a single equilibrium along the path (it used to solve them all, and refused at s = 0.7 for a wrong
+    reason: above)."""
+    from acroboter.planning.ideal_motion import PlanningError
+
+    crane = acroboter.Crane.from_example("acroboter_redundant_task")
+    with pytest.raises(PlanningError, match="6 inputs for 7 servo-constraints"):
+        crane.plan(certify=False)
+    assert counted == []

@@ -49,6 +49,18 @@ class SolveFailed(PlanningError):
         self.status = status
 
 
+def check_retimable(name: str, layout) -> None:
+    """PlanningError for a crane the retiming cannot take (before any work: `plan` calls it first): fewer inputs than
+    servo-constraints (no ideal motion), or more than one beyond them (it chooses one internal force)."""
+    lay = layout
+    if lay.l < lay.k:
+        raise PlanningError(f"spec '{name}': {lay.l} inputs for {lay.k} servo-constraints; the retiming "
+                            "needs at least as many inputs as servo-constraints (the ideal motion then exists)")
+    if lay.l - lay.k > 1:
+        raise PlanningError(f"spec '{name}': {lay.l - lay.k} inputs beyond the servo-constraints; the "
+                            "retiming handles one (an internal force such as the four-cable crane's)")
+
+
 class IdealDynamics:
     """`function(q, qd, s, sd, sdd, spare) -> (qdd, u)`: the ideal motion's accelerations and inputs
     (casadi.Function); `spare` (l − k values, empty for a square system) are the inputs `spare_index` names."""
@@ -56,9 +68,7 @@ class IdealDynamics:
     def __init__(self, spec: Spec, q0: np.ndarray | None = None):
         model = build_symbolic_model(spec)
         lay = model.layout
-        if lay.l < lay.k:
-            raise PlanningError(f"spec '{spec.name}': {lay.l} inputs for {lay.k} servo-constraints; the retiming "
-                                "needs at least as many inputs as servo-constraints (the ideal motion then exists)")
+        check_retimable(spec.name, lay)
         self.layout = lay
         q, qd, s, sd, sdd = model.inputs
         c = spec.controller
@@ -80,9 +90,6 @@ class IdealDynamics:
         self.spare_index: list[int] = []
         self.spare_signs = np.zeros(lay.l)
         if lay.l > lay.k:
-            if lay.l - lay.k > 1:
-                raise PlanningError(f"spec '{spec.name}': {lay.l - lay.k} inputs beyond the servo-constraints; the "
-                                    "retiming handles one (an internal force such as the four-cable crane's)")
             if q0 is None:
                 raise PlanningError(f"spec '{spec.name}' has a spare input: the static start q0 is needed to choose it")
             zero = np.zeros(lay.n_signals)

@@ -23,7 +23,7 @@ from ..model.spec import MAX_CONTROL_STEPS
 from .checks import SETTLE_AFTER_END_S, Certificate, certify, check_statics
 from .edges import EdgeRetiming
 from .geometry import PathGeometry
-from .ideal_motion import IdealDynamics, PlanningError
+from .ideal_motion import IdealDynamics, PlanningError, check_retimable
 from .limits import CHECK_STEP_S, INPUT_TOLERANCE, active_intervals, margin_achieved, tightened, worst_beyond
 from .retiming import OPTIMAL, Retiming, Solution
 from .shaping import SHAPED_STATUS, SHAPERS, ShapedRetiming, corner_swing
@@ -227,6 +227,7 @@ def plan(model, path: DesiredPath, q0: np.ndarray, margin: float = 0.05, max_spe
     low, high = tightened(lower, upper, margin)
     geometry = PathGeometry(path)
     check_timing_options(geometry, corners, shaper, lag, window)
+    check_retimable(spec.name, lay)  # before the statics: such a crane is refused for what it is, not at a place
     needs = check_statics(model, geometry, lower, upper, low, high, margin)
     static_margin, _ = margin_achieved(needs, lower, upper)
     dynamics = IdealDynamics(spec, q0)
