@@ -77,6 +77,8 @@ def pytest_collection_modifyitems(config, items):
         node = item.nodeid if item.nodeid.startswith("tests/") else f"tests/{item.nodeid}"
         if node in long or node.split("[")[0] in long:  # `make test` deselects them (-m "not long")
             item.add_marker(pytest.mark.long)
+
+
 SPEC_DIR = REPO / "model_spec"
 SHIPPED_SPECS = sorted(SPEC_DIR.glob("*.toml"))
 SHIPPED_NAMES = [p.stem for p in SHIPPED_SPECS]

@@ -52,12 +52,11 @@ class SolveFailed(PlanningError):
 def check_retimable(name: str, layout) -> None:
     """PlanningError for a crane the retiming cannot take (before any work: `plan` calls it first): fewer inputs than
     servo-constraints (no ideal motion), or more than one beyond them (it chooses one internal force)."""
-    lay = layout
-    if lay.l < lay.k:
-        raise PlanningError(f"spec '{name}': {lay.l} inputs for {lay.k} servo-constraints; the retiming "
+    if layout.l < layout.k:
+        raise PlanningError(f"spec '{name}': {layout.l} inputs for {layout.k} servo-constraints; the retiming "
                             "needs at least as many inputs as servo-constraints (the ideal motion then exists)")
-    if lay.l - lay.k > 1:
-        raise PlanningError(f"spec '{name}': {lay.l - lay.k} inputs beyond the servo-constraints; the "
+    if layout.l - layout.k > 1:
+        raise PlanningError(f"spec '{name}': {layout.l - layout.k} inputs beyond the servo-constraints; the "
                             "retiming handles one (an internal force such as the four-cable crane's)")
 
 
