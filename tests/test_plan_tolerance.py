@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import write_lift_spec
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from test_planning import lift_coefficients, lift_spec
+from test_planning import lift_coefficients
 
 import acroboter
 from acroboter.control.path import SampledTrajectory
@@ -67,7 +68,7 @@ def quintic_lift(duration: float) -> SampledTrajectory:
 
 @pytest.fixture(scope="module")
 def lift_crane(tmp_path_factory):
-    return acroboter.Crane.from_toml(lift_spec(tmp_path_factory.mktemp("lift"), 24.0, 29.0))
+    return acroboter.Crane.from_toml(write_lift_spec(tmp_path_factory.mktemp("lift")))
 
 
 @settings(max_examples=6, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])

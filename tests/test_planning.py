@@ -93,12 +93,6 @@ def fastest_lift(lo: float, hi: float, z0: float = 0.0, z1: float = LIFT) -> flo
     return t1 + meet(t1)[1]
 
 
-def lift_spec(tmp_path: Path, low: float, high: float, stops: tuple[float, ...] = ()) -> Path:
-    """The lift (conftest.lift_spec_text) at [low, high] N; `stops`: heights of corners on the way up (each edge
-    then runs rest to rest)."""
-    return write_lift_spec(tmp_path, low=low, high=high, stops=stops)
-
-
 def test_the_lift_oracle_holds_the_static_load():
     _, b = lift_coefficients(0.0, 0.0)
     assert b == pytest.approx(26.7538714, abs=1e-6)  # the equilibrium solve's static tension
@@ -108,7 +102,7 @@ def test_a_vertical_lift_is_as_fast_as_the_bang_bang_oracle(tmp_path):
     """Limits [24, 29] N with a 5 % margin: the tensions stay in [24.25, 28.75] N; measured 0.6996 s planned
     against 0.6994 s (0.03 %, 24 intervals, 2026-12-03). The certificate is left out: a 0.7 s bang-bang lift
     is 35 control periods, and a 50 Hz controller's held inputs overshoot its jumps by more than 5 %."""
-    crane = acroboter.Crane.from_toml(lift_spec(tmp_path, 24.0, 29.0))
+    crane = acroboter.Crane.from_toml(write_lift_spec(tmp_path))
     plan = crane.plan(margin=0.05, intervals=24, certify=False)
     expected = fastest_lift(24.25, 28.75)
     assert plan.duration == pytest.approx(expected, rel=2e-3)  # the issue's 0.2 %; measured 0.095 % (2026-12-07)
@@ -132,7 +126,7 @@ def test_a_solve_l_bfgs_does_not_finish_is_solved_with_the_exact_hessian(tmp_pat
     than 1e-7 over 5 iterations)."""
     from acroboter.planning import retiming
 
-    crane = acroboter.Crane.from_toml(lift_spec(tmp_path, 24.0, 29.0))
+    crane = acroboter.Crane.from_toml(write_lift_spec(tmp_path))
     fast = crane.plan(margin=0.05, intervals=8, certify=False)
     monkeypatch.setattr(retiming, "LBFGS", {**retiming.LBFGS, "max_iter": 30})
     exact = crane.plan(margin=0.05, intervals=8, certify=False)
@@ -151,7 +145,7 @@ def test_the_receding_window_on_a_lift_in_two_edges_is_the_sum_of_the_half_lifts
     windowed 1.00600 s, the whole path in one solve 1.00591 s (0.01 %; 42 s against 61 s, not run here). Since
     2026-12-06 the inputs hold the bounds at every millisecond, not only at the optimiser's nodes (they left them by
     0.0135 N just before a node, where σ̈ jumps): the bounds moved in by 0.016 N cost 0.3 %, 1.00916 s (+1.06 %)."""
-    crane = acroboter.Crane.from_toml(lift_spec(tmp_path, 24.0, 29.0, stops=(0.05,)))
+    crane = acroboter.Crane.from_toml(write_lift_spec(tmp_path, stops=(0.05,)))
     plan = crane.plan(margin=0.05, intervals=16, certify=False, window=1, corners="swing")
     expected = fastest_lift(24.25, 28.75, 0.0, 0.05) + fastest_lift(24.25, 28.75, 0.05, LIFT)
     assert plan.window == 1 and [s["phases"] for s in plan.solves] == [[0], [1]]
@@ -169,7 +163,7 @@ def test_rest_to_rest_edges_on_a_lift_in_two_edges_are_the_sum_of_the_half_lifts
     bang-bang and the plan their sum; the whole timing integrated again in one chain keeps the bounds. Measured
     2026-12-03: 16 intervals per edge 1.00010 s against 0.99862 s (+0.15 %); 8 per edge 1.0154 s (+1.7 %: the
     second edge's switching time falls between nodes)."""
-    crane = acroboter.Crane.from_toml(lift_spec(tmp_path, 24.0, 29.0, stops=(0.05,)))
+    crane = acroboter.Crane.from_toml(write_lift_spec(tmp_path, stops=(0.05,)))
     plan = crane.plan(margin=0.05, intervals=32, certify=False)
     expected = fastest_lift(24.25, 28.75, 0.0, 0.05) + fastest_lift(24.25, 28.75, 0.05, LIFT)
     assert plan.corners == "rest" and [s["phases"] for s in plan.solves] == [[0], [1]]
@@ -193,9 +187,9 @@ def test_limits_that_cannot_hold_the_load_at_rest_are_found_before_any_solve(tmp
 
 
 def test_a_margin_the_statics_do_not_leave_is_refused_with_the_largest_that_would(tmp_path):
-    crane = acroboter.Crane.from_toml(lift_spec(tmp_path, 24.0, 29.0))
     """Limits [24, 29] N: the static need is 26.754 N at the start and 26.965 N at the top, so the statics leave
     (29 − 26.965) / 5 = 40.7 % of the span; 45 % is refused at the start, naming the largest margin that fits."""
+    crane = acroboter.Crane.from_toml(write_lift_spec(tmp_path))
     with pytest.raises(StaticLimitError, match=r"with a margin of 45 %.*needs tension_1 = 26\.754 N, beyond 26\.75 N "
                                                r".*a margin of at most 40\.\d %"):
         crane.plan(margin=0.45)
@@ -277,7 +271,7 @@ def test_max_speed_and_max_accel_hold_on_the_written_samples_or_the_plan_says_no
     intervals): the written samples hold both, or the plan is a PlanFailure that says which does not."""
     from acroboter.planning.planner import PlanFailure
 
-    crane = acroboter.Crane.from_toml(lift_spec(tmp_path, 24.0, 29.0))
+    crane = acroboter.Crane.from_toml(write_lift_spec(tmp_path))
     try:
         plan = crane.plan(margin=0.2, intervals=8, certify=False, max_speed=speed, max_accel=accel)
     except PlanFailure as failed:
@@ -299,7 +293,7 @@ def test_the_planned_inputs_hold_the_bounds_at_every_instant_by_the_lift_oracle(
     bang-bang input peaks at an interval's end, just before σ̈ jumps: on this lift (limits [24, 29] N, margin 20 %:
     bounds [25, 28] N, 8 intervals) the ideal inputs reached 28.023 N. The oracle's input law u = a(z) z̈ + b(z, ż),
     on the written trajectory every millisecond, now stays within the bounds (measured 27.99996 N, 2026-12-06)."""
-    crane = acroboter.Crane.from_toml(lift_spec(tmp_path, 24.0, 29.0))
+    crane = acroboter.Crane.from_toml(write_lift_spec(tmp_path))
     plan = crane.plan(margin=0.2, intervals=8, certify=False)
     t = np.arange(0.0, plan.duration, 1e-3)
     position, velocity, acceleration = plan.trajectory(t)
@@ -316,7 +310,7 @@ def test_the_certificate_flies_every_method_asked_for_with_the_limits_applied(tm
     controller's name is refused before any work."""
     from acroboter.planning.ideal_motion import PlanningError
 
-    crane = acroboter.Crane.from_toml(lift_spec(tmp_path, 24.0, 29.0))
+    crane = acroboter.Crane.from_toml(write_lift_spec(tmp_path))
     with pytest.raises(PlanningError, match="certify: expected True, False or methods"):
         crane.plan(margin=0.2, intervals=8, certify=["mlm", "pid"])
     plan = crane.plan(margin=0.2, intervals=8, certify=["mlm", "penalty"])

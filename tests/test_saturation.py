@@ -299,12 +299,12 @@ def test_the_advice_for_a_time_optimal_plan_at_its_limits_holds(tmp_path):
     """docs/saturation.md's advice (issue 34 item 6): a time-optimal plan flown at its limits (margin 0) is flown
     closer by the QP than by underactuation, which holds a winch at its limit after the need has passed. Measured
     2026-12-06 on the default crane's 0.1 m lift, winches [24, 29] N, 8 intervals, MLM: 0.706 against 5.17 mm."""
-    from test_planning import lift_spec
+    from conftest import write_lift_spec
 
     import acroboter
     from acroboter.planning.planner import PlanFailure
 
-    crane = acroboter.Crane.from_toml(lift_spec(tmp_path, 24.0, 29.0))
+    crane = acroboter.Crane.from_toml(write_lift_spec(tmp_path))
     try:
         plan = crane.plan(margin=0.0, intervals=8, certify=False)
     except PlanFailure as err:  # the plan itself is what is flown; whether it is "the one asked for" is not at issue
