@@ -21,7 +21,7 @@ import sys
 import numpy as np
 import pytest
 import scipy.linalg
-from conftest import REPO, load_with_start, raw_spec
+from conftest import REPO, load_with_start, raw_spec, write_lift_spec
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_control_law import constrained_acceleration, servo_law, terms
@@ -299,8 +299,6 @@ def test_the_advice_for_a_time_optimal_plan_at_its_limits_holds(tmp_path):
     """docs/saturation.md's advice (issue 34 item 6): a time-optimal plan flown at its limits (margin 0) is flown
     closer by the QP than by underactuation, which holds a winch at its limit after the need has passed. Measured
     2026-12-06 on the default crane's 0.1 m lift, winches [24, 29] N, 8 intervals, MLM: 0.706 against 5.17 mm."""
-    from conftest import write_lift_spec
-
     import acroboter
     from acroboter.planning.planner import PlanFailure
 
